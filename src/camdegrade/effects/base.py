@@ -1,0 +1,93 @@
+"""The contract every camera-effect stage follows, and the registry the profile format and diagnosis use."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from typing import Any, ClassVar, Literal, TypeAlias
+
+import torch
+from torch import Tensor, nn
+
+#: Physical order of stages in a camera: light passes the optics, hits the sensor, is processed, then encoded.
+STAGES: tuple[str, ...] = ("optics", "sensor", "isp", "codec")
+Stage = Literal["optics", "sensor", "isp", "codec"]
+
+#: What a fitter accepts: a float ``(N, 3, H, W)`` batch in [0, 1], or a sequence of ``(3, H, W)`` images
+#: that may differ in size from pair to pair (uint8 is accepted too and scaled to [0, 1]).
+Pairs: TypeAlias = "Tensor | Sequence[Tensor]"
+
+#: name → Effect subclass. Filled by :func:`register_effect`; the names are the diagnosis vocabulary.
+EFFECTS: dict[str, type[Effect]] = {}
+
+
+class Effect(nn.Module):
+    """One camera effect applied after the network: an ``nn.Module`` whose state is tensors.
+
+    Contract (the profile format and the diagnosis rely on it):
+
+    - Every fitted value is a registered buffer, so ``state_dict()`` holds it and safetensors can store it.
+      ``config()`` returns the JSON-serialisable constructor arguments; ``type(e).from_config(e.config())``
+      rebuilds a module with buffers of exactly the same shapes, ready for a strict ``load_state_dict``.
+    - All randomness is drawn in :meth:`make_params` from the given ``torch.Generator`` (CPU), as tensors with a
+      leading batch dimension ``N``; :meth:`forward` is deterministic given those params, so a degradation can be
+      replayed exactly and a subset of a batch can be taken by indexing every param with the same index.
+    - :meth:`forward` takes float ``(N, 3, H, W)`` in ``[0, 1]``, returns the same shape, dtype and device, and never
+      modifies its input. Pure kernels live in :mod:`camdegrade.functional`.
+    """
+
+    name: ClassVar[str] = ""
+    stage: ClassVar[Stage] = "isp"
+
+    def make_params(
+        self, shape: torch.Size | tuple[int, ...], generator: torch.Generator | None = None
+    ) -> dict[str, Tensor]:
+        """Draw this stage's random values for a batch of ``shape = (N, 3, H, W)``. Deterministic stages: ``{}``."""
+        return {}
+
+    def forward(self, image: Tensor, params: Mapping[str, Tensor] | None = None) -> Tensor:
+        raise NotImplementedError
+
+    def config(self) -> dict[str, Any]:
+        """JSON-serialisable constructor arguments (not the fitted tensors, which are buffers)."""
+        return {}
+
+    @classmethod
+    def from_config(cls, config: Mapping[str, Any]) -> Effect:
+        return cls(**config)
+
+    @classmethod
+    def fit(cls, source: Pairs, target: Pairs, **options: Any) -> Effect:
+        """Estimate this effect from aligned pairs: ``target ≈ effect(source)``.
+
+        ``source`` is the clean (or simulated) image, ``target`` the real capture; both are :data:`Pairs`.
+        Each effect documents its estimator, its options and its stated recovery tolerance.
+        """
+        raise NotImplementedError(f"effect {cls.name!r} ({cls.__qualname__}) has no fitter")
+
+    def extra_repr(self) -> str:
+        items = [f"{key}={value!r}" for key, value in self.config().items()]
+        for key, value in self.named_buffers(recurse=False):
+            if value.numel() <= 9:
+                rounded = [round(v, 6) for v in value.flatten().tolist()]
+                items.append(f"{key}={rounded[0] if value.ndim == 0 else rounded}")
+        return ", ".join(items)
+
+
+def register_effect(cls: type[Effect]) -> type[Effect]:
+    """Class decorator adding an effect to :data:`EFFECTS` under ``cls.name``."""
+    if not cls.name:
+        raise ValueError(f"{cls.__qualname__} must set a non-empty class attribute 'name'")
+    if cls.stage not in STAGES:
+        raise ValueError(f"{cls.__qualname__}.stage must be one of {STAGES}, got {cls.stage!r}")
+    if cls.name in EFFECTS and EFFECTS[cls.name] is not cls:
+        raise ValueError(f"an effect named {cls.name!r} is already registered ({EFFECTS[cls.name].__qualname__})")
+    EFFECTS[cls.name] = cls
+    return cls
+
+
+def build_effect(name: str, config: Mapping[str, Any] | None = None) -> Effect:
+    """Instantiate the registered effect ``name`` from its ``config()``."""
+    if name not in EFFECTS:
+        known = ", ".join(sorted(EFFECTS)) or "none"
+        raise KeyError(f"unknown effect {name!r}; registered effects: {known}")
+    return EFFECTS[name].from_config(dict(config or {}))

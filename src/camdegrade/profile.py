@@ -1,0 +1,304 @@
+"""Camera profiles: a fitted network plus an ordered chain of camera effects, stored as safetensors."""
+
+from __future__ import annotations
+
+import copy
+import json
+import os
+from collections.abc import Mapping, Sequence
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import torch
+from safetensors import SafetensorError, safe_open
+from safetensors.torch import save_file
+from torch import Tensor, nn
+
+from camdegrade._version import __version__
+from camdegrade.effects import EFFECTS, STAGES, Effect, build_effect
+from camdegrade.errors import ProfileError, UnknownProfileError
+from camdegrade.io import atomic_path
+from camdegrade.network import DomainShiftNet
+
+#: Value of the ``format`` metadata key in every profile file.
+FORMAT_NAME = "camdegrade-profile"
+#: Highest profile format version this release reads (and the one it writes).
+FORMAT_VERSION = 1
+#: The single safetensors metadata key holding the profile's JSON metadata.
+METADATA_KEY = "camdegrade"
+
+_PICKLE_SUFFIXES = frozenset({".pth", ".pt", ".ckpt", ".bin", ".pkl", ".pickle", ".tar"})
+_MAX_HEADER_BYTES = 100 * 1024 * 1024
+EffectParams = list[dict[str, Tensor]]
+
+
+class CameraProfile(nn.Module):
+    """A camera's degradation: the clean → captured network, then its effect stages, plus metadata.
+
+    Args:
+        network: the fitted :class:`DomainShiftNet`, or ``None`` for a profile made of effect stages only.
+        effects: effect stages applied after the network, in physical order (optics → sensor → ISP → codec).
+        name: short identifier, e.g. ``"city100-iphonex"``.
+        description: one line for humans.
+        fitted: how the profile was fitted (data, recipe, seed, ...), JSON-serialisable.
+        quality: held-out quality numbers (e.g. PSNR against the captures), JSON-serialisable.
+
+    Shape:
+        - Input: ``(N, 3, H, W)``, float in ``[0, 1]``.
+        - Output: ``(N, 3, H, W)``, float in ``[0, 1]``.
+
+    Examples:
+        >>> profile = CameraProfile(DomainShiftNet(), name="untrained")
+        >>> profile(torch.rand(1, 3, 8, 8)).shape
+        torch.Size([1, 3, 8, 8])
+    """
+
+    def __init__(
+        self,
+        network: DomainShiftNet | None,
+        effects: Sequence[Effect] = (),
+        *,
+        name: str = "",
+        description: str = "",
+        fitted: Mapping[str, Any] | None = None,
+        quality: Mapping[str, Any] | None = None,
+        package_version: str = __version__,
+    ) -> None:
+        super().__init__()
+        if network is not None and not isinstance(network, DomainShiftNet):
+            raise TypeError(f"network must be a DomainShiftNet or None, got {type(network).__name__}")
+        for index, effect in enumerate(effects):
+            if not isinstance(effect, Effect):
+                raise TypeError(f"effects[{index}] must be a camdegrade Effect, got {type(effect).__name__}")
+        self.network = network
+        self.effects = nn.ModuleList(effects)
+        self.name = name
+        self.description = description
+        self.fitted = dict(fitted or {})
+        self.quality = dict(quality or {})
+        self.package_version = package_version
+        self.requires_grad_(False)
+        self.eval()
+
+    @property
+    def effect_names(self) -> list[str]:
+        return [effect.name for effect in self.effects]
+
+    def make_params(
+        self, shape: torch.Size | tuple[int, ...], generator: torch.Generator | None = None
+    ) -> EffectParams:
+        """Draw every effect's random values for a batch of ``shape = (N, 3, H, W)``, in chain order."""
+        return [effect.make_params(tuple(shape), generator) for effect in self.effects]
+
+    def forward(self, image: Tensor, params: EffectParams | None = None) -> Tensor:
+        if params is None:
+            params = self.make_params(image.shape)
+        if len(params) != len(self.effects):
+            raise ValueError(f"params must hold one entry per effect ({len(self.effects)}), got {len(params)}")
+        if self.network is not None:
+            image = self.network(image)
+        for effect, effect_params in zip(self.effects, params):
+            image = effect(image, effect_params)
+        return image.clamp(0.0, 1.0)
+
+    def with_effects(self, *effects: Effect) -> CameraProfile:
+        """A copy of this profile with ``effects`` added, each inserted after the last stage of its kind or earlier."""
+        chain = list(copy.deepcopy(list(self.effects)))
+        for effect in effects:
+            rank = STAGES.index(effect.stage)
+            position = sum(1 for existing in chain if STAGES.index(existing.stage) <= rank)
+            chain.insert(position, effect)
+        return CameraProfile(
+            copy.deepcopy(self.network),
+            chain,
+            name=self.name,
+            description=self.description,
+            fitted=self.fitted,
+            quality=self.quality,
+            package_version=self.package_version,
+        )
+
+    def metadata(self) -> dict[str, Any]:
+        """Everything but the tensors. Stored as canonical JSON under the one safetensors metadata key
+        :data:`METADATA_KEY` (safetensors writes several keys in arbitrary order, which would make equal profiles
+        differ in bytes)."""
+        network = None if self.network is None else {"arch": "DomainShiftNet", "config": self.network.config()}
+        return {
+            "format": FORMAT_NAME,
+            "format_version": FORMAT_VERSION,
+            "name": self.name,
+            "description": self.description,
+            "package_version": self.package_version,
+            "network": network,
+            "effects": [{"name": effect.name, "config": effect.config()} for effect in self.effects],
+            "fitted": self.fitted,
+            "quality": self.quality,
+        }
+
+    def save(self, path: str | os.PathLike[str]) -> Path:
+        """Write the profile as one safetensors file, atomically (a temp file renamed into place)."""
+        path = Path(path)
+        if path.suffix != ".safetensors":
+            raise ValueError(f"path must end in '.safetensors', got {str(path)!r}")
+        tensors = {key: value.detach().cpu().contiguous().clone() for key, value in self.state_dict().items()}
+        with atomic_path(path) as temporary:
+            save_file(tensors, str(temporary), metadata=serialize_metadata(self.metadata()))
+        return path
+
+    def describe(self) -> str:
+        """A few lines for humans: name, network, effect chain, how it was fitted, held-out quality."""
+        network = "none" if self.network is None else f"DomainShiftNet({self.network.config()})"
+        lines = [
+            f"name:        {self.name or '(unnamed)'}",
+            f"description: {self.description or '-'}",
+            f"network:     {network}",
+            f"effects:     {len(self.effects)}",
+        ]
+        lines += [
+            f"  {i}. {effect.name} [{effect.stage}] {effect.extra_repr()}" for i, effect in enumerate(self.effects)
+        ]
+        lines.append(f"fitted:      {json.dumps(self.fitted, sort_keys=True)}")
+        lines.append(f"quality:     {json.dumps(self.quality, sort_keys=True)}")
+        lines.append(f"written by:  camdegrade {self.package_version}")
+        return "\n".join(lines)
+
+    def extra_repr(self) -> str:
+        return f"name={self.name!r}"
+
+
+def builtin_profiles_dir() -> Path:
+    return Path(str(resources.files("camdegrade") / "profiles"))
+
+
+def list_profiles() -> list[str]:
+    """Names of the profiles shipped inside the package, loadable with :func:`load_profile`."""
+    return sorted(path.stem for path in builtin_profiles_dir().glob("*.safetensors"))
+
+
+def resolve_profile_path(name_or_path: str | os.PathLike[str]) -> Path:
+    """The file a profile name or path refers to: an existing path wins over a built-in name."""
+    path = Path(name_or_path)
+    if path.is_file():
+        return path
+    if isinstance(name_or_path, str) and "/" not in name_or_path and name_or_path in list_profiles():
+        return builtin_profiles_dir() / f"{name_or_path}.safetensors"
+    if path.exists():
+        raise ProfileError(f"profile must be a file, got directory {str(path)!r}")
+    known = ", ".join(list_profiles()) or "none"
+    raise UnknownProfileError(
+        f"profile {str(name_or_path)!r} is neither an existing file nor a built-in profile; built-in profiles: {known}"
+    )
+
+
+def load_profile(name_or_path: str | os.PathLike[str], device: torch.device | str | None = None) -> CameraProfile:
+    """Load a built-in profile by name, or a profile file by path, strictly.
+
+    Only safetensors files are read (pickled checkpoints are refused, never unpickled). The format version is
+    checked, and every tensor the profile's network and effects need must be present with the right shape, with
+    nothing left over; otherwise a :class:`~camdegrade.errors.ProfileError` lists what is wrong.
+
+    Examples:
+        >>> load_profile("city100-iphonex").name
+        'city100-iphonex'
+    """
+    path = resolve_profile_path(name_or_path)
+    _refuse_non_safetensors(path)
+    try:
+        with safe_open(str(path), framework="pt", device="cpu") as handle:
+            metadata = handle.metadata() or {}
+            profile = _profile_from_metadata(metadata, path)
+            tensors = {key: handle.get_tensor(key) for key in handle.keys()}  # noqa: SIM118 - safe_open has no iter
+    except SafetensorError as error:
+        raise ProfileError(
+            f"profile file {str(path)!r} is corrupt or truncated ({error}); fit or copy it again"
+        ) from error
+    _load_state_strictly(profile, tensors, path)
+    return profile if device is None else profile.to(device)
+
+
+def _refuse_non_safetensors(path: Path) -> None:
+    with path.open("rb") as handle:
+        head = handle.read(8)
+        size = path.stat().st_size
+    pickled = head[:2] in (b"\x80\x02", b"\x80\x03", b"\x80\x04", b"\x80\x05") or head[:4] == b"PK\x03\x04"
+    if pickled or path.suffix.lower() in _PICKLE_SUFFIXES:
+        raise ProfileError(
+            f"profile {str(path)!r} looks like a pickled PyTorch checkpoint; camdegrade only loads .safetensors "
+            "profiles and never unpickles files (use camdegrade.CameraProfile(...).save('profile.safetensors'))"
+        )
+    header_length = int.from_bytes(head, "little") if len(head) == 8 else -1
+    if header_length <= 0 or header_length > min(size - 8, _MAX_HEADER_BYTES):
+        raise ProfileError(f"profile {str(path)!r} is not a safetensors file (bad or truncated header)")
+
+
+def serialize_metadata(metadata: Mapping[str, Any]) -> dict[str, str]:
+    """The safetensors metadata for a profile: one key, canonical JSON (sorted keys), so bytes are reproducible."""
+    return {METADATA_KEY: json.dumps(metadata, sort_keys=True, separators=(",", ":"))}
+
+
+def _parse_metadata(raw: Mapping[str, str], path: Path) -> dict[str, Any]:
+    if METADATA_KEY not in raw:
+        raise ProfileError(
+            f"{str(path)!r} is a safetensors file but not a camdegrade profile (no {METADATA_KEY!r} metadata; "
+            f"found keys: {sorted(raw) or 'none'})"
+        )
+    try:
+        metadata = json.loads(raw[METADATA_KEY])
+    except json.JSONDecodeError as error:
+        raise ProfileError(f"profile {str(path)!r} has invalid JSON metadata: {error}") from None
+    if not isinstance(metadata, dict) or metadata.get("format") != FORMAT_NAME:
+        raise ProfileError(f"{str(path)!r} is not a camdegrade profile (metadata 'format' is not {FORMAT_NAME!r})")
+    version = metadata.get("format_version")
+    if isinstance(version, bool) or not isinstance(version, int):
+        raise ProfileError(f"profile {str(path)!r} has format_version {version!r}, expected an integer")
+    if version > FORMAT_VERSION:
+        raise ProfileError(
+            f"profile {str(path)!r} has format version {version}, newer than this camdegrade ({__version__}) reads "
+            f"(up to {FORMAT_VERSION}); upgrade camdegrade"
+        )
+    return metadata
+
+
+def _profile_from_metadata(raw: Mapping[str, str], path: Path) -> CameraProfile:
+    metadata = _parse_metadata(raw, path)
+    network_spec = metadata.get("network")
+    network = None if network_spec is None else DomainShiftNet(**network_spec.get("config", {}))
+    effects = []
+    for spec in metadata.get("effects", []):
+        if spec.get("name") not in EFFECTS:
+            raise ProfileError(
+                f"profile {str(path)!r} uses effect {spec.get('name')!r}, unknown to camdegrade {__version__} "
+                f"(known: {', '.join(sorted(EFFECTS))}); upgrade camdegrade"
+            )
+        effects.append(build_effect(spec["name"], spec.get("config", {})))
+    return CameraProfile(
+        network,
+        effects,
+        name=metadata.get("name", ""),
+        description=metadata.get("description", ""),
+        fitted=metadata.get("fitted", {}),
+        quality=metadata.get("quality", {}),
+        package_version=metadata.get("package_version", "unknown"),
+    )
+
+
+def _load_state_strictly(profile: CameraProfile, tensors: dict[str, Tensor], path: Path) -> None:
+    expected = profile.state_dict()
+    missing = sorted(set(expected) - set(tensors))
+    unexpected = sorted(set(tensors) - set(expected))
+    wrong_shape = [
+        f"{key} {tuple(tensors[key].shape)} (expected {tuple(expected[key].shape)})"
+        for key in sorted(set(expected) & set(tensors))
+        if tensors[key].shape != expected[key].shape
+    ]
+    problems = []
+    if missing:
+        problems.append(f"missing tensors: {', '.join(missing)}")
+    if unexpected:
+        problems.append(f"unexpected tensors: {', '.join(unexpected)}")
+    if wrong_shape:
+        problems.append(f"wrong shapes: {', '.join(wrong_shape)}")
+    if problems:
+        raise ProfileError(f"profile {str(path)!r} does not match its own metadata; " + "; ".join(problems))
+    profile.load_state_dict(tensors, strict=True)

@@ -1,0 +1,209 @@
+"""``CameraDegrade``: a torchvision v2 transform that applies a camera profile."""
+
+from __future__ import annotations
+
+import copy
+import math
+import os
+import threading
+from typing import Any
+
+import PIL.Image
+import torch
+from torch import Tensor
+from torchvision import tv_tensors
+from torchvision.transforms.v2 import Transform
+from torchvision.transforms.v2 import functional as TF
+
+from camdegrade.profile import CameraProfile, EffectParams, load_profile
+
+_FLOAT_DTYPES = (torch.float16, torch.bfloat16, torch.float32, torch.float64)
+
+
+def _is_plain_tensor(inpt: Any) -> bool:
+    return isinstance(inpt, Tensor) and not isinstance(inpt, tv_tensors.TVTensor)
+
+
+class CameraDegrade(Transform):
+    """Make images look as if the profile's camera had captured them.
+
+    A drop-in torchvision v2 transform: put it in a ``v2.Compose`` before normalisation. Images are PIL RGB
+    (returned as PIL), uint8 or float tensors ``[..., 3, H, W]`` (same dtype back; float in ``[0, 1]``), or
+    ``tv_tensors.Image`` / ``tv_tensors.Video`` (same type back). Boxes, masks, labels and anything else in a
+    sample pass through as the same objects, and dict/list/tuple samples keep their structure. Plain tensors follow
+    torchvision's rule: when a sample holds no explicit image, only the first plain tensor is treated as one.
+
+    All randomness of a call is drawn in :meth:`make_params` (whether each sample is degraded, with probability
+    ``p``, and every stochastic effect's values), so ``t.transform(x, params)`` replays a call exactly. The work
+    runs without autograd on the input's device; the profile is copied to each device once and cached.
+
+    Args:
+        profile: a :class:`CameraProfile`, a built-in profile name (see :func:`list_profiles`) or a path to a
+            ``.safetensors`` profile.
+        p: probability that each sample (each image of a batch; each video, all frames alike) is degraded.
+        seed: seeds this transform's own ``torch.Generator``, so the sequence of calls is reproducible.
+            ``None`` draws from torch's global RNG, which DataLoader seeds differently in every worker.
+
+    Examples:
+        >>> degrade = CameraDegrade("city100-iphonex", seed=0)
+        >>> image = torch.zeros(3, 30, 40, dtype=torch.uint8)
+        >>> degrade(image).shape, degrade(image).dtype
+        (torch.Size([3, 30, 40]), torch.uint8)
+    """
+
+    _transformed_types = (tv_tensors.Image, tv_tensors.Video, PIL.Image.Image, _is_plain_tensor)
+
+    def __init__(
+        self, profile: CameraProfile | str | os.PathLike[str], p: float = 1.0, seed: int | None = None
+    ) -> None:
+        super().__init__()
+        if isinstance(profile, (str, os.PathLike)):
+            profile = load_profile(profile)
+        if not isinstance(profile, CameraProfile):
+            raise TypeError(f"profile must be a CameraProfile, a profile name or a path, got {type(profile).__name__}")
+        if isinstance(p, bool) or not isinstance(p, (int, float)) or not 0.0 <= p <= 1.0:
+            raise ValueError(f"p must be a probability from 0 to 1, got p={p!r}")
+        if seed is not None and (isinstance(seed, bool) or not isinstance(seed, int)):
+            raise TypeError(f"seed must be an int or None, got seed={seed!r}")
+        self.profile = profile.eval()
+        self.p = float(p)
+        self.seed = seed
+        self._generator = None if seed is None else torch.Generator().manual_seed(seed)
+        self._device_profiles: dict[torch.device, CameraProfile] = {}
+        self._lock = threading.Lock()
+
+    def __getstate__(self) -> dict[str, Any]:
+        state = super().__getstate__()
+        state["_device_profiles"] = {}
+        state.pop("_lock", None)
+        return state
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        super().__setstate__(state)
+        self._lock = threading.Lock()
+
+    def make_params(self, flat_inputs: list[Any]) -> dict[str, Any]:
+        """Draw this call's randomness for the first image in the sample (others must share its shape)."""
+        if not flat_inputs:
+            return {"apply": torch.zeros(0, dtype=torch.bool), "effects": [], "frames": (0, 3, 0, 0)}
+        first = flat_inputs[0]
+        frames = _frames_shape(first)
+        samples = _decision_count(first)
+        decisions = torch.rand(samples, generator=self._generator) < self.p
+        frames_per_sample = frames[0] // samples if samples else 0
+        return {
+            "apply": decisions.repeat_interleave(frames_per_sample),
+            "effects": self.profile.make_params(frames, self._generator),
+            "frames": frames,
+        }
+
+    def transform(self, inpt: Any, params: dict[str, Any]) -> Any:
+        if isinstance(inpt, PIL.Image.Image):
+            return self._transform_pil(inpt, params)
+        return self._transform_tensor(inpt, params)
+
+    def _transform_pil(self, image: PIL.Image.Image, params: dict[str, Any]) -> PIL.Image.Image:
+        if image.mode != "RGB":
+            raise ValueError(
+                f"CameraDegrade() does not support PIL images in mode {image.mode!r}; convert to 'RGB' first "
+                "(e.g. image.convert('RGB'))"
+            )
+        return TF.to_pil_image(self._transform_tensor(TF.pil_to_tensor(image), params))
+
+    def _transform_tensor(self, image: Tensor, params: dict[str, Any]) -> Tensor:
+        _check_image_tensor(image)
+        frames = _frames_shape(image)
+        if frames != tuple(params["frames"]):
+            raise ValueError(
+                f"all images in one sample must share a shape: params were drawn for {tuple(params['frames'])} "
+                f"frames (N, C, H, W), got an image with {frames}"
+            )
+        apply = params["apply"]
+        if frames[0] == 0 or not bool(apply.any()):
+            return image
+        plain = image.as_subclass(Tensor)
+        batch = plain.reshape(frames)
+        degraded = self._degrade_frames(batch, apply, params["effects"])
+        out = degraded.reshape(plain.shape)
+        return tv_tensors.wrap(out, like=image) if isinstance(image, tv_tensors.TVTensor) else out
+
+    def _degrade_frames(self, batch: Tensor, apply: Tensor, effect_params: EffectParams) -> Tensor:
+        profile = self._profile_on(batch.device)
+        selected = apply.nonzero().squeeze(1)
+        everything = selected.numel() == batch.shape[0]
+        subset = batch if everything else batch[selected.to(batch.device)]
+        subset_params = [
+            {key: (value if everything else value[selected]).to(batch.device) for key, value in stage.items()}
+            for stage in effect_params
+        ]
+        with torch.no_grad():
+            result = _from_unit_float(profile(_to_unit_float(subset), subset_params), batch.dtype)
+        if everything:
+            return result
+        out = batch.clone()
+        out[selected.to(batch.device)] = result
+        return out
+
+    def _profile_on(self, device: torch.device) -> CameraProfile:
+        with self._lock:
+            cached = self._device_profiles.get(device)
+            if cached is None:
+                cached = self.profile if _same_device(self.profile, device) else _copy_to(self.profile, device)
+                self._device_profiles[device] = cached
+            return cached
+
+    def extra_repr(self) -> str:
+        return f"profile={self.profile.name!r}, p={self.p}, seed={self.seed}"
+
+
+def _frames_shape(inpt: Any) -> tuple[int, int, int, int]:
+    """``(N, 3, H, W)``: the input seen as a flat batch of frames."""
+    if isinstance(inpt, PIL.Image.Image):
+        width, height = inpt.size
+        return (1, 3, height, width)
+    _check_image_tensor(inpt)
+    *leading, channels, height, width = inpt.shape
+    return (math.prod(leading), channels, height, width)
+
+
+def _decision_count(inpt: Any) -> int:
+    """How many independent degrade/keep decisions a sample takes: one per image, one per video."""
+    if isinstance(inpt, PIL.Image.Image):
+        return 1
+    leading = inpt.shape[:-3]
+    if isinstance(inpt, tv_tensors.Video) and leading:
+        leading = leading[:-1]
+    return math.prod(leading)
+
+
+def _check_image_tensor(image: Tensor) -> None:
+    if image.ndim < 3 or image.shape[-3] != 3:
+        raise ValueError(
+            f"CameraDegrade() expects RGB images shaped [..., 3, H, W], got shape {tuple(image.shape)}; "
+            "convert grayscale or RGBA images to 3-channel RGB first"
+        )
+    if image.dtype != torch.uint8 and image.dtype not in _FLOAT_DTYPES:
+        raise TypeError(f"CameraDegrade() supports uint8 and floating-point images, got dtype={image.dtype}")
+    if image.dtype != torch.uint8 and image.numel() and not bool(torch.isfinite(image).all()):
+        raise ValueError("CameraDegrade() got an image containing NaN or infinite values")
+
+
+def _to_unit_float(image: Tensor) -> Tensor:
+    if image.dtype == torch.uint8:
+        return image.float().div_(255.0)
+    return image.float().clamp(0.0, 1.0)
+
+
+def _from_unit_float(image: Tensor, dtype: torch.dtype) -> Tensor:
+    if dtype == torch.uint8:
+        return image.mul(255.0).round_().clamp_(0, 255).to(torch.uint8)
+    return image.to(dtype)
+
+
+def _same_device(module: torch.nn.Module, device: torch.device) -> bool:
+    tensor = next(iter(module.state_dict().values()), None)
+    return tensor is None or tensor.device == device
+
+
+def _copy_to(profile: CameraProfile, device: torch.device) -> CameraProfile:
+    return copy.deepcopy(profile).to(device)
