@@ -19,7 +19,7 @@ from pathlib import Path
 import torch
 
 from camdegrade import CameraProfile
-from camdegrade.fit import FitConfig, evaluate_psnr, fit_network
+from camdegrade.training import FitConfig, evaluate_psnr, fit_network
 from camdegrade.io import read_image
 from camdegrade.metrics import psnr, ssim
 
@@ -75,6 +75,8 @@ def main() -> None:
     parser.add_argument("--crop", type=int, default=128)
     parser.add_argument("--crops-per-pair", type=int, default=4)
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--checkpoint", type=Path, default=Path("out/city100-iphonex.ckpt.safetensors"))
+    parser.add_argument("--resume", action="store_true", help="continue from --checkpoint if it exists")
     args = parser.parse_args()
 
     scenes = city100_iphone_pairs(args.data)
@@ -93,7 +95,9 @@ def main() -> None:
             flush=True,
         )
 
-    network, history = fit_network(train, val, config, callback=report)
+    network, history = fit_network(
+        train, val, config, callback=report, checkpoint=args.checkpoint, resume=args.resume
+    )
     minutes = (time.perf_counter() - started) / 60
     best = max(history, key=lambda r: r.val_psnr)
     quality = held_out_quality(network, held_out)

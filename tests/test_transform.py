@@ -271,3 +271,14 @@ def test_images_of_different_shapes_in_one_sample_are_refused():
         CameraDegrade(stochastic_profile(), seed=0)(
             tv_tensors.Image(uint8_images(3, 8, 8)), tv_tensors.Image(uint8_images(3, 9, 8))
         )
+
+
+def test_apply_with_an_explicit_generator_matches_a_seeded_transform():
+    image = uint8_images(4, 3, 10, 10)
+    seeded = CameraDegrade(stochastic_profile(), p=0.5, seed=11)
+    explicit = CameraDegrade(stochastic_profile(), p=0.5)
+    assert torch.equal(explicit.apply(image, generator=torch.Generator().manual_seed(11)), seeded(image))
+    forced = explicit.apply(image, generator=torch.Generator().manual_seed(11), p=1.0)
+    assert all(not torch.equal(forced[i], image[i]) for i in range(4))
+    with pytest.raises(ValueError, match="p must be a probability"):
+        explicit.apply(image, generator=None, p=2.0)

@@ -31,7 +31,57 @@ def main_parser(prog: str | None = None) -> argparse.ArgumentParser:
     info.add_argument("profile", help="built-in profile name or .safetensors path")
 
     commands.add_parser("list", help="list the built-in profiles")
+    _add_fit_parser(commands)
+    _add_simulate_parser(commands)
     return parser
+
+
+def _add_fit_parser(commands: argparse._SubParsersAction) -> None:
+    fit = commands.add_parser(
+        "fit",
+        help="fit a profile from (clean, captured) pairs",
+        description="Fit a camera profile. PAIRS: a folder with clean/ and captured/ (matching relative names), a "
+        "CSV manifest with clean,captured columns, or a folder plus --clean-suffix/--captured-suffix. Under "
+        "'torchrun --nproc_per_node N -m camdegrade fit ...' the fit runs data-parallel (gloo on CPU, NCCL on GPU).",
+    )
+    fit.add_argument("pairs", type=Path, help="pairs folder or CSV manifest")
+    fit.add_argument("-o", "--output", type=Path, required=True, help="profile to write (.safetensors)")
+    fit.add_argument("--epochs", type=int, default=100)
+    fit.add_argument("--crop", type=int, default=128, help="training crop size, a multiple of 4 (default: 128)")
+    fit.add_argument("--batch-size", type=int, default=32)
+    fit.add_argument("--lr", type=float, default=0.01, help="Adam learning rate, halved every 30 epochs")
+    fit.add_argument("--crops-per-pair", type=int, default=8, help="random crops per pair per epoch (default: 8)")
+    fit.add_argument("--seed", type=int, default=0)
+    fit.add_argument("--val-fraction", type=float, default=0.15, help="share of scenes for validation")
+    fit.add_argument("--device", default="cpu")
+    fit.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: torch's choice)")
+    fit.add_argument("--clean-suffix", default=None, help="e.g. _mean (with --captured-suffix)")
+    fit.add_argument("--captured-suffix", default=None, help="e.g. _real, or _copy for the paper's layout")
+    fit.add_argument("--strict", action="store_true", help="fail on any unmatched, unreadable or tiny file")
+    fit.add_argument("--align", action="store_true", help="register each pair (sub-pixel shift) before training")
+    fit.add_argument(
+        "--size-mismatch",
+        choices=("skip", "crop"),
+        default="skip",
+        help="pairs whose images differ in size: skip them (default) or centre-crop both to the common size",
+    )
+    fit.add_argument("--no-effects", action="store_true", help="network only: fit no effect stages after it")
+    fit.add_argument("--checkpoint", type=Path, default=None, help="default: OUTPUT with .ckpt.safetensors")
+    fit.add_argument("--resume", action="store_true", help="continue an interrupted fit from --checkpoint")
+    fit.add_argument("--name", default=None, help="profile name (default: OUTPUT's stem)")
+    fit.add_argument("--description", default="")
+    fit.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def _add_simulate_parser(commands: argparse._SubParsersAction) -> None:
+    simulate = commands.add_parser(
+        "simulate",
+        help="make a pairs folder (clean/, captured/) with a virtual camera preset",
+    )
+    simulate.add_argument("preset", help="virtual camera preset, e.g. lowcost-robot")
+    simulate.add_argument("input", type=Path, help="clean image file or folder")
+    simulate.add_argument("out_dir", type=Path, help="output folder; gets clean/ and captured/")
+    simulate.add_argument("--seed", type=int, default=0)
 
 
 def _run_apply(args: argparse.Namespace) -> int:
@@ -73,7 +123,66 @@ def _run_list(args: argparse.Namespace) -> int:
     return 0
 
 
-_COMMANDS = {"apply": _run_apply, "info": _run_info, "list": _run_list}
+def _run_fit(args: argparse.Namespace) -> int:
+    from camdegrade.fit import DEFAULT_EFFECTS, fit_profile, init_distributed_from_env, is_main_process
+    from camdegrade.training import FitInterrupted
+
+    if args.output.suffix != ".safetensors":
+        raise ValueError(f"--output must end in .safetensors, got {str(args.output)!r}")
+    checkpoint = args.checkpoint or args.output.with_name(args.output.stem + ".ckpt.safetensors")
+    init_distributed_from_env(args.device)
+    main_process = is_main_process()
+    try:
+        profile = fit_profile(
+            args.pairs,
+            epochs=args.epochs,
+            crop=args.crop,
+            batch_size=args.batch_size,
+            lr=args.lr,
+            crops_per_pair=args.crops_per_pair,
+            seed=args.seed,
+            val_fraction=args.val_fraction,
+            align=args.align,
+            clean_suffix=args.clean_suffix,
+            captured_suffix=args.captured_suffix,
+            strict=args.strict,
+            size_mismatch=args.size_mismatch,
+            effects=() if args.no_effects else DEFAULT_EFFECTS,
+            device=args.device,
+            threads=args.threads,
+            checkpoint=checkpoint,
+            resume=args.resume,
+            progress=not args.quiet and main_process,
+            name=args.name or args.output.stem,
+            description=args.description,
+            log=print if main_process else None,
+        )
+    except FitInterrupted as interrupted:
+        print(f"camdegrade fit: {interrupted}; run again with --resume", file=sys.stderr)
+        return 130
+    if main_process:
+        profile.save(args.output)
+        checkpoint.unlink(missing_ok=True)
+        print(profile.describe())
+        print(f"wrote {args.output}")
+    return 0
+
+
+def _run_simulate(args: argparse.Namespace) -> int:
+    from camdegrade.sim import simulate_pairs
+
+    written = simulate_pairs(args.preset, args.input, args.out_dir, seed=args.seed)
+    print(f"wrote {len(written)} pair(s) to {args.out_dir} (clean/, captured/) with preset {args.preset!r}")
+    return 0
+
+
+_COMMANDS = {
+    "apply": _run_apply,
+    "info": _run_info,
+    "list": _run_list,
+    "fit": _run_fit,
+    "simulate": _run_simulate,
+}
 
 
 def main(cli_args: Sequence[str] | None = None, prog: str | None = None) -> int:

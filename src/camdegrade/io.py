@@ -10,10 +10,12 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from PIL import Image, ImageOps
+from PIL import ExifTags, Image, ImageOps
 from torch import Tensor
 
 #: File extensions read as images (compared case-insensitively).
+_ORIENTATION_TAG = ExifTags.Base.Orientation
+_TRANSPOSED_ORIENTATIONS = frozenset({5, 6, 7, 8})  # EXIF orientations that swap width and height
 IMAGE_EXTENSIONS: frozenset[str] = frozenset({".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp"})
 
 
@@ -64,6 +66,19 @@ def read_image(path: str | os.PathLike[str]) -> Tensor:
     except (OSError, SyntaxError) as error:  # PIL raises these for unreadable/truncated files
         raise OSError(f"cannot read image {str(path)!r}: {error}") from error
     return torch.from_numpy(np.array(rgb, dtype=np.uint8)).permute(2, 0, 1).contiguous()
+
+
+def read_image_size(path: str | os.PathLike[str]) -> tuple[int, int]:
+    """``(height, width)`` of an image file after EXIF orientation, from its header only (no full decode)."""
+    try:
+        with Image.open(path) as image:
+            width, height = image.size
+            # A PNG's EXIF may sit after the pixel data; asking for it would decode the whole image.
+            has_exif = image.format != "PNG" or "exif" in image.info
+            orientation = image.getexif().get(_ORIENTATION_TAG, 1) if has_exif else 1
+    except (OSError, SyntaxError, ValueError, Image.DecompressionBombError) as error:
+        raise OSError(f"cannot read image {str(path)!r}: {error or type(error).__name__}") from error
+    return (width, height) if orientation in _TRANSPOSED_ORIENTATIONS else (height, width)
 
 
 def write_image(image: Tensor, path: str | os.PathLike[str]) -> None:

@@ -11,6 +11,7 @@ from typing import Any
 import PIL.Image
 import torch
 from torch import Tensor
+from torch.utils._pytree import tree_flatten, tree_unflatten
 from torchvision import tv_tensors
 from torchvision.transforms.v2 import Transform
 from torchvision.transforms.v2 import functional as TF
@@ -61,12 +62,10 @@ class CameraDegrade(Transform):
             profile = load_profile(profile)
         if not isinstance(profile, CameraProfile):
             raise TypeError(f"profile must be a CameraProfile, a profile name or a path, got {type(profile).__name__}")
-        if isinstance(p, bool) or not isinstance(p, (int, float)) or not 0.0 <= p <= 1.0:
-            raise ValueError(f"p must be a probability from 0 to 1, got p={p!r}")
         if seed is not None and (isinstance(seed, bool) or not isinstance(seed, int)):
             raise TypeError(f"seed must be an int or None, got seed={seed!r}")
         self.profile = profile.eval()
-        self.p = float(p)
+        self.p = check_probability(p)
         self.seed = seed
         self._generator = None if seed is None else torch.Generator().manual_seed(seed)
         self._device_profiles: dict[torch.device, CameraProfile] = {}
@@ -83,19 +82,40 @@ class CameraDegrade(Transform):
         self._lock = threading.Lock()
 
     def make_params(self, flat_inputs: list[Any]) -> dict[str, Any]:
-        """Draw this call's randomness for the first image in the sample (others must share its shape)."""
+        """Draw this call's randomness from the transform's own generator (see :meth:`draw_params`)."""
+        return self.draw_params(flat_inputs, self._generator)
+
+    def draw_params(
+        self, flat_inputs: list[Any], generator: torch.Generator | None, p: float | None = None
+    ) -> dict[str, Any]:
+        """Draw a call's randomness from ``generator`` for the first image in ``flat_inputs`` (the others must share
+        its shape): whether each sample is degraded (probability ``p``, default ``self.p``) and every stochastic
+        effect's values. The draws are the same whatever ``p`` is, so ``p`` only changes which samples change."""
+        p = self.p if p is None else check_probability(p)
         if not flat_inputs:
             return {"apply": torch.zeros(0, dtype=torch.bool), "effects": [], "frames": (0, 3, 0, 0)}
         first = flat_inputs[0]
         frames = _frames_shape(first)
         samples = _decision_count(first)
-        decisions = torch.rand(samples, generator=self._generator) < self.p
+        decisions = torch.rand(samples, generator=generator) < p
         frames_per_sample = frames[0] // samples if samples else 0
         return {
             "apply": decisions.repeat_interleave(frames_per_sample),
-            "effects": self.profile.make_params(frames, self._generator),
+            "effects": self.profile.make_params(frames, generator),
             "frames": frames,
         }
+
+    def apply(self, *inputs: Any, generator: torch.Generator | None, p: float | None = None) -> Any:
+        """Like calling the transform, but drawing from ``generator`` (and with probability ``p`` if given).
+
+        Used where the caller owns the randomness, e.g. a dataset seeding one generator per (item, epoch) so
+        results do not depend on the worker that loads the item.
+        """
+        flat_inputs, spec = tree_flatten(inputs if len(inputs) > 1 else inputs[0])
+        needs_transform = self._needs_transform_list(flat_inputs)
+        params = self.draw_params([x for x, needed in zip(flat_inputs, needs_transform) if needed], generator, p)
+        flat_outputs = [self.transform(x, params) if needed else x for x, needed in zip(flat_inputs, needs_transform)]
+        return tree_unflatten(flat_outputs, spec)
 
     def transform(self, inpt: Any, params: dict[str, Any]) -> Any:
         if isinstance(inpt, PIL.Image.Image):
@@ -111,7 +131,7 @@ class CameraDegrade(Transform):
         return TF.to_pil_image(self._transform_tensor(TF.pil_to_tensor(image), params))
 
     def _transform_tensor(self, image: Tensor, params: dict[str, Any]) -> Tensor:
-        _check_image_tensor(image)
+        check_image_tensor(image)
         frames = _frames_shape(image)
         if frames != tuple(params["frames"]):
             raise ValueError(
@@ -128,7 +148,7 @@ class CameraDegrade(Transform):
         return tv_tensors.wrap(out, like=image) if isinstance(image, tv_tensors.TVTensor) else out
 
     def _degrade_frames(self, batch: Tensor, apply: Tensor, effect_params: EffectParams) -> Tensor:
-        profile = self._profile_on(batch.device)
+        profile = self.profile_on(batch.device)
         selected = apply.nonzero().squeeze(1)
         everything = selected.numel() == batch.shape[0]
         subset = batch if everything else batch[selected.to(batch.device)]
@@ -137,14 +157,14 @@ class CameraDegrade(Transform):
             for stage in effect_params
         ]
         with torch.no_grad():
-            result = _from_unit_float(profile(_to_unit_float(subset), subset_params), batch.dtype)
+            result = from_unit_float(profile(to_unit_float(subset), subset_params), batch.dtype)
         if everything:
             return result
         out = batch.clone()
         out[selected.to(batch.device)] = result
         return out
 
-    def _profile_on(self, device: torch.device) -> CameraProfile:
+    def profile_on(self, device: torch.device) -> CameraProfile:
         with self._lock:
             cached = self._device_profiles.get(device)
             if cached is None:
@@ -156,12 +176,18 @@ class CameraDegrade(Transform):
         return f"profile={self.profile.name!r}, p={self.p}, seed={self.seed}"
 
 
+def check_probability(p: Any) -> float:
+    if isinstance(p, bool) or not isinstance(p, (int, float)) or not 0.0 <= p <= 1.0:
+        raise ValueError(f"p must be a probability from 0 to 1, got p={p!r}")
+    return float(p)
+
+
 def _frames_shape(inpt: Any) -> tuple[int, int, int, int]:
     """``(N, 3, H, W)``: the input seen as a flat batch of frames."""
     if isinstance(inpt, PIL.Image.Image):
         width, height = inpt.size
         return (1, 3, height, width)
-    _check_image_tensor(inpt)
+    check_image_tensor(inpt)
     *leading, channels, height, width = inpt.shape
     return (math.prod(leading), channels, height, width)
 
@@ -176,7 +202,7 @@ def _decision_count(inpt: Any) -> int:
     return math.prod(leading)
 
 
-def _check_image_tensor(image: Tensor) -> None:
+def check_image_tensor(image: Tensor) -> None:
     if image.ndim < 3 or image.shape[-3] != 3:
         raise ValueError(
             f"CameraDegrade() expects RGB images shaped [..., 3, H, W], got shape {tuple(image.shape)}; "
@@ -188,13 +214,13 @@ def _check_image_tensor(image: Tensor) -> None:
         raise ValueError("CameraDegrade() got an image containing NaN or infinite values")
 
 
-def _to_unit_float(image: Tensor) -> Tensor:
+def to_unit_float(image: Tensor) -> Tensor:
     if image.dtype == torch.uint8:
         return image.float().div_(255.0)
     return image.float().clamp(0.0, 1.0)
 
 
-def _from_unit_float(image: Tensor, dtype: torch.dtype) -> Tensor:
+def from_unit_float(image: Tensor, dtype: torch.dtype) -> Tensor:
     if dtype == torch.uint8:
         return image.mul(255.0).round_().clamp_(0, 255).to(torch.uint8)
     return image.to(dtype)

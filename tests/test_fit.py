@@ -1,0 +1,133 @@
+"""fit_profile and `camdegrade fit`: pairs folder → profile, end to end (also under torchrun with 2 processes)."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+
+import pytest
+import torch
+import torch.nn.functional as F
+
+from camdegrade import CameraDegrade, load_profile
+from camdegrade.__main__ import main
+from camdegrade.fit import fit_profile
+from camdegrade.io import write_image
+
+QUICK = ["--epochs", "2", "--crop", "16", "--batch-size", "4", "--crops-per-pair", "2", "--quiet"]
+
+
+def make_pairs_folder(root, count: int = 6, size: int = 32):
+    """clean/ and captured/ with a learnable degradation: darker, softer and noisy."""
+    generator = torch.Generator().manual_seed(0)
+    for index in range(count):
+        clean = torch.rand(1, 3, size, size, generator=generator)
+        captured = F.avg_pool2d(clean * 0.8 + 0.05, 3, stride=1, padding=1, count_include_pad=False)
+        captured = captured + 0.02 * torch.randn(captured.shape, generator=generator)
+        write_image(clean[0], root / "clean" / f"img{index}.png")
+        write_image(captured[0].clamp(0, 1), root / "captured" / f"img{index}.png")
+    return root
+
+
+def test_fit_profile_records_how_it_was_made(tmp_path):
+    folder = make_pairs_folder(tmp_path / "pairs")
+    lines: list[str] = []
+    profile = fit_profile(
+        folder, epochs=2, crop=16, batch_size=4, crops_per_pair=2, val_fraction=0.34, name="tiny", log=lines.append
+    )
+    assert profile.name == "tiny" and profile.network is not None
+    assert profile.fitted["pairs"] == 6 and profile.fitted["validation_pairs"] == 2
+    assert profile.fitted["recipe"]["epochs"] == 2 and profile.fitted["recipe"]["crop"] == 16
+    assert "noise" in profile.effect_names
+    assert profile.quality["validation_pairs"] == 2 and "network_psnr_db" in profile.quality
+    assert any("6 pair" in line for line in lines)
+
+
+def test_fit_profile_same_seed_same_bytes(tmp_path):
+    folder = make_pairs_folder(tmp_path / "pairs")
+    options = dict(epochs=2, crop=16, batch_size=4, crops_per_pair=2, seed=3)
+    first = fit_profile(folder, **options)
+    second = fit_profile(folder, **options)
+    first.fitted.pop("fit_minutes"), second.fitted.pop("fit_minutes")
+    assert first.save(tmp_path / "a.safetensors").read_bytes() == second.save(tmp_path / "b.safetensors").read_bytes()
+
+
+def test_fit_profile_rejects_unknown_effects(tmp_path):
+    with pytest.raises(ValueError, match=r"effects must be names from .*unknown \['lens_flare'\]"):
+        fit_profile(make_pairs_folder(tmp_path / "pairs"), effects=["lens_flare"])
+
+
+def test_cli_fit_writes_a_loadable_profile_and_removes_its_checkpoint(tmp_path, capsys):
+    folder = make_pairs_folder(tmp_path / "pairs")
+    out = tmp_path / "cam.safetensors"
+    assert main(["fit", str(folder), "-o", str(out), *QUICK]) == 0
+    assert "wrote" in capsys.readouterr().out
+    profile = load_profile(out)
+    assert profile.name == "cam"
+    image = torch.randint(0, 256, (3, 20, 20), dtype=torch.uint8)
+    assert CameraDegrade(out, seed=0)(image).shape == (3, 20, 20)
+    assert not (tmp_path / "cam.ckpt.safetensors").exists()
+
+
+def test_cli_fit_interrupted_keeps_the_good_profile_and_resumes(tmp_path, monkeypatch, capsys):
+    folder = make_pairs_folder(tmp_path / "pairs")
+    out = tmp_path / "cam.safetensors"
+    assert main(["fit", str(folder), "-o", str(out), *QUICK]) == 0
+    good = out.read_bytes()
+
+    import camdegrade.training as training
+
+    real_epoch = training._train_one_epoch
+    calls = {"n": 0}
+
+    def flaky_epoch(*args, **kwargs):
+        calls["n"] += 1
+        if calls["n"] == 2:
+            raise KeyboardInterrupt
+        return real_epoch(*args, **kwargs)
+
+    monkeypatch.setattr(training, "_train_one_epoch", flaky_epoch)
+    assert main(["fit", str(folder), "-o", str(out), *QUICK, "--seed", "1"]) == 130
+    assert "--resume" in capsys.readouterr().err
+    assert out.read_bytes() == good  # the earlier profile is never replaced by a partial fit
+    assert (tmp_path / "cam.ckpt.safetensors").exists()
+    monkeypatch.setattr(training, "_train_one_epoch", real_epoch)
+    assert main(["fit", str(folder), "-o", str(out), *QUICK, "--seed", "1", "--resume"]) == 0
+    assert out.read_bytes() != good and load_profile(out).fitted["recipe"]["seed"] == 1
+
+
+def test_cli_fit_reports_missing_pairs(tmp_path, capsys):
+    (tmp_path / "empty").mkdir()
+    assert main(["fit", str(tmp_path / "empty"), "-o", str(tmp_path / "x.safetensors"), *QUICK]) == 1
+    assert "error" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_torchrun_two_processes_fit(tmp_path):
+    folder = make_pairs_folder(tmp_path / "pairs")
+    out = tmp_path / "ddp.safetensors"
+    command = [
+        sys.executable,
+        "-m",
+        "torch.distributed.run",
+        "--nproc_per_node",
+        "2",
+        "--master_port",
+        "29517",
+        "-m",
+        "camdegrade",
+        "fit",
+        str(folder),
+        "-o",
+        str(out),
+        *QUICK,
+        "--threads",
+        "1",
+    ]
+    env = {**os.environ, "OMP_NUM_THREADS": "1"}
+    result = subprocess.run(command, capture_output=True, text=True, timeout=240, env=env, check=False)
+    assert result.returncode == 0, result.stderr[-2000:]
+    profile = load_profile(out)
+    single = fit_profile(folder, epochs=2, crop=16, batch_size=4, crops_per_pair=2)
+    assert profile.quality["network_psnr_db"] == pytest.approx(single.quality["network_psnr_db"], abs=0.05)
