@@ -10,7 +10,6 @@ during fitting). Run from the repo root::
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import platform
 import time
@@ -19,30 +18,26 @@ from pathlib import Path
 import torch
 
 from camdegrade import CameraProfile
-from camdegrade.training import FitConfig, evaluate_psnr, fit_network
-from camdegrade.io import read_image
 from camdegrade.metrics import psnr, ssim
+from camdegrade.pairs import Pair, discover_pairs, filter_pairs, load_pair
+from camdegrade.training import FitConfig, evaluate_psnr, fit_network
 
 DEFAULT_DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "real-pairs"
 HELD_OUT = {f"{n:03d}" for n in range(56, 71)} | {"098"}
 VALIDATION = {f"{n:03d}" for n in range(48, 56)}
 
 
-def city100_iphone_pairs(data: Path) -> dict[str, tuple[Path, Path]]:
-    """scene → (clean HR path, captured LR path) for the City100 iPhone X rows of ``pairs.csv``."""
-    scenes = {}
-    with (data / "pairs.csv").open(newline="") as handle:
-        for row in csv.DictReader(handle):
-            if "City100_iPhoneX" in row["clean"]:
-                scene = Path(row["clean"]).stem[:-1]
-                scenes[scene] = (data / row["clean"], data / row["captured"])
+def city100_iphone_pairs(data: Path) -> dict[str, Pair]:
+    """scene → pair for the City100 iPhone X rows of ``pairs.csv`` (scene ``001`` for ``001H.PNG``/``001L.PNG``)."""
+    report = discover_pairs(data / "pairs.csv")
+    scenes = {pair.scene: pair for pair in filter_pairs(report.pairs, subset="city100_iPhoneX")}
     if not scenes:
         raise SystemExit(f"no City100 iPhone X pairs in {data / 'pairs.csv'}")
     return scenes
 
 
-def load(pairs: dict[str, tuple[Path, Path]], keep) -> list[tuple[torch.Tensor, torch.Tensor]]:
-    return [(read_image(c), read_image(r)) for scene, (c, r) in sorted(pairs.items()) if keep(scene)]
+def load(pairs: dict[str, Pair], keep) -> list[tuple[torch.Tensor, torch.Tensor]]:
+    return [load_pair(pair) for scene, pair in sorted(pairs.items()) if keep(scene)]
 
 
 def held_out_quality(profile_net, pairs) -> dict[str, float]:
@@ -95,9 +90,7 @@ def main() -> None:
             flush=True,
         )
 
-    network, history = fit_network(
-        train, val, config, callback=report, checkpoint=args.checkpoint, resume=args.resume
-    )
+    network, history = fit_network(train, val, config, callback=report, checkpoint=args.checkpoint, resume=args.resume)
     minutes = (time.perf_counter() - started) / 60
     best = max(history, key=lambda r: r.val_psnr)
     quality = held_out_quality(network, held_out)

@@ -212,3 +212,10 @@ def test_constructor_checks_types():
 def test_describe_lists_the_chain():
     text = stochastic_profile().describe()
     assert "test_additive_noise [sensor]" in text and "DomainShiftNet" in text
+
+
+def test_saved_profile_has_ordinary_permissions(tmp_path):
+    path = deterministic_profile().save(tmp_path / "p.safetensors")
+    umask = os.umask(0)
+    os.umask(umask)
+    assert path.stat().st_mode & 0o777 == 0o666 & ~umask
