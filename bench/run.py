@@ -1,4 +1,4 @@
-"""``make bench``: run every ``bench/bench_*.py`` script in turn (each prints its table and writes JSON to out/bench/)."""
+"""``make bench``: run every ``bench/bench_*.py`` script in turn (each prints a table, writes JSON to out/bench/)."""
 
 from __future__ import annotations
 

@@ -131,3 +131,24 @@ def test_torchrun_two_processes_fit(tmp_path):
     profile = load_profile(out)
     single = fit_profile(folder, epochs=2, crop=16, batch_size=4, crops_per_pair=2)
     assert profile.quality["network_psnr_db"] == pytest.approx(single.quality["network_psnr_db"], abs=0.05)
+
+
+def test_simulate_then_fit_end_to_end(tmp_path, capsys):
+    generator = torch.Generator().manual_seed(1)
+    for index in range(5):
+        smooth = F.interpolate(torch.rand(1, 3, 8, 8, generator=generator), size=(48, 48), mode="bilinear")
+        write_image(smooth[0], tmp_path / "photos" / f"p{index}.png")
+    assert main(["simulate", "lowcost-robot", str(tmp_path / "photos"), str(tmp_path / "pairs"), "--seed", "2"]) == 0
+    assert "wrote 5 pair(s)" in capsys.readouterr().out
+    out = tmp_path / "robot.safetensors"
+    assert main(["fit", str(tmp_path / "pairs"), "-o", str(out), *QUICK, "--val-fraction", "0.4"]) == 0
+    degraded = CameraDegrade(out, seed=0)(torch.randint(0, 256, (2, 3, 40, 40), dtype=torch.uint8))
+    assert degraded.shape == (2, 3, 40, 40) and degraded.dtype == torch.uint8
+    assert load_profile(out).fitted["pairs"] == 5
+
+
+def test_cli_fit_align_prints_the_shifts(tmp_path, capsys):
+    folder = make_pairs_folder(tmp_path / "pairs", count=4)
+    assert main(["fit", str(folder), "-o", str(tmp_path / "a.safetensors"), *QUICK, "--align"]) == 0
+    out = capsys.readouterr().out
+    assert "largest shift" in out and "img0" in out

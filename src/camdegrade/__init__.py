@@ -3,23 +3,34 @@
 Public API::
 
     from camdegrade import CameraDegrade, CameraProfile, load_profile, list_profiles
+    from camdegrade import DegradedDataset, BatchDegrade, VirtualCamera, fit_profile
 """
 
 from camdegrade._version import __version__
+from camdegrade.data import BatchDegrade, DegradedDataset, DegradedIterableDataset, IndexedDataset
 from camdegrade.errors import CamdegradeError, PairsError, ProfileError, UnknownProfileError
+from camdegrade.fit import fit_profile
 from camdegrade.network import DomainShiftNet
 from camdegrade.profile import CameraProfile, list_profiles, load_profile
+from camdegrade.sim import VirtualCamera, simulate_pairs
 from camdegrade.transform import CameraDegrade
 
 __all__ = [
+    "BatchDegrade",
     "CamdegradeError",
     "CameraDegrade",
     "CameraProfile",
+    "DegradedDataset",
+    "DegradedIterableDataset",
     "DomainShiftNet",
+    "IndexedDataset",
     "PairsError",
     "ProfileError",
     "UnknownProfileError",
+    "VirtualCamera",
     "__version__",
+    "fit_profile",
     "list_profiles",
     "load_profile",
+    "simulate_pairs",
 ]

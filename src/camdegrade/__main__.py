@@ -82,6 +82,7 @@ def _add_simulate_parser(commands: argparse._SubParsersAction) -> None:
     simulate.add_argument("input", type=Path, help="clean image file or folder")
     simulate.add_argument("out_dir", type=Path, help="output folder; gets clean/ and captured/")
     simulate.add_argument("--seed", type=int, default=0)
+    simulate.add_argument("--max-side", type=int, default=None, help="downsize clean images larger than this")
 
 
 def _run_apply(args: argparse.Namespace) -> int:
@@ -171,7 +172,7 @@ def _run_fit(args: argparse.Namespace) -> int:
 def _run_simulate(args: argparse.Namespace) -> int:
     from camdegrade.sim import simulate_pairs
 
-    written = simulate_pairs(args.preset, args.input, args.out_dir, seed=args.seed)
+    written = simulate_pairs(args.preset, args.input, args.out_dir, seed=args.seed, max_side=args.max_side)
     print(f"wrote {len(written)} pair(s) to {args.out_dir} (clean/, captured/) with preset {args.preset!r}")
     return 0
 

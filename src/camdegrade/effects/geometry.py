@@ -1,0 +1,252 @@
+"""Optics stages that depend on the position in the frame: vignetting, distortion, chromatic aberration and
+misalignment. A translation-equivariant network cannot learn these, so they are explicit stages."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+import torch
+from torch import Tensor
+
+from camdegrade.effects._common import batch_shape, check_non_negative, resolve_params, scalar
+from camdegrade.effects._fitting import as_pairs, downscale
+from camdegrade.effects._warp import fit_warp
+from camdegrade.effects.base import Effect, Pairs, register_effect
+from camdegrade.functional import (
+    chromatic_aberration_image,
+    distortion_image,
+    misalignment_image,
+    relative_radius,
+    srgb_to_linear,
+    vignetting_image,
+)
+
+
+@register_effect
+class Vignetting(Effect):
+    """Radial falloff of linear light, ``g(r) = 1 + k1 r² + k2 r⁴`` with ``r`` the relative radius (1 in the
+    corners), so the same parameters hold at every resolution. ``k1 < 0`` darkens the corners; zeros are
+    neutral."""
+
+    name = "vignetting"
+    stage = "optics"
+    k1: Tensor
+    k2: Tensor
+
+    def __init__(self, k1: float = 0.0, k2: float = 0.0) -> None:
+        super().__init__()
+        self.register_buffer("k1", scalar(k1))
+        self.register_buffer("k2", scalar(k2))
+
+    def forward(self, image: Tensor, params: Mapping[str, Tensor] | None = None) -> Tensor:
+        return vignetting_image(image, self.k1.to(image.device), self.k2.to(image.device))
+
+    @classmethod
+    def fit(
+        cls, source: Pairs, target: Pairs, *, max_side: int = 64, degree: int = 2, iterations: int = 5
+    ) -> Vignetting:
+        """Closed form: robust least squares of the low-passed linear ratio ``target / source`` against r.
+
+        Both images are area-averaged to ``max_side`` pixels (gain is smooth, so nothing is lost, while noise,
+        blur and misalignment average out) and ``target ≈ c · source · (1 + k1 r² + k2 r⁴)`` is solved per pair
+        with a free exposure ``c``; ``degree=1`` fits ``k1`` only. Pair estimates are averaged, weighted by
+        their pixel counts. Recovery on synthetic pairs: ``k1`` within 10 %, the gain curve within 0.01.
+        """
+        if degree not in (1, 2):
+            raise ValueError(f"degree must be 1 or 2, got degree={degree!r}")
+        estimates, weights = [], []
+        for src, tgt in as_pairs(source, target):
+            low_src = downscale(srgb_to_linear(src), max_side).double()
+            low_tgt = downscale(srgb_to_linear(tgt), max_side).double()
+            r2 = relative_radius(*low_src.shape[-2:], torch.float64, low_src.device).pow(2).expand_as(low_src)
+            usable = (low_src > 0.01) & (low_src < 0.9) & (low_tgt > 0.002) & (low_tgt < 0.95)
+            if int(usable.sum()) < 3 * (degree + 1):
+                continue
+            s, t, r2 = low_src[usable], low_tgt[usable], r2[usable]
+            columns = [s, s * r2, s * r2 * r2][: degree + 1]
+            beta = _robust_lstsq(torch.stack(columns, dim=1), t, iterations)
+            estimates.append(torch.cat([beta[1:] / beta[0], torch.zeros(2 - degree, dtype=beta.dtype)]))
+            weights.append(float(usable.sum()))
+        if not estimates:
+            raise ValueError("no pair has enough well-exposed pixels to fit vignetting")
+        w = torch.tensor(weights, dtype=torch.float64)
+        k = (torch.stack(estimates) * w[:, None]).sum(0) / w.sum()
+        return cls(float(k[0]), float(k[1]))
+
+
+def _robust_lstsq(design: Tensor, values: Tensor, iterations: int) -> Tensor:
+    """Least squares with Huber reweighting (``iterations`` rounds)."""
+    weights = torch.ones_like(values)
+    solution = torch.zeros(design.shape[1], dtype=design.dtype)
+    for _ in range(max(1, iterations)):
+        root = weights.sqrt()[:, None]
+        solution = torch.linalg.lstsq(design * root, values[:, None] * root).solution[:, 0]
+        residual = (values - design @ solution).abs()
+        scale = 1.4826 * residual.median().clamp_min(1e-12)
+        weights = (1.345 * scale / residual.clamp_min(1e-15)).clamp(max=1.0)
+    return solution
+
+
+@register_effect
+class Distortion(Effect):
+    """Radial lens distortion in relative coordinates: the output at ``p`` samples the scene at
+    ``p · (1 + k1 r² + k2 r⁴)``. ``k1 > 0`` is barrel (typical of wide, cheap lenses), ``k1 < 0`` pincushion;
+    zeros are neutral."""
+
+    name = "distortion"
+    stage = "optics"
+    k1: Tensor
+    k2: Tensor
+
+    def __init__(self, k1: float = 0.0, k2: float = 0.0) -> None:
+        super().__init__()
+        self.register_buffer("k1", scalar(k1))
+        self.register_buffer("k2", scalar(k2))
+
+    def forward(self, image: Tensor, params: Mapping[str, Tensor] | None = None) -> Tensor:
+        return distortion_image(image, self.k1.to(image.device), self.k2.to(image.device))
+
+    @classmethod
+    def fit(
+        cls, source: Pairs, target: Pairs, *, degree: int = 1, max_side: int = 384, max_iter: int = 40
+    ) -> Distortion:
+        """Coarse-to-fine least squares (L-BFGS) of the warped source against the target.
+
+        ``degree=2`` also fits ``k2`` (``k1`` and ``k2`` trade off against each other, so only fit both on
+        pairs with detail out to the corners). Recovery on synthetic pairs: ``k1`` within 10 %.
+        """
+        if degree not in (1, 2):
+            raise ValueError(f"degree must be 1 or 2, got degree={degree!r}")
+
+        def warp(image: Tensor, k: Tensor, _: float) -> Tensor:
+            return distortion_image(image, k[0], k[1] if degree == 2 else 0.0)
+
+        k = fit_warp(as_pairs(source, target), warp, [0.0, 0.0], [0.05, 0.05], max_side=max_side, max_iter=max_iter)
+        return cls(float(k[0]), float(k[1]) if degree == 2 else 0.0)
+
+
+@register_effect
+class ChromaticAberration(Effect):
+    """Lateral chromatic aberration: red and blue planes magnified by ``1 + red`` and ``1 + blue`` about the
+    centre relative to green (typical magnitudes 1e-4 to 3e-3). Zeros are neutral."""
+
+    name = "chromatic_aberration"
+    stage = "optics"
+    red: Tensor
+    blue: Tensor
+
+    def __init__(self, red: float = 0.0, blue: float = 0.0) -> None:
+        super().__init__()
+        self.register_buffer("red", scalar(red))
+        self.register_buffer("blue", scalar(blue))
+
+    def forward(self, image: Tensor, params: Mapping[str, Tensor] | None = None) -> Tensor:
+        return chromatic_aberration_image(image, self.red.to(image.device), self.blue.to(image.device))
+
+    @classmethod
+    def fit(cls, source: Pairs, target: Pairs, *, max_side: int = 512, max_iter: int = 40) -> ChromaticAberration:
+        """Coarse-to-fine least squares (L-BFGS) of the per-channel magnifications.
+
+        Shifts are sub-pixel, so fit at the highest affordable resolution (``max_side``). Recovery on
+        synthetic pairs: within 10 %, down to 0.002 on 128-pixel images (a 0.2 pixel shift in the corners).
+        """
+
+        def warp(image: Tensor, m: Tensor, _: float) -> Tensor:
+            return chromatic_aberration_image(image, m[0], m[1])
+
+        m = fit_warp(
+            as_pairs(source, target),
+            warp,
+            [0.0, 0.0],
+            [1e-3, 1e-3],
+            max_side=max_side,
+            max_iter=max_iter,
+            levels=(2, 1),
+        )
+        return cls(float(m[0]), float(m[1]))
+
+
+@register_effect
+class Misalignment(Effect):
+    """Sub-pixel registration error between clean and captured views: a shift ``(dx, dy)`` in pixels (right,
+    down) and a rotation ``angle`` in degrees (counter-clockwise) about the centre.
+
+    Args:
+        shift_std: per-sample random shift (pixels, each axis) drawn in :meth:`make_params`. 0 disables it.
+        angle_std: per-sample random rotation (degrees) drawn in :meth:`make_params`. 0 disables it.
+    """
+
+    name = "misalignment"
+    stage = "optics"
+    dx: Tensor
+    dy: Tensor
+    angle: Tensor
+
+    def __init__(
+        self,
+        dx: float = 0.0,
+        dy: float = 0.0,
+        angle: float = 0.0,
+        *,
+        shift_std: float = 0.0,
+        angle_std: float = 0.0,
+    ) -> None:
+        super().__init__()
+        for key, value in (("dx", dx), ("dy", dy), ("angle", angle)):
+            self.register_buffer(key, scalar(value))
+        self.shift_std = check_non_negative(shift_std, "shift_std")
+        self.angle_std = check_non_negative(angle_std, "angle_std")
+
+    def config(self) -> dict[str, Any]:
+        return {"shift_std": self.shift_std, "angle_std": self.angle_std}
+
+    def make_params(
+        self, shape: torch.Size | tuple[int, ...], generator: torch.Generator | None = None
+    ) -> dict[str, Tensor]:
+        n = batch_shape(shape)[0]
+        params = {}
+        if self.shift_std > 0:
+            params["shift"] = torch.randn(n, 2, generator=generator) * self.shift_std
+        if self.angle_std > 0:
+            params["angle"] = torch.randn(n, generator=generator) * self.angle_std
+        return params
+
+    def forward(self, image: Tensor, params: Mapping[str, Tensor] | None = None) -> Tensor:
+        drawn = resolve_params(self, image, params)
+        dx, dy, angle = (value.to(image.device) for value in (self.dx, self.dy, self.angle))
+        if "shift" in drawn:
+            dx, dy = dx + drawn["shift"][:, 0], dy + drawn["shift"][:, 1]
+        if "angle" in drawn:
+            angle = angle + drawn["angle"]
+        return misalignment_image(image, dx, dy, angle)
+
+    @classmethod
+    def fit(
+        cls, source: Pairs, target: Pairs, *, rotation: bool = True, max_side: int = 512, max_iter: int = 40
+    ) -> Misalignment:
+        """Per-pair coarse-to-fine least squares (L-BFGS) of shift (and rotation); the effect holds the mean,
+        and with two or more pairs ``shift_std``/``angle_std`` hold the spread between pairs.
+
+        Recovery on synthetic pairs: shift within 0.1 pixel, angle within 0.05 degree.
+        """
+        estimates = []
+        for pair in as_pairs(source, target):
+
+            def warp(image: Tensor, p: Tensor, scale: float) -> Tensor:
+                return misalignment_image(image, p[0] * scale, p[1] * scale, p[2] if rotation else 0.0)
+
+            estimates.append(
+                fit_warp([pair], warp, [0.0, 0.0, 0.0], [1.0, 1.0, 0.5], max_side=max_side, max_iter=max_iter)
+            )
+        values = torch.stack(estimates)
+        mean = values.mean(0)
+        spread = values.std(0) if len(estimates) > 1 else torch.zeros(3, dtype=values.dtype)
+        shift_std = float(spread[:2].pow(2).mean().sqrt())
+        return cls(
+            float(mean[0]),
+            float(mean[1]),
+            float(mean[2]),
+            shift_std=shift_std,
+            angle_std=float(spread[2]) if rotation else 0.0,
+        )

@@ -1,0 +1,43 @@
+"""Pure image kernels on ``[..., 3, H, W]`` uint8 or float tensors, with per-sample parameters.
+
+Kernels keep the input's dtype, device and shape, never modify their input and draw no random numbers: noise
+kernels take pre-drawn standard normals, so every degradation can be replayed exactly. This package imports
+nothing from the rest of camdegrade.
+"""
+
+from camdegrade.functional.blur import blur_image, convolve_image, psf_kernel
+from camdegrade.functional.codec import jpeg_image
+from camdegrade.functional.color import (
+    color_matrix_image,
+    linear_to_srgb,
+    srgb_to_linear,
+    white_balance_image,
+)
+from camdegrade.functional.geometry import (
+    chromatic_aberration_image,
+    distortion_image,
+    misalignment_image,
+    relative_radius,
+    vignetting_image,
+)
+from camdegrade.functional.noise import poisson_gaussian_noise_image
+from camdegrade.functional.tone import tone_curve, tone_curve_image
+
+__all__ = [
+    "blur_image",
+    "chromatic_aberration_image",
+    "color_matrix_image",
+    "convolve_image",
+    "distortion_image",
+    "jpeg_image",
+    "linear_to_srgb",
+    "misalignment_image",
+    "poisson_gaussian_noise_image",
+    "psf_kernel",
+    "relative_radius",
+    "srgb_to_linear",
+    "tone_curve",
+    "tone_curve_image",
+    "vignetting_image",
+    "white_balance_image",
+]

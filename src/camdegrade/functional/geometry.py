@@ -1,0 +1,141 @@
+"""Position-dependent kernels: vignetting, radial distortion, lateral chromatic aberration and misalignment.
+
+Radial effects use image-relative coordinates: the radius ``r`` is the distance from the image centre
+divided by the half-diagonal (``r = 1`` in the corners), so one set of parameters means the same at every
+resolution.
+"""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+
+from camdegrade.functional._utils import ParamLike, apply_float, check_image, flat_param, per_sample
+from camdegrade.functional.color import linear_to_srgb, srgb_to_linear
+
+
+def centered_coordinates(height: int, width: int, dtype: torch.dtype, device: torch.device) -> tuple[Tensor, Tensor]:
+    """Pixel-centre coordinates ``(x, y)``, each ``(H, W)``, in pixels from the centre (y points down)."""
+    ys = torch.arange(height, dtype=dtype, device=device) + 0.5 - height / 2.0
+    xs = torch.arange(width, dtype=dtype, device=device) + 0.5 - width / 2.0
+    y, x = torch.meshgrid(ys, xs, indexing="ij")
+    return x, y
+
+
+def relative_radius(height: int, width: int, dtype: torch.dtype, device: torch.device) -> Tensor:
+    """``(H, W)`` distance from the centre over the half-diagonal (0 at the centre, 1 in the corners)."""
+    x, y = centered_coordinates(height, width, dtype, device)
+    half_diagonal = 0.5 * (height**2 + width**2) ** 0.5
+    return torch.sqrt(x**2 + y**2) / half_diagonal
+
+
+def radial_polynomial(r2: Tensor, k1: Tensor, k2: Tensor) -> Tensor:
+    """``1 + k1 r² + k2 r⁴`` given ``r²``: the shared form of vignetting gain and distortion scale."""
+    return 1.0 + k1 * r2 + k2 * r2 * r2
+
+
+def vignetting_image(image: Tensor, k1: ParamLike, k2: ParamLike = 0.0) -> Tensor:
+    """Multiply linear light by the radial gain ``g(r) = max(0, 1 + k1 r² + k2 r⁴)``, then re-encode as sRGB.
+
+    ``k1 < 0`` darkens the corners (natural vignetting); zeros are the identity. Scalars or per-sample
+    ``(N,)``.
+    """
+    check_image(image)
+    k1_t = per_sample(k1, image, "k1")[..., None, None, None]
+    k2_t = per_sample(k2, image, "k2")[..., None, None, None]
+    height, width = image.shape[-2:]
+
+    def kernel(x: Tensor) -> Tensor:
+        r2 = relative_radius(height, width, x.dtype, x.device) ** 2
+        gain = radial_polynomial(r2, k1_t, k2_t).clamp_min(0.0)
+        return linear_to_srgb((srgb_to_linear(x) * gain).clamp(0.0, 1.0))
+
+    return apply_float(image, kernel)
+
+
+def remap_image(planes: Tensor, source_x: Tensor, source_y: Tensor) -> Tensor:
+    """Bilinearly sample ``planes`` ``(M, C, H, W)`` at centred pixel coordinates ``(M, H, W)``.
+
+    Samples outside the frame repeat the border.
+    """
+    height, width = planes.shape[-2:]
+    grid = torch.stack((source_x / (width / 2.0), source_y / (height / 2.0)), dim=-1).to(planes.dtype)
+    return F.grid_sample(planes, grid, mode="bilinear", padding_mode="border", align_corners=False)
+
+
+def _flatten(x: Tensor) -> Tensor:
+    return x.reshape(-1, *x.shape[-3:])
+
+
+def distortion_image(image: Tensor, k1: ParamLike, k2: ParamLike = 0.0) -> Tensor:
+    """Radial lens distortion: the output at relative position ``p`` shows the input at
+    ``p · (1 + k1 r² + k2 r⁴)``.
+
+    ``k1 > 0`` is barrel distortion (the periphery is squeezed towards the centre), ``k1 < 0`` pincushion;
+    zeros are the identity. Samples outside the frame repeat the border. Scalars or per-sample ``(N,)``.
+    """
+    check_image(image)
+    k1_t = flat_param(k1, image, "k1")[:, None, None]
+    k2_t = flat_param(k2, image, "k2")[:, None, None]
+
+    def kernel(x: Tensor) -> Tensor:
+        if x.numel() == 0:
+            return x.clone()
+        height, width = x.shape[-2:]
+        px, py = centered_coordinates(height, width, x.dtype, x.device)
+        r2 = relative_radius(height, width, x.dtype, x.device) ** 2
+        scale = radial_polynomial(r2, k1_t.to(x.dtype), k2_t.to(x.dtype))
+        return remap_image(_flatten(x), px * scale, py * scale).reshape(x.shape)
+
+    return apply_float(image, kernel)
+
+
+def chromatic_aberration_image(image: Tensor, red: ParamLike, blue: ParamLike) -> Tensor:
+    """Lateral chromatic aberration: the red and blue planes are magnified by ``1 + red`` and ``1 + blue``
+    about the centre relative to green (e.g. ``red = 0.002`` makes the red image 0.2 % larger).
+
+    Zeros are the identity. Scalars or per-sample ``(N,)``.
+    """
+    check_image(image)
+    red_t = flat_param(red, image, "red")
+    blue_t = flat_param(blue, image, "blue")
+    magnification = 1.0 + torch.stack((red_t, torch.zeros_like(red_t), blue_t), dim=-1)  # (M, 3)
+    if bool((magnification <= 0).any()):
+        raise ValueError("red and blue must be greater than -1 (a positive magnification), got a value <= -1")
+
+    def kernel(x: Tensor) -> Tensor:
+        if x.numel() == 0:
+            return x.clone()
+        height, width = x.shape[-2:]
+        px, py = centered_coordinates(height, width, x.dtype, x.device)
+        inverse = (1.0 / magnification).reshape(-1, 1, 1).to(x.dtype)  # (M*3, 1, 1)
+        planes = x.reshape(-1, 1, height, width)
+        return remap_image(planes, px * inverse, py * inverse).reshape(x.shape)
+
+    return apply_float(image, kernel)
+
+
+def misalignment_image(image: Tensor, dx: ParamLike = 0.0, dy: ParamLike = 0.0, angle: ParamLike = 0.0) -> Tensor:
+    """Move the content by ``(dx, dy)`` pixels (right, down) and rotate it by ``angle`` degrees
+    counter-clockwise about the image centre, with bilinear (sub-pixel) sampling.
+
+    Zeros are the identity. Scalars or per-sample ``(N,)``.
+    """
+    check_image(image)
+    dx_t = flat_param(dx, image, "dx")[:, None, None]
+    dy_t = flat_param(dy, image, "dy")[:, None, None]
+    theta = torch.deg2rad(flat_param(angle, image, "angle"))[:, None, None]
+
+    def kernel(x: Tensor) -> Tensor:
+        if x.numel() == 0:
+            return x.clone()
+        height, width = x.shape[-2:]
+        px, py = centered_coordinates(height, width, x.dtype, x.device)
+        qx, qy = px - dx_t.to(x.dtype), py - dy_t.to(x.dtype)
+        cos, sin = torch.cos(theta).to(x.dtype), torch.sin(theta).to(x.dtype)
+        source_x = qx * cos - qy * sin
+        source_y = qx * sin + qy * cos
+        return remap_image(_flatten(x), source_x, source_y).reshape(x.shape)
+
+    return apply_float(image, kernel)

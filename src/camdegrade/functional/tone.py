@@ -1,0 +1,50 @@
+"""Tone kernel: a monotone curve made of exposure (in linear light), black/white levels and a gamma."""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor
+
+from camdegrade.functional._utils import ParamLike, apply_float, as_channel_view, check_image, per_sample
+from camdegrade.functional.color import linear_to_srgb, srgb_to_linear
+
+
+def tone_curve_image(
+    image: Tensor,
+    gamma: ParamLike = 1.0,
+    black: ParamLike = 0.0,
+    white: ParamLike = 1.0,
+    exposure: ParamLike = 0.0,
+) -> Tensor:
+    """Apply the curve ``y = clip((e(x) − black) / (white − black), 0, 1) ** gamma``.
+
+    ``e(x) = srgb(2**exposure · lin(x))`` applies the exposure in linear light.
+
+    Args:
+        image: ``[..., 3, H, W]`` uint8 or float in [0, 1] (sRGB-encoded).
+        gamma: exponent (> 0); above 1 darkens the mid-tones. Neutral 1.
+        black: input level mapped to 0 (crushes shadows when > 0). Neutral 0.
+        white: input level mapped to 1 (clips highlights when < 1); must exceed ``black``. Neutral 1.
+        exposure: gain in stops (EV) applied in linear light before the levels. Neutral 0.
+
+    Every parameter is a scalar or per-sample ``(N,)``. The curve is monotone non-decreasing in ``x``.
+    """
+    check_image(image)
+    gamma_t = as_channel_view(per_sample(gamma, image, "gamma"))
+    black_t = as_channel_view(per_sample(black, image, "black"))
+    white_t = as_channel_view(per_sample(white, image, "white"))
+    exposure_t = as_channel_view(per_sample(exposure, image, "exposure"))
+    if bool((gamma_t <= 0).any()):
+        raise ValueError(f"gamma must be positive, got gamma={gamma_t[gamma_t <= 0].flatten()[0].item():g}")
+    if bool((white_t - black_t <= 0).any()):
+        raise ValueError("white must be greater than black for every sample, got white <= black")
+    return apply_float(image, lambda x: tone_curve(x, gamma_t, black_t, white_t, exposure_t))
+
+
+def tone_curve(x: Tensor, gamma: Tensor, black: Tensor, white: Tensor, exposure: Tensor) -> Tensor:
+    """The curve of :func:`tone_curve_image` on float values of any shape (broadcasting; differentiable)."""
+    exposed = linear_to_srgb(srgb_to_linear(x) * torch.exp2(exposure))
+    levels = ((exposed - black) / (white - black)).clamp(0.0, 1.0)
+    # 0 ** gamma has an undefined gradient in gamma; keep the graph finite at black pixels.
+    powered = levels.clamp_min(1e-12) ** gamma
+    return torch.where(levels > 0, powered, torch.zeros_like(powered))

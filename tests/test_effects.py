@@ -1,0 +1,203 @@
+"""The effect contract: registry, neutral identity, config/state round trip, replayable seeded params, batching."""
+
+from __future__ import annotations
+
+import json
+import pickle
+
+import pytest
+import torch
+from torch import Tensor
+
+from camdegrade.effects import (
+    EFFECTS,
+    JPEG,
+    STAGES,
+    Blur,
+    ChromaticAberration,
+    Color,
+    Distortion,
+    Effect,
+    Misalignment,
+    Noise,
+    Tone,
+    Vignetting,
+    build_effect,
+)
+from effects_images import photo_batch
+
+VOCABULARY = {
+    "noise",
+    "blur",
+    "vignetting",
+    "jpeg",
+    "chromatic_aberration",
+    "misalignment",
+    "color",
+    "tone",
+    "distortion",
+}
+
+
+def strong(name: str) -> Effect:
+    """Each effect at a clearly visible strength, with every per-sample jitter option switched on."""
+    matrix = torch.tensor([[1.1, 0.05, 0.0], [0.02, 0.95, 0.03], [0.0, 0.1, 0.85]])
+    return {
+        "blur": lambda: Blur(1.5, 0.8, 20.0, 3.0, 45.0, sigma_jitter=0.2),
+        "chromatic_aberration": lambda: ChromaticAberration(0.01, -0.01),
+        "color": lambda: Color(matrix, gain_jitter=0.1),
+        "distortion": lambda: Distortion(0.1, 0.02),
+        "jpeg": lambda: JPEG(40, quality_jitter=10, probability=0.7),
+        "misalignment": lambda: Misalignment(0.5, -0.3, 0.4, shift_std=0.5, angle_std=0.2),
+        "noise": lambda: Noise(0.01, 1e-4, 0.003, gain_jitter=0.3),
+        "tone": lambda: Tone(1.2, 0.03, 0.95, 0.2, exposure_jitter=0.3),
+        "vignetting": lambda: Vignetting(-0.4, 0.1),
+    }[name]()
+
+
+NEUTRAL = {name: (lambda n=name: JPEG(probability=0.0) if n == "jpeg" else EFFECTS[n]()) for name in VOCABULARY}
+
+
+def _draw(effect: Effect, image: Tensor, seed: int) -> dict[str, Tensor]:
+    return effect.make_params(image.shape, torch.Generator().manual_seed(seed))
+
+
+def test_registry_holds_the_diagnosis_vocabulary() -> None:
+    assert set(EFFECTS) >= VOCABULARY
+    for name in VOCABULARY:
+        cls = EFFECTS[name]
+        assert cls.name == name and cls.stage in STAGES
+        assert isinstance(build_effect(name), cls)
+    assert {EFFECTS[name].stage for name in VOCABULARY} == set(STAGES)
+
+
+@pytest.mark.parametrize("name", sorted(VOCABULARY))
+def test_neutral_effect_is_the_identity(name: str) -> None:
+    image = photo_batch()
+    effect = NEUTRAL[name]()
+    out = effect(image, _draw(effect, image, 0))
+    assert (out - image).abs().max() <= 1 / 255
+
+
+@pytest.mark.parametrize("name", sorted(VOCABULARY))
+def test_config_and_state_round_trip(name: str) -> None:
+    effect = strong(name)
+    config = json.loads(json.dumps(effect.config()))
+    rebuilt = type(effect).from_config(config)
+    rebuilt.load_state_dict(effect.state_dict(), strict=True)
+    image = photo_batch()
+    params = _draw(effect, image, 3)
+    assert torch.equal(rebuilt(image, params), effect(image, params))
+    assert all(value.dtype.is_floating_point for value in effect.state_dict().values())
+    clone = pickle.loads(pickle.dumps(effect))
+    assert torch.equal(clone(image, params), effect(image, params))
+    assert name in repr(effect) or type(effect).__name__ in repr(effect)
+
+
+@pytest.mark.parametrize("name", sorted(VOCABULARY))
+def test_params_are_seeded_per_sample_and_replayable(name: str) -> None:
+    effect = strong(name)
+    image = photo_batch()
+    first, second = _draw(effect, image, 7), _draw(effect, image, 7)
+    assert first.keys() == second.keys()
+    for key, value in first.items():
+        assert value.shape[0] == image.shape[0] and value.device.type == "cpu", key
+        assert torch.equal(value, second[key])
+    out = effect(image, first)
+    assert torch.equal(out, effect(image, second))
+    assert out.shape == image.shape and out.dtype == image.dtype
+    # A subset of the batch is replayed by indexing every param with the same index.
+    index = torch.tensor([2, 0])
+    subset = effect(image[index], {key: value[index] for key, value in first.items()})
+    torch.testing.assert_close(subset, out[index], atol=1e-5, rtol=0)
+
+
+@pytest.mark.parametrize("name", ["noise", "jpeg", "misalignment", "tone", "color", "blur"])
+def test_stochastic_effects_differ_between_seeds_and_follow_the_global_rng(name: str) -> None:
+    effect = strong(name)
+    image = photo_batch()
+    assert not torch.equal(effect(image, _draw(effect, image, 1)), effect(image, _draw(effect, image, 2)))
+    torch.manual_seed(5)
+    global_first = effect(image)
+    torch.manual_seed(5)
+    assert torch.equal(effect(image), global_first)
+
+
+@pytest.mark.parametrize("name", sorted(VOCABULARY))
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_forward_keeps_dtype_and_does_not_modify_input(name: str, dtype: torch.dtype) -> None:
+    effect = strong(name)
+    image = photo_batch(24, 32).to(dtype)
+    before, version = image.clone(), image._version
+    out = effect(image, _draw(effect, image, 0))
+    assert out.dtype == dtype and out.shape == image.shape
+    assert image._version == version and torch.equal(image, before)
+
+
+def test_jitter_varies_samples_and_jpeg_probability_skips_some() -> None:
+    image = photo_batch()[:1].expand(6, -1, -1, -1)
+    tone = strong("tone")
+    out = tone(image, _draw(tone, image, 0))
+    assert len({round(float(sample.mean()), 4) for sample in out}) == 6
+    jpeg = JPEG(30, probability=0.5)
+    params = _draw(jpeg, image, 4)
+    out = jpeg(image, params)
+    untouched = [torch.equal(out[i], image[i]) for i in range(6)]
+    assert untouched == (~params["apply"]).tolist() and any(untouched) and not all(untouched)
+
+
+def test_noise_gain_jitter_scales_noise() -> None:
+    image = torch.full((2, 3, 64, 64), 0.4)
+    noise = Noise(0.01, 1e-4, gain_jitter=0.5)
+    params = _draw(noise, image, 0)
+    params["gain"] = torch.tensor([0.5, 2.0])
+    out = noise(image, params)
+    assert out[1].std() > 1.8 * out[0].std()  # variance a·g·I + b·g²: the std ratio is between 2 and 4
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
+@pytest.mark.parametrize("name", sorted(VOCABULARY))
+def test_cuda_image_with_params_moved_to_it(name: str) -> None:
+    effect = strong(name)
+    image = photo_batch()
+    params = _draw(effect, image, 0)
+    on_cpu = effect(image, params)
+    on_gpu = effect.cuda()(image.cuda(), {key: value.cuda() for key, value in params.items()})
+    assert on_gpu.device.type == "cuda"
+    torch.testing.assert_close(on_gpu.cpu(), on_cpu, atol=2e-4 if name != "jpeg" else 0, rtol=0)
+
+
+def test_constructor_errors_name_the_argument() -> None:
+    with pytest.raises(ValueError, match=r"quality must be an integer from 1 to 100, got quality=0"):
+        JPEG(0)
+    with pytest.raises(ValueError, match=r"probability must be in \[0, 1\], got probability=1.5"):
+        JPEG(50, probability=1.5)
+    with pytest.raises(ValueError, match="quality_jitter must be a non-negative integer"):
+        JPEG(50, quality_jitter=-1)
+    with pytest.raises(ValueError, match=r"sigma_x must be non-negative, got sigma_x=-1\.0"):
+        Blur(-1.0)
+    with pytest.raises(ValueError, match="white must be greater than black"):
+        Tone(black=0.6, white=0.5)
+    with pytest.raises(ValueError, match=r"matrix must have shape \(3, 3\), got shape \(2, 2\)"):
+        Color(torch.eye(2))
+    with pytest.raises(ValueError, match=r"a must be a number or have shape \(3,\), got shape \(2,\)"):
+        Noise(a=[0.1, 0.2])
+    with pytest.raises(ValueError, match="shift_std must be a non-negative number"):
+        Misalignment(shift_std=-1.0)
+    with pytest.raises(ValueError, match=r"shape must be \(N, 3, H, W\), got shape \(3, 8, 8\)"):
+        Noise(0.01).make_params((3, 8, 8))
+    with pytest.raises(NotImplementedError, match="has no fitter"):
+        Effect.fit(torch.zeros(1, 3, 4, 4), torch.zeros(1, 3, 4, 4))
+
+
+def test_profile_with_an_effect_chain_round_trips(tmp_path) -> None:
+    profile_module = pytest.importorskip("camdegrade.profile")
+    chain = [strong(name) for name in ("misalignment", "vignetting", "blur", "noise", "color", "tone", "jpeg")]
+    profile = profile_module.CameraProfile(None, chain, name="virtual")
+    path = profile.save(tmp_path / "virtual.safetensors")
+    loaded = profile_module.load_profile(path)
+    assert [effect.name for effect in loaded.effects] == [effect.name for effect in chain]
+    image = photo_batch()
+    expected = profile(image, profile.make_params(image.shape, torch.Generator().manual_seed(11)))
+    replayed = loaded(image, loaded.make_params(image.shape, torch.Generator().manual_seed(11)))
+    assert torch.equal(replayed, expected)
