@@ -91,3 +91,19 @@ def test_python_dash_m(tmp_path):
     )
     assert result.returncode == 0, result.stderr
     assert "test-deterministic" in result.stdout
+
+
+def test_unknown_preset_is_one_line(tmp_path, capsys):
+    write_test_images(tmp_path / "in", ["a.png"])
+    assert main(["simulate", "webcam", str(tmp_path / "in"), str(tmp_path / "out")]) == 1
+    err = capsys.readouterr().err
+    assert "unknown preset 'webcam'; known presets:" in err and "Traceback" not in err
+
+
+@pytest.mark.parametrize("device, message", [("nonsense", "must be a torch device"), ("cuda:7", "CUDA")])
+def test_bad_device_is_a_usage_error(tmp_path, profile_path, device, message, capsys):
+    if device.startswith("cuda") and torch.cuda.is_available():
+        pytest.skip("a CUDA device is available here")
+    with pytest.raises(SystemExit) as info:
+        main(["apply", str(profile_path), "a.png", "b.png", "--device", device])
+    assert info.value.code == 2 and message in capsys.readouterr().err

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import os
 import pickle
+import re
 
 import pytest
 import torch
@@ -219,3 +220,27 @@ def test_saved_profile_has_ordinary_permissions(tmp_path):
     umask = os.umask(0)
     os.umask(umask)
     assert path.stat().st_mode & 0o777 == 0o666 & ~umask
+
+
+def test_header_lengths_that_start_like_a_pickle_still_load(tmp_path):
+    """A safetensors header of 640 bytes begins with b'\\x80\\x02', a pickle's opening bytes."""
+    for extra in range(0, 400, 7):
+        profile = deterministic_profile()
+        profile.description = "x" * extra
+        path = profile.save(tmp_path / "p.safetensors")
+        assert load_profile(path).description == "x" * extra
+
+
+@pytest.mark.parametrize(
+    "change, message",
+    [
+        ({"network": {"arch": "OtherNet", "config": {}}}, "must be null or"),
+        ({"network": "oops"}, "must be null or"),
+        ({"network": {"arch": "DomainShiftNet", "config": {"depth": 3}}}, "invalid metadata"),
+        ({"effects": ["noise"]}, "not {'name', 'config'}"),
+        ({"effects": [{"name": "test_additive_noise", "config": {"sigma": 1}}]}, "invalid metadata"),
+    ],
+)
+def test_invalid_metadata_is_a_profile_error(tmp_path, change, message):
+    with pytest.raises(ProfileError, match=re.escape(message)):
+        load_profile(_rewrite_metadata(tmp_path, **change))

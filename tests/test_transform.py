@@ -224,9 +224,38 @@ def test_no_autograd_graph_is_kept(still):
     assert not out.requires_grad and out.grad_fn is None
 
 
-def test_profile_is_cached_per_device(still):
-    still(uint8_images(3, 4, 4))
-    assert list(still._device_profiles) == [torch.device("cpu")]
+def test_profile_on_its_own_device_is_used_without_a_copy(still):
+    assert still.profile_on(torch.device("cpu")) is still.profile
+
+
+def test_dtype_change_and_weight_reload_are_picked_up():
+    degrade = CameraDegrade(deterministic_profile())
+    image = uint8_images(1, 3, 12, 12)
+    before = degrade(image)
+    degrade.double()
+    assert torch.equal(degrade(image), before)  # computed on a float32 copy, same result
+    with torch.no_grad():
+        for tensor in degrade.profile.network.state_dict().values():
+            tensor.mul_(0.5)
+    assert not torch.equal(degrade(image), before)  # the cached copy was rebuilt from the new weights
+
+
+def test_seeded_transform_draws_differently_in_each_worker_and_repeats_across_runs():
+    degrade = CameraDegrade(stochastic_profile(), seed=0)
+
+    class Same(Dataset):
+        def __len__(self) -> int:
+            return 4
+
+        def __getitem__(self, index: int):
+            return degrade(torch.full((3, 8, 8), 128, dtype=torch.uint8))
+
+    def run():
+        return torch.cat(list(DataLoader(Same(), batch_size=1, num_workers=2)))
+
+    first, second = run(), run()
+    assert torch.equal(first, second)
+    assert not torch.equal(first[0], first[1])  # items 0 and 1 come from different workers
 
 
 @pytest.mark.parametrize("mode", ["L", "RGBA", "P", "CMYK", "I;16"])
@@ -273,12 +302,12 @@ def test_images_of_different_shapes_in_one_sample_are_refused():
         )
 
 
-def test_apply_with_an_explicit_generator_matches_a_seeded_transform():
+def test_degrade_with_an_explicit_generator_matches_a_seeded_transform():
     image = uint8_images(4, 3, 10, 10)
     seeded = CameraDegrade(stochastic_profile(), p=0.5, seed=11)
     explicit = CameraDegrade(stochastic_profile(), p=0.5)
-    assert torch.equal(explicit.apply(image, generator=torch.Generator().manual_seed(11)), seeded(image))
-    forced = explicit.apply(image, generator=torch.Generator().manual_seed(11), p=1.0)
+    assert torch.equal(explicit.degrade_with(image, generator=torch.Generator().manual_seed(11)), seeded(image))
+    forced = explicit.degrade_with(image, generator=torch.Generator().manual_seed(11), p=1.0)
     assert all(not torch.equal(forced[i], image[i]) for i in range(4))
     with pytest.raises(ValueError, match="p must be a probability"):
-        explicit.apply(image, generator=None, p=2.0)
+        explicit.degrade_with(image, generator=None, p=2.0)

@@ -125,13 +125,15 @@ def _run_list(args: argparse.Namespace) -> int:
 
 
 def _run_fit(args: argparse.Namespace) -> int:
+    import torch.distributed
+
     from camdegrade.fit import DEFAULT_EFFECTS, fit_profile, init_distributed_from_env, is_main_process
     from camdegrade.training import FitInterrupted
 
     if args.output.suffix != ".safetensors":
         raise ValueError(f"--output must end in .safetensors, got {str(args.output)!r}")
     checkpoint = args.checkpoint or args.output.with_name(args.output.stem + ".ckpt.safetensors")
-    init_distributed_from_env(args.device)
+    device = init_distributed_from_env(args.device)
     main_process = is_main_process()
     try:
         profile = fit_profile(
@@ -149,7 +151,7 @@ def _run_fit(args: argparse.Namespace) -> int:
             strict=args.strict,
             size_mismatch=args.size_mismatch,
             effects=() if args.no_effects else DEFAULT_EFFECTS,
-            device=args.device,
+            device=device,
             threads=args.threads,
             checkpoint=checkpoint,
             resume=args.resume,
@@ -161,6 +163,9 @@ def _run_fit(args: argparse.Namespace) -> int:
     except FitInterrupted as interrupted:
         print(f"camdegrade fit: {interrupted}; run again with --resume", file=sys.stderr)
         return 130
+    finally:
+        if torch.distributed.is_available() and torch.distributed.is_initialized():
+            torch.distributed.destroy_process_group()
     if main_process:
         profile.save(args.output)
         checkpoint.unlink(missing_ok=True)
@@ -186,10 +191,23 @@ _COMMANDS = {
 }
 
 
+def _check_device(parser: argparse.ArgumentParser, name: str) -> None:
+    import torch
+
+    try:
+        device = torch.device(name)
+    except (RuntimeError, ValueError):
+        parser.error(f"--device must be a torch device such as 'cpu' or 'cuda:0', got {name!r}")
+    if device.type == "cuda" and not torch.cuda.is_available():
+        parser.error(f"--device {name!r} asks for CUDA, but no CUDA device is available here")
+
+
 def main(cli_args: Sequence[str] | None = None, prog: str | None = None) -> int:
     """Run the CLI with ``cli_args`` (default: ``sys.argv[1:]``); return the exit status."""
     parser = main_parser(prog)
     args = parser.parse_args(cli_args)
+    if getattr(args, "device", None) is not None:
+        _check_device(parser, args.device)
     try:
         return _COMMANDS[args.command](args)
     except (CamdegradeError, OSError, ValueError) as error:

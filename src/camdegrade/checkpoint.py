@@ -13,8 +13,8 @@ from safetensors import SafetensorError, safe_open
 from safetensors.torch import save_file
 from torch import Tensor
 
+from camdegrade._files import atomic_path
 from camdegrade.errors import CamdegradeError
-from camdegrade.io import atomic_path
 
 CHECKPOINT_KEY = "camdegrade_checkpoint"
 

@@ -18,5 +18,12 @@ class UnknownProfileError(ProfileError, KeyError):
         return str(self.args[0]) if self.args else ""
 
 
+class UnknownPresetError(CamdegradeError, KeyError):
+    """A virtual camera preset name is not one of the known presets."""
+
+    def __str__(self) -> str:
+        return str(self.args[0]) if self.args else ""
+
+
 class PairsError(CamdegradeError, ValueError):
     """A set of (clean, captured) pairs could not be used."""

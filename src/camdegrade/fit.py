@@ -229,17 +229,21 @@ def _quality(profile: CameraProfile, val: Sequence[ImagePair]) -> dict[str, floa
     }
 
 
-def init_distributed_from_env(device: torch.device | str = "cpu") -> bool:
+def init_distributed_from_env(device: torch.device | str = "cpu") -> torch.device:
     """Join the process group ``torchrun`` describes in the environment (gloo on CPU, NCCL on CUDA).
 
-    Returns True when running distributed. A no-op outside ``torchrun`` (no ``WORLD_SIZE`` > 1).
+    Returns the device this process should train on: with CUDA, each process takes the GPU of its
+    ``LOCAL_RANK``. Outside ``torchrun`` (no ``WORLD_SIZE`` > 1) nothing is joined and ``device`` is returned.
     """
+    device = torch.device(device)
     if int(os.environ.get("WORLD_SIZE", "1")) <= 1 or not dist.is_available():
-        return False
+        return device
+    if device.type == "cuda":
+        device = torch.device("cuda", int(os.environ.get("LOCAL_RANK", "0")))
+        torch.cuda.set_device(device)
     if not dist.is_initialized():
-        backend = "nccl" if str(device).startswith("cuda") else "gloo"
-        dist.init_process_group(backend=backend)
-    return True
+        dist.init_process_group(backend="nccl" if device.type == "cuda" else "gloo")
+    return device
 
 
 def is_main_process() -> bool:

@@ -28,13 +28,15 @@ def ssim(prediction: Tensor, target: Tensor, window_sigma: float = 1.5) -> float
         raise ValueError(
             f"prediction and target must have the same shape, got {tuple(prediction.shape)} and {tuple(target.shape)}"
         )
+    if min(prediction.shape[-2:]) < 11:
+        raise ValueError(f"ssim needs images of at least 11×11 pixels, got {tuple(prediction.shape[-2:])}")
     x = _as_unit_float(prediction).reshape(-1, 1, *prediction.shape[-2:])
     y = _as_unit_float(target).reshape(-1, 1, *target.shape[-2:])
     radius = 5
     offsets = torch.arange(-radius, radius + 1, dtype=torch.float32)
     kernel_1d = torch.exp(-(offsets**2) / (2 * window_sigma**2))
     kernel_1d = kernel_1d / kernel_1d.sum()
-    kernel = (kernel_1d[:, None] * kernel_1d[None, :])[None, None]
+    kernel = (kernel_1d[:, None] * kernel_1d[None, :])[None, None].to(x.device)
 
     def local_mean(image: Tensor) -> Tensor:
         return F.conv2d(image, kernel)

@@ -15,10 +15,10 @@ from safetensors import SafetensorError, safe_open
 from safetensors.torch import save_file
 from torch import Tensor, nn
 
+from camdegrade._files import atomic_path
 from camdegrade._version import __version__
 from camdegrade.effects import EFFECTS, STAGES, Effect, build_effect
 from camdegrade.errors import ProfileError, UnknownProfileError
-from camdegrade.io import atomic_path
 from camdegrade.network import DomainShiftNet
 
 #: Value of the ``format`` metadata key in every profile file.
@@ -218,18 +218,21 @@ def load_profile(name_or_path: str | os.PathLike[str], device: torch.device | st
 
 
 def _refuse_non_safetensors(path: Path) -> None:
+    """Refuse anything but a safetensors file, and name pickled checkpoints as such; never unpickle."""
     with path.open("rb") as handle:
-        head = handle.read(8)
-        size = path.stat().st_size
+        head = handle.read(9)
+    size = path.stat().st_size
+    header_length = int.from_bytes(head[:8], "little") if len(head) == 9 else -1
+    looks_like_safetensors = 0 < header_length <= min(size - 8, _MAX_HEADER_BYTES) and head[8:9] == b"{"
+    if looks_like_safetensors and path.suffix.lower() not in _PICKLE_SUFFIXES:
+        return
     pickled = head[:2] in (b"\x80\x02", b"\x80\x03", b"\x80\x04", b"\x80\x05") or head[:4] == b"PK\x03\x04"
     if pickled or path.suffix.lower() in _PICKLE_SUFFIXES:
         raise ProfileError(
             f"profile {str(path)!r} looks like a pickled PyTorch checkpoint; camdegrade only loads .safetensors "
             "profiles and never unpickles files (use camdegrade.CameraProfile(...).save('profile.safetensors'))"
         )
-    header_length = int.from_bytes(head, "little") if len(head) == 8 else -1
-    if header_length <= 0 or header_length > min(size - 8, _MAX_HEADER_BYTES):
-        raise ProfileError(f"profile {str(path)!r} is not a safetensors file (bad or truncated header)")
+    raise ProfileError(f"profile {str(path)!r} is not a safetensors file (bad or truncated header)")
 
 
 def serialize_metadata(metadata: Mapping[str, Any]) -> dict[str, str]:
@@ -262,25 +265,44 @@ def _parse_metadata(raw: Mapping[str, str], path: Path) -> dict[str, Any]:
 
 def _profile_from_metadata(raw: Mapping[str, str], path: Path) -> CameraProfile:
     metadata = _parse_metadata(raw, path)
-    network_spec = metadata.get("network")
-    network = None if network_spec is None else DomainShiftNet(**network_spec.get("config", {}))
-    effects = []
-    for spec in metadata.get("effects", []):
-        if spec.get("name") not in EFFECTS:
-            raise ProfileError(
-                f"profile {str(path)!r} uses effect {spec.get('name')!r}, unknown to camdegrade {__version__} "
-                f"(known: {', '.join(sorted(EFFECTS))}); upgrade camdegrade"
-            )
-        effects.append(build_effect(spec["name"], spec.get("config", {})))
-    return CameraProfile(
-        network,
-        effects,
-        name=metadata.get("name", ""),
-        description=metadata.get("description", ""),
-        fitted=metadata.get("fitted", {}),
-        quality=metadata.get("quality", {}),
-        package_version=metadata.get("package_version", "unknown"),
-    )
+    try:
+        network = _network_from_spec(metadata.get("network"), path)
+        effects = [_effect_from_spec(spec, path) for spec in metadata.get("effects", [])]
+        return CameraProfile(
+            network,
+            effects,
+            name=str(metadata.get("name", "")),
+            description=str(metadata.get("description", "")),
+            fitted=metadata.get("fitted", {}),
+            quality=metadata.get("quality", {}),
+            package_version=str(metadata.get("package_version", "unknown")),
+        )
+    except (TypeError, ValueError, AttributeError, KeyError) as error:
+        if isinstance(error, ProfileError):
+            raise
+        raise ProfileError(f"profile {str(path)!r} has invalid metadata: {error}") from error
+
+
+def _network_from_spec(spec: Any, path: Path) -> DomainShiftNet | None:
+    if spec is None:
+        return None
+    if not isinstance(spec, dict) or spec.get("arch") != "DomainShiftNet":
+        raise ProfileError(
+            f"profile {str(path)!r} metadata 'network' must be null or {{'arch': 'DomainShiftNet', 'config': ...}}, "
+            f"got {spec!r}"
+        )
+    return DomainShiftNet(**spec.get("config", {}))
+
+
+def _effect_from_spec(spec: Any, path: Path) -> Effect:
+    if not isinstance(spec, dict) or not isinstance(spec.get("config", {}), dict):
+        raise ProfileError(f"profile {str(path)!r} has an effect entry that is not {{'name', 'config'}}: {spec!r}")
+    if spec.get("name") not in EFFECTS:
+        raise ProfileError(
+            f"profile {str(path)!r} uses effect {spec.get('name')!r}, unknown to camdegrade {__version__} "
+            f"(known: {', '.join(sorted(EFFECTS))}); upgrade camdegrade"
+        )
+    return build_effect(spec["name"], spec.get("config", {}))
 
 
 def _load_state_strictly(profile: CameraProfile, tensors: dict[str, Tensor], path: Path) -> None:

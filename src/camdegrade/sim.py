@@ -18,8 +18,10 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
+from camdegrade._files import atomic_path
 from camdegrade.effects import EFFECTS, STAGES, Effect
-from camdegrade.io import atomic_path, is_image_path, iter_images, read_image, write_image
+from camdegrade.errors import UnknownPresetError
+from camdegrade.io import is_image_path, iter_images, read_image, write_image
 
 CameraParams = list[dict[str, Tensor]]
 
@@ -125,7 +127,7 @@ class VirtualCamera(nn.Module):
     def from_preset(cls, name: str) -> VirtualCamera:
         """The virtual camera of a named preset (see :data:`PRESETS`)."""
         if name not in PRESETS:
-            raise KeyError(f"unknown preset {name!r}; known presets: {', '.join(sorted(PRESETS))}")
+            raise UnknownPresetError(f"unknown preset {name!r}; known presets: {', '.join(sorted(PRESETS))}")
         preset = PRESETS[name]
         return cls(
             [EFFECTS[effect](**dict(kwargs)) for effect, kwargs in preset.effects], scale=preset.scale, name=name

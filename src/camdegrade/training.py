@@ -127,7 +127,7 @@ def fit_network(
         raise ValueError(f"batch_size ({config.batch_size}) must be divisible by the number of processes ({world})")
     network, optimizer, scheduler, generator = _new_training(config, device)
     state = _initial_state(network, optimizer, scheduler, generator, config, checkpoint, resume)
-    model = torch.nn.parallel.DistributedDataParallel(network) if world > 1 else network
+    model = _distributed(network, device) if world > 1 else network
     epochs = tqdm(
         range(state.epoch, config.epochs),
         initial=state.epoch,
@@ -223,6 +223,14 @@ def _train_one_epoch(model, optimizer, train, config, generator, device, rank: i
         optimizer.step()
         loss_sum += _global_sum(loss.detach() * count / world)  # this rank's squared error per crop element
     return loss_sum / total_crops
+
+
+def _distributed(network: DomainShiftNet, device: torch.device | str) -> torch.nn.Module:
+    device = torch.device(device)
+    device_ids = (
+        [device.index if device.index is not None else torch.cuda.current_device()] if device.type == "cuda" else None
+    )
+    return torch.nn.parallel.DistributedDataParallel(network, device_ids=device_ids)
 
 
 def _global_sum(value: Tensor) -> float:

@@ -12,12 +12,14 @@ import PIL.Image
 import torch
 from torch import Tensor
 from torch.utils._pytree import tree_flatten, tree_unflatten
+from torch.utils.data import get_worker_info
 from torchvision import tv_tensors
 from torchvision.transforms.v2 import Transform
 from torchvision.transforms.v2 import functional as TF
 
 from camdegrade.profile import CameraProfile, EffectParams, load_profile
 
+_MAIN_PROCESS = -1
 _FLOAT_DTYPES = (torch.float16, torch.bfloat16, torch.float32, torch.float64)
 
 
@@ -68,7 +70,8 @@ class CameraDegrade(Transform):
         self.p = check_probability(p)
         self.seed = seed
         self._generator = None if seed is None else torch.Generator().manual_seed(seed)
-        self._device_profiles: dict[torch.device, CameraProfile] = {}
+        self._generator_worker = _MAIN_PROCESS
+        self._device_profiles: dict[torch.device, tuple[tuple[int, ...], CameraProfile]] = {}
         self._lock = threading.Lock()
 
     def __getstate__(self) -> dict[str, Any]:
@@ -83,7 +86,22 @@ class CameraDegrade(Transform):
 
     def make_params(self, flat_inputs: list[Any]) -> dict[str, Any]:
         """Draw this call's randomness from the transform's own generator (see :meth:`draw_params`)."""
-        return self.draw_params(flat_inputs, self._generator)
+        return self.draw_params(flat_inputs, self._process_generator())
+
+    def _process_generator(self) -> torch.Generator | None:
+        """The seeded generator, re-seeded once per DataLoader worker from ``(seed, worker id)``.
+
+        Every worker receives a copy of the transform; without this, all of them would replay the same random
+        sequence and items loaded by different workers would share their noise.
+        """
+        if self.seed is None:
+            return None
+        worker = get_worker_info()
+        worker_id = _MAIN_PROCESS if worker is None else worker.id
+        if worker_id != self._generator_worker:
+            self._generator = torch.Generator().manual_seed(_worker_seed(self.seed, worker_id))
+            self._generator_worker = worker_id
+        return self._generator
 
     def draw_params(
         self, flat_inputs: list[Any], generator: torch.Generator | None, p: float | None = None
@@ -105,7 +123,7 @@ class CameraDegrade(Transform):
             "frames": frames,
         }
 
-    def apply(self, *inputs: Any, generator: torch.Generator | None, p: float | None = None) -> Any:
+    def degrade_with(self, *inputs: Any, generator: torch.Generator | None, p: float | None = None) -> Any:
         """Like calling the transform, but drawing from ``generator`` (and with probability ``p`` if given).
 
         Used where the caller owns the randomness, e.g. a dataset seeding one generator per (item, epoch) so
@@ -165,12 +183,19 @@ class CameraDegrade(Transform):
         return out
 
     def profile_on(self, device: torch.device) -> CameraProfile:
+        """The profile as float32 on ``device``: the profile itself when it already is, else a cached copy.
+
+        A copy is rebuilt whenever the profile's tensors change (``load_state_dict``, ``.to()``, in-place edits).
+        """
+        if _is_float32_on(self.profile, device):
+            return self.profile
+        fingerprint = _state_fingerprint(self.profile)
         with self._lock:
             cached = self._device_profiles.get(device)
-            if cached is None:
-                cached = self.profile if _same_device(self.profile, device) else _copy_to(self.profile, device)
+            if cached is None or cached[0] != fingerprint:
+                cached = (fingerprint, copy.deepcopy(self.profile).to(device=device, dtype=torch.float32))
                 self._device_profiles[device] = cached
-            return cached
+            return cached[1]
 
     def extra_repr(self) -> str:
         return f"profile={self.profile.name!r}, p={self.p}, seed={self.seed}"
@@ -226,10 +251,17 @@ def from_unit_float(image: Tensor, dtype: torch.dtype) -> Tensor:
     return image.to(dtype)
 
 
-def _same_device(module: torch.nn.Module, device: torch.device) -> bool:
-    tensor = next(iter(module.state_dict().values()), None)
-    return tensor is None or tensor.device == device
+def _is_float32_on(module: torch.nn.Module, device: torch.device) -> bool:
+    return all(
+        t.device == device and (t.dtype == torch.float32 or not t.is_floating_point())
+        for t in module.state_dict().values()
+    )
 
 
-def _copy_to(profile: CameraProfile, device: torch.device) -> CameraProfile:
-    return copy.deepcopy(profile).to(device)
+def _state_fingerprint(module: torch.nn.Module) -> tuple[int, ...]:
+    """Changes whenever a tensor of ``module`` is replaced or modified in place."""
+    return tuple(part for t in module.state_dict().values() for part in (id(t), t._version, t.data_ptr()))
+
+
+def _worker_seed(seed: int, worker_id: int) -> int:
+    return (seed * 1_000_003 + worker_id + 1) % (2**63)

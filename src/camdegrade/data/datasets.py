@@ -67,7 +67,7 @@ class _Mixer:
     def degrade_sample(self, sample: Any, index: int, epoch: int | None = None) -> Any:
         """``sample`` (source item ``index``) degraded exactly as this wrapper degrades it in ``epoch``."""
         epoch = self.epoch if epoch is None else epoch
-        return self.degrade.apply(sample, generator=item_generator(self.seed, epoch, index), p=1.0)
+        return self.degrade.degrade_with(sample, generator=item_generator(self.seed, epoch, index), p=1.0)
 
     def decision(self, index: int, copy: int = 0, epoch: int | None = None) -> Decision:
         """Whether copy ``copy`` of source item ``index`` is degraded in ``epoch`` (a tuple for paired policies)."""
@@ -170,8 +170,9 @@ class DegradedIterableDataset(_Mixer, IterableDataset):
 
     Streams have no index, so each sample gets one: ``index_of(sample)`` if given (a stable key such as a file
     number makes results independent of workers, ranks and sharding), otherwise its position in the stream the
-    worker reads, as a round-robin global index ``position * num_workers + worker_id`` (reproducible for a fixed
-    ``num_workers`` and sharding). Each incoming sample yields ``policy.copies`` outputs in a row.
+    worker reads, as a round-robin global index ``(position * num_workers + worker_id) * world_size + rank``
+    (reproducible for fixed ``num_workers``, ranks and sharding; distinct across workers and ranks).
+    Each incoming sample yields ``policy.copies`` outputs in a row.
 
     Args:
         dataset: any iterable of samples (an ``IterableDataset``, a generator factory's result, a list...).
@@ -199,9 +200,13 @@ class DegradedIterableDataset(_Mixer, IterableDataset):
     def __iter__(self) -> Iterator[Any]:
         info = get_worker_info()
         workers, worker_id = (1, 0) if info is None else (info.num_workers, info.id)
+        rank, world = _rank_and_world_size()
         epoch = self.epoch
         for position, sample in enumerate(self.dataset):
-            index = position * workers + worker_id if self.index_of is None else operator.index(self.index_of(sample))
+            if self.index_of is None:
+                index = (position * workers + worker_id) * world + rank
+            else:
+                index = operator.index(self.index_of(sample))
             for copy in range(self.policy.copies):
                 yield self._views(sample, index, copy, epoch)
 
@@ -212,6 +217,12 @@ class DegradedIterableDataset(_Mixer, IterableDataset):
 
     def __repr__(self) -> str:
         return self._describe(self.dataset)
+
+
+def _rank_and_world_size() -> tuple[int, int]:
+    if torch.distributed.is_available() and torch.distributed.is_initialized():
+        return torch.distributed.get_rank(), torch.distributed.get_world_size()
+    return 0, 1
 
 
 class IndexedDataset(Dataset):
