@@ -19,7 +19,7 @@ from camdegrade._files import atomic_path
 from camdegrade._version import __version__
 from camdegrade.effects import EFFECTS, STAGES, Effect, build_effect
 from camdegrade.errors import ProfileError, UnknownProfileError
-from camdegrade.network import DomainShiftNet
+from camdegrade.network import DomainShiftNet, Precision, run_network
 
 #: Value of the ``format`` metadata key in every profile file.
 FORMAT_NAME = "camdegrade-profile"
@@ -91,13 +91,15 @@ class CameraProfile(nn.Module):
         """Draw every effect's random values for a batch of ``shape = (N, 3, H, W)``, in chain order."""
         return [effect.make_params(tuple(shape), generator) for effect in self.effects]
 
-    def forward(self, image: Tensor, params: EffectParams | None = None) -> Tensor:
+    def forward(self, image: Tensor, params: EffectParams | None = None, *, precision: Precision = "float32") -> Tensor:
+        """Degrade ``image``; ``params`` from :meth:`make_params` (drawn from the global RNG when omitted);
+        ``precision`` of the network (see :func:`camdegrade.network.run_network`)."""
         if params is None:
             params = self.make_params(image.shape)
         if len(params) != len(self.effects):
             raise ValueError(f"params must hold one entry per effect ({len(self.effects)}), got {len(params)}")
         if self.network is not None:
-            image = self.network(image)
+            image = run_network(self.network, image, precision)
         for effect, effect_params in zip(self.effects, params):
             image = effect(image, effect_params)
         return image.clamp(0.0, 1.0)
