@@ -1,0 +1,214 @@
+"""Throughput of CameraDegrade against the paper's network alone and the augmentation chains users pick instead.
+
+Plain script, not a test. Every number is a median over repeats after warm-up, measured in this one run with the
+stated number of torch threads, so the ratios compare like with like. Cases (uint8 224² RGB in, uint8 out):
+
+- ``reference_network_fp32``: the paper's network alone, float32 eager, with the uint8 ↔ float conversion;
+- ``camdegrade_single`` / ``camdegrade_batch32``: ``CameraDegrade(profile)`` with its effect stages and the
+  automatic precision, one image per call / 32 per call (reported per image); ``camdegrade_single_fp32``: the
+  same with ``precision="float32"``;
+- ``torchvision_chain``: v2 ColorJitter + GaussianBlur + GaussianNoise + JPEG;
+- ``kornia_chain`` (single and batch 32): ColorJitter + RandomGaussianBlur + RandomGaussianNoise + RandomJPEG;
+- ``albumentations_chain``: ColorJitter + GaussianBlur + ISONoise + ImageCompression;
+- ``fit_crops_per_s``: training crops of 224² per second (forward + backward + Adam step, batch 8).
+
+Peer libraries come from the ``bench`` extra and are skipped when missing. Run from the repo root::
+
+    .venv/bin/python bench/bench_transform.py                 # writes out/bench/transform.json
+    .venv/bin/python bench/bench_transform.py --quick         # fewer repeats, for a smoke run
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import resource
+import statistics
+import time
+import warnings
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+os.environ.setdefault("NO_ALBUMENTATIONS_UPDATE", "1")  # albumentations would look for updates online
+
+import torch
+import torch.nn.functional as F
+
+from camdegrade import CameraDegrade, load_profile
+from camdegrade.network import resolve_precision
+
+SIZE = 224
+
+
+def natural_image(size: int = SIZE) -> torch.Tensor:
+    """A 224² uint8 natural photo (scikit-image's astronaut when installed, else smooth generated content)."""
+    try:
+        from skimage import data
+
+        image = torch.from_numpy(data.astronaut()).permute(2, 0, 1)[None].float()
+    except ImportError:
+        image = F.interpolate(torch.rand(1, 3, 16, 16, generator=torch.Generator().manual_seed(0)) * 255, size=64)
+    return F.interpolate(image, size=(size, size), mode="area")[0].round().clamp(0, 255).to(torch.uint8)
+
+
+def images_per_second(step: Callable[[], Any], images_per_call: int, repeats: int, warmup: int, calls: int) -> float:
+    for _ in range(warmup):
+        step()
+    rates = []
+    for _ in range(repeats):
+        started = time.perf_counter()
+        for _ in range(calls):
+            step()
+        rates.append(calls * images_per_call / (time.perf_counter() - started))
+    return statistics.median(rates)
+
+
+def reference_network(profile_name: str) -> Callable[[torch.Tensor], torch.Tensor]:
+    network = load_profile(profile_name).network
+
+    def run(image: torch.Tensor) -> torch.Tensor:
+        with torch.no_grad():
+            return network(image[None].float() / 255.0)[0].mul(255).round().clamp(0, 255).to(torch.uint8)
+
+    return run
+
+
+def torchvision_chain() -> Callable[[torch.Tensor], torch.Tensor]:
+    from torchvision.transforms import v2
+
+    return v2.Compose(
+        [
+            v2.ColorJitter(0.2, 0.2, 0.2, 0.05),
+            v2.GaussianBlur(5, sigma=(0.5, 1.5)),
+            v2.ToDtype(torch.float32, scale=True),
+            v2.GaussianNoise(sigma=0.03),
+            v2.ToDtype(torch.uint8, scale=True),
+            v2.JPEG((40, 80)),
+        ]
+    )
+
+
+def kornia_chain() -> Callable[[torch.Tensor], torch.Tensor] | None:
+    try:
+        import kornia.augmentation as K
+    except ImportError:
+        return None
+    chain = K.AugmentationSequential(
+        K.ColorJitter(0.2, 0.2, 0.2, 0.05, p=1.0),
+        K.RandomGaussianBlur((5, 5), (0.5, 1.5), p=1.0),
+        K.RandomGaussianNoise(std=0.03, p=1.0),
+        K.RandomJPEG(jpeg_quality=(40.0, 80.0), p=1.0),
+    )
+
+    def run(images: torch.Tensor) -> torch.Tensor:
+        batch = images if images.ndim == 4 else images[None]
+        with torch.no_grad():
+            return (chain(batch.float() / 255.0).clamp(0, 1) * 255).round().to(torch.uint8)
+
+    return run
+
+
+def albumentations_chain() -> Callable[[Any], Any] | None:
+    try:
+        import albumentations as A
+    except ImportError:
+        return None
+    chain = A.Compose(
+        [
+            A.ColorJitter(0.2, 0.2, 0.2, 0.05, p=1.0),
+            A.GaussianBlur(blur_limit=(3, 5), p=1.0),
+            A.ISONoise(p=1.0),
+            A.ImageCompression(quality_range=(40, 80), p=1.0),
+        ]
+    )
+    return lambda array: chain(image=array)["image"]
+
+
+def fit_crops_per_second(repeats: int) -> float:
+    from camdegrade.network import DomainShiftNet
+
+    network = DomainShiftNet()
+    optimizer = torch.optim.Adam(network.parameters(), lr=0.01)
+    clean, captured = torch.rand(8, 3, SIZE, SIZE), torch.rand(8, 3, SIZE, SIZE)
+
+    def step() -> None:
+        optimizer.zero_grad(set_to_none=True)
+        F.mse_loss(network.forward_aligned(clean), captured).backward()
+        optimizer.step()
+
+    return images_per_second(step, 8, repeats, warmup=1, calls=2)
+
+
+def main(argv: list[str] | None = None) -> dict[str, Any]:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--profile", default="city100-iphonex")
+    parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--quick", action="store_true")
+    parser.add_argument("--out", type=Path, default=Path("out/bench/transform.json"))
+    args = parser.parse_args(argv)
+    warnings.filterwarnings("ignore")  # peer libraries' deprecation notices are not what is measured
+    torch.set_num_threads(args.threads)
+    repeats, calls = (3, 5) if args.quick else (7, 30)
+    image = natural_image()
+    batch = image.expand(32, -1, -1, -1).contiguous()
+    degrade = CameraDegrade(args.profile, seed=0)
+    exact = CameraDegrade(args.profile, seed=0, precision="float32")
+    results: dict[str, float | None] = {}
+
+    def measure(name: str, step: Callable[[], Any], per_call: int = 1, n_calls: int = calls) -> None:
+        results[name] = round(images_per_second(step, per_call, repeats, warmup=3, calls=n_calls), 1)
+        print(f"{name:28s} {results[name]:9.1f} images/s", flush=True)
+
+    reference = reference_network(args.profile)
+    measure("reference_network_fp32", lambda: reference(image))
+    measure("camdegrade_single", lambda: degrade(image))
+    measure("camdegrade_batch32", lambda: degrade(batch), per_call=32, n_calls=max(1, calls // 8))
+    measure("camdegrade_single_fp32", lambda: exact(image))
+    tv = torchvision_chain()
+    measure("torchvision_chain", lambda: tv(image))
+    kornia = kornia_chain()
+    if kornia is not None:
+        measure("kornia_chain", lambda: kornia(image))
+        measure("kornia_chain_batch32", lambda: kornia(batch), per_call=32, n_calls=max(1, calls // 8))
+    album = albumentations_chain()
+    if album is not None:
+        array = image.permute(1, 2, 0).numpy().copy()
+        measure("albumentations_chain", lambda: album(array))
+    results["fit_crops_per_s"] = round(fit_crops_per_second(repeats), 2)
+    print(f"{'fit_crops_per_s':28s} {results['fit_crops_per_s']:9.2f} crops/s (224², batch 8)")
+
+    single = results["camdegrade_single"]
+    ratios = {
+        "single_vs_reference_network": single / results["reference_network_fp32"],
+        "single_vs_torchvision_chain": single / results["torchvision_chain"],
+        "batch32_vs_single": results["camdegrade_batch32"] / single,
+    }
+    if album is not None:
+        ratios["single_vs_albumentations_chain"] = single / results["albumentations_chain"]
+    if kornia is not None:
+        ratios["single_vs_kornia_chain"] = single / results["kornia_chain"]
+    print("ratios: " + ", ".join(f"{k} {v:.2f}x" for k, v in ratios.items()))
+    record = {
+        "images_per_s": results,
+        "ratios": {k: round(v, 3) for k, v in ratios.items()},
+        "profile": args.profile,
+        "effects": load_profile(args.profile).effect_names,
+        "precision_auto_resolves_to": resolve_precision("auto", torch.device("cpu")),
+        "threads": args.threads,
+        "image": f"uint8 3x{SIZE}x{SIZE}",
+        "peak_rss_mib": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1),
+        "machine": f"{platform.machine()}, {os.cpu_count()} cores, torch {torch.__version__}",
+        "repeats": repeats,
+        "quick": args.quick,
+    }
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps(record, indent=2) + "\n")
+    print(f"peak RSS {record['peak_rss_mib']} MiB; wrote {args.out}")
+    return record
+
+
+if __name__ == "__main__":
+    main()
