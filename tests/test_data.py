@@ -268,10 +268,11 @@ def test_batch_degrade_equals_the_per_sample_path(dtype):
         decided = torch.tensor([per_sample.decision(i) for i in indices.tolist()])
         assert 0 < int(decided.sum()) < len(indices)
         assert torch.equal(out[~decided], images[~decided])
+        # Within one 8-bit level: batched vs single-image arithmetic (bfloat16 where native) can round differently.
         if dtype == torch.uint8:
-            assert (out.int() - expected.int()).abs().max() <= 1  # batched vs single-image float rounding
+            assert (out.int() - expected.int()).abs().max() <= 1
         else:
-            torch.testing.assert_close(out, expected.float(), atol=1 / 255 + 1e-5, rtol=0)
+            assert ((out * 255).round() - (expected * 255).round()).abs().max() <= 1
 
 
 def test_batch_degrade_policies_epochs_and_index_numbering():
