@@ -4,6 +4,7 @@ Public API::
 
     from camdegrade import CameraDegrade, CameraProfile, load_profile, list_profiles
     from camdegrade import DegradedDataset, BatchDegrade, VirtualCamera, fit_profile
+    from camdegrade.diagnose import diagnose
 """
 
 from camdegrade._version import __version__

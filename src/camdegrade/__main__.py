@@ -8,6 +8,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from camdegrade._version import __version__
+from camdegrade.diagnose.cli import add_diagnose_parser, run_diagnose
 from camdegrade.errors import CamdegradeError
 
 
@@ -33,6 +34,7 @@ def main_parser(prog: str | None = None) -> argparse.ArgumentParser:
     commands.add_parser("list", help="list the built-in profiles")
     _add_fit_parser(commands)
     _add_simulate_parser(commands)
+    add_diagnose_parser(commands)
     return parser
 
 
@@ -188,6 +190,7 @@ _COMMANDS = {
     "list": _run_list,
     "fit": _run_fit,
     "simulate": _run_simulate,
+    "diagnose": run_diagnose,
 }
 
 

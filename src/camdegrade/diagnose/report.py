@@ -1,0 +1,317 @@
+"""The diagnosis report: JSON (a fixed schema) and one self-contained HTML page (no external requests).
+
+Plots are PNG images drawn with matplotlib when it is installed (the optional ``report`` extra) and embedded as
+base64; without matplotlib the same evidence is shown as tables. Example crops are always embedded (Pillow).
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import io
+import json
+import math
+import os
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import torch
+from PIL import Image
+from torch import Tensor
+
+from camdegrade._files import atomic_path
+from camdegrade.diagnose.stats import BANDS, FAMILIES, INTENSITY_BINS, NOISE_BINS, TILES
+from camdegrade.profile import CameraProfile
+
+#: Keys every JSON report has at the top level (more follow them).
+REQUIRED_KEYS = ("gap_before", "gap_after", "noise_floor", "where", "effects", "added")
+
+
+@dataclass
+class DiagnosisReport:
+    """What :func:`camdegrade.diagnose.diagnose` found. ``to_dict()`` is the JSON report."""
+
+    gap_before: float
+    gap_after: float
+    noise_floor: float
+    where: list[dict[str, Any]]
+    effects: list[dict[str, Any]]
+    added: list[str]
+    verdict: str = ""
+    fraction_closed: float = 0.0
+    gap_before_se: float = 0.0
+    gap_after_best_single: float = 0.0
+    combinations: list[dict[str, Any]] = field(default_factory=list)
+    fitted_params: dict[str, dict[str, Any]] = field(default_factory=dict)
+    split: str = ""
+    calibration_pairs: int = 0
+    held_out_pairs: int = 0
+    families_before: dict[str, float] = field(default_factory=dict)
+    families_after: dict[str, float] = field(default_factory=dict)
+    statistics: dict[str, dict[str, Tensor]] = field(default_factory=dict, repr=False)
+    crops: list[tuple[str, list[Tensor]]] = field(default_factory=list, repr=False)
+    profile: CameraProfile | None = field(default=None, repr=False)
+    profile_name: str = ""
+    mode: str = "paired"
+
+    def to_dict(self) -> dict[str, Any]:
+        """The JSON report: the required keys first, then the evidence."""
+        return {
+            "gap_before": _number(self.gap_before),
+            "gap_after": _number(self.gap_after),
+            "noise_floor": _number(self.noise_floor),
+            "where": self.where,
+            "effects": self.effects,
+            "added": list(self.added),
+            "verdict": self.verdict,
+            "mode": self.mode,
+            "fraction_closed": _number(self.fraction_closed),
+            "gap_before_se": _number(self.gap_before_se),
+            "gap_after_best_single": _number(self.gap_after_best_single),
+            "combinations": self.combinations,
+            "fitted_params": self.fitted_params,
+            "split": self.split,
+            "calibration_pairs": self.calibration_pairs,
+            "held_out_pairs": self.held_out_pairs,
+            "families_before": {k: _number(v) for k, v in self.families_before.items()},
+            "families_after": {k: _number(v) for k, v in self.families_after.items()},
+            "gap_definition": "sum over statistic families of RMS((real - sim) / tau); see docs/diagnosis.md",
+            "family_tau": {name: family.tau for name, family in FAMILIES.items()},
+            "profile": self.profile_name,
+        }
+
+    def to_json(self) -> str:
+        return json.dumps(self.to_dict(), indent=2, allow_nan=False) + "\n"
+
+    def write_json(self, path: str | os.PathLike[str]) -> Path:
+        path = Path(path)
+        with atomic_path(path) as temporary:
+            temporary.write_text(self.to_json(), encoding="utf-8")
+        return path
+
+    def write_html(self, path: str | os.PathLike[str]) -> Path:
+        path = Path(path)
+        with atomic_path(path) as temporary:
+            temporary.write_text(self.to_html(), encoding="utf-8")
+        return path
+
+    def to_html(self) -> str:
+        return render_html(self)
+
+
+def _number(value: float) -> float:
+    return round(float(value), 4) if math.isfinite(float(value)) else 0.0
+
+
+def example_crops(
+    cleans: Sequence[Tensor], reals: Sequence[Tensor], before: Sequence[Tensor], after: Sequence[Tensor], count: int = 3
+) -> list[tuple[str, list[Tensor]]]:
+    """Up to ``count`` crops (clean, real, sim before, sim after) from the most textured held-out images,
+    taken where real and simulation before differ most (96 px at most)."""
+    scored = sorted(range(len(cleans)), key=lambda i: -float((reals[i] - before[i]).abs().mean()))[:count]
+    out = []
+    for index in scored:
+        height, width = cleans[index].shape[-2:]
+        side = min(96, height, width)
+        diff = (reals[index] - before[index]).abs().mean(0)
+        window = torch.nn.functional.avg_pool2d(diff[None, None], side, stride=max(1, side // 4))[0, 0]
+        top, left = divmod(int(window.argmax()), window.shape[-1])
+        top, left = top * max(1, side // 4), left * max(1, side // 4)
+        crop = (slice(top, top + side), slice(left, left + side))
+        out.append(
+            (
+                f"held-out pair {index}",
+                [image[:, crop[0], crop[1]] for image in (cleans[index], reals[index], before[index], after[index])],
+            )
+        )
+    return out
+
+
+def _png(image: Tensor, scale: int = 2) -> str:
+    array = image.clamp(0, 1).mul(255).round().to(torch.uint8).permute(1, 2, 0).numpy()
+    picture = Image.fromarray(array)
+    if scale > 1:
+        picture = picture.resize((picture.width * scale, picture.height * scale), Image.NEAREST)
+    buffer = io.BytesIO()
+    picture.save(buffer, format="PNG")
+    return "data:image/png;base64," + base64.b64encode(buffer.getvalue()).decode("ascii")
+
+
+def _figure_png(figure: Any) -> str:
+    buffer = io.BytesIO()
+    figure.savefig(buffer, format="png", dpi=80, bbox_inches="tight")
+    import matplotlib.pyplot as plt
+
+    plt.close(figure)
+    return "data:image/png;base64," + base64.b64encode(buffer.getvalue()).decode("ascii")
+
+
+def _plots(report: DiagnosisReport) -> list[tuple[str, str]]:
+    """(caption, data URL) for each evidence plot; empty without matplotlib or statistics."""
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg", force=False)
+        import matplotlib.pyplot as plt
+    except ImportError:
+        return []
+    stats = report.statistics
+    if not stats:
+        return []
+    real, before, after = stats["real"], stats["before"], stats["after"]
+    plots = []
+    figure, axes = plt.subplots(1, 3, figsize=(9, 3))
+    vmax = max(1.0, float((real["spatial"] - before["spatial"]).abs().max()))
+    for axis, (label, sim) in zip(axes, (("before", before), ("after", after), ("", None)), strict=True):
+        if sim is None:
+            axis.axis("off")
+            continue
+        diff = (real["spatial"] - sim["spatial"]).reshape(3, TILES, TILES).mean(0)
+        shown = axis.imshow(diff.numpy(), cmap="coolwarm", vmin=-vmax, vmax=vmax)
+        axis.set_title(f"real − sim {label} (levels)")
+        axis.set_xticks([])
+        axis.set_yticks([])
+    figure.colorbar(shown, ax=axes[2], fraction=0.8)
+    plots.append(("Spatial map: mean difference per tile (vignetting, tone, colour)", _figure_png(figure)))
+
+    figure, axes = plt.subplots(1, 3, figsize=(10, 3))
+    centres = (torch.arange(INTENSITY_BINS) + 0.5) / INTENSITY_BINS
+    for name, sim, style in (("sim before", before, "--"), ("sim after", after, ":")):
+        axes[0].plot(centres, (real["intensity"] - sim["intensity"]).reshape(3, -1).T.numpy(), style)
+        axes[0].plot([], [], "k" + style, label=name)
+    axes[0].axhline(0, color="k", lw=0.5)
+    axes[0].set_title("tone residual real − sim (levels)")
+    axes[0].set_xlabel("clean value")
+    axes[0].legend(fontsize=7)
+    centres = (torch.arange(NOISE_BINS) + 0.5) / NOISE_BINS
+    for name, values, style in (("real", real, "-"), ("sim before", before, "--"), ("sim after", after, ":")):
+        axes[1].plot(centres, torch.nanmean(values["noise"].reshape(3, -1), 0).numpy(), "k" + style, label=name)
+    axes[1].set_title("noise-level function (std, levels)")
+    axes[1].set_xlabel("clean value")
+    axes[1].legend(fontsize=7)
+    frequencies = (torch.arange(1, BANDS) + 0.5) / BANDS * 0.5
+    for name, values, style in (("real", real, "-"), ("sim before", before, "--"), ("sim after", after, ":")):
+        axes[2].plot(frequencies, values["frequency"].numpy(), "k" + style, label=name)
+    axes[2].set_title("transfer vs clean (rel. to lowest band)")
+    axes[2].set_xlabel("cycles / pixel")
+    axes[2].legend(fontsize=7)
+    figure.tight_layout()
+    plots.append(("Intensity, noise and frequency signatures", _figure_png(figure)))
+    return plots
+
+
+def _pm(value: float, error: float | None) -> str:
+    return f"{value:+.2f}" if error is None else f"{value:+.2f} ± {error:.2f}"
+
+
+def _table(rows: Sequence[Sequence[Any]], header: Sequence[str]) -> str:
+    head = "".join(f"<th>{html.escape(str(h))}</th>" for h in header)
+    body = "".join("<tr>" + "".join(f"<td>{html.escape(str(c))}</td>" for c in row) + "</tr>" for row in rows)
+    return f"<table><tr>{head}</tr>{body}</table>"
+
+
+def _fallback_tables(report: DiagnosisReport) -> str:
+    stats = report.statistics
+    if not stats:
+        return ""
+    real, before, after = stats["real"], stats["before"], stats["after"]
+    rows = []
+    for name in ("noise", "frequency"):
+        for k in range(real[name].numel()):
+            rows.append(
+                (
+                    name,
+                    k,
+                    f"{float(real[name][k]):.3f}",
+                    f"{float(before[name][k]):.3f}",
+                    f"{float(after[name][k]):.3f}",
+                )
+            )
+    return "<h2>Signatures (tables: install the 'report' extra for plots)</h2>" + _table(
+        rows, ("statistic", "bin/band", "real", "sim before", "sim after")
+    )
+
+
+_STYLE = (
+    "body{font-family:sans-serif;max-width:1000px;margin:2em auto;color:#222}"
+    "table{border-collapse:collapse;margin:0.5em 0}td,th{border:1px solid #ccc;padding:3px 8px;font-size:13px}"
+    ".verdict{font-size:1.3em;padding:0.8em;background:#eef5ff;border-left:6px solid #3870c0}"
+    ".crops img{margin:2px;image-rendering:pixelated}.muted{color:#777;font-size:0.9em}"
+)
+
+
+def render_html(report: DiagnosisReport) -> str:
+    """One self-contained page: verdict, numbers, where, ranking, evidence plots and example crops."""
+    numbers = _table(
+        [
+            ("gap before (profile as is)", f"{report.gap_before:.2f} ± {report.gap_before_se:.2f}"),
+            ("gap after (added: " + (", ".join(report.added) or "nothing") + ")", f"{report.gap_after:.2f}"),
+            ("noise floor (final profile against itself)", f"{report.noise_floor:.2f}"),
+            ("fraction of the gap above the floor closed", f"{report.fraction_closed:.0%}"),
+        ],
+        ("quantity", "value"),
+    )
+    where = _table(
+        [
+            (
+                w["axis"],
+                f"{w['score']:.2f}",
+                f"{w.get('null', 0.0):.2f}",
+                "yes" if w.get("significant") else "no",
+                w["finding"],
+            )
+            for w in report.where
+        ],
+        ("axis", "score", "null", "significant", "finding"),
+    )
+    effects = _table(
+        [
+            (
+                e["name"],
+                f"{e['gap_after']:.2f}",
+                _pm(e["reduction"], e.get("reduction_se")),
+                "yes" if e.get("significant") else "no",
+                e.get("error") or json.dumps(e["params"]),
+            )
+            for e in report.effects
+        ],
+        ("candidate", "held-out gap", "reduction", "significant", "fitted parameters"),
+    )
+    combos = (
+        "<h3>Combinations (fitted on top of the best so far)</h3>"
+        + _table(
+            [(" + ".join(c["names"]), f"{c['gap_after']:.2f}", f"{c['reduction']:+.2f}") for c in report.combinations],
+            ("effects", "held-out gap", "marginal reduction"),
+        )
+        if report.combinations
+        else ""
+    )
+    plots = _plots(report)
+    evidence = "".join(
+        f"<figure><img src='{url}' alt='{html.escape(caption)}'><figcaption>{html.escape(caption)}</figcaption>"
+        "</figure>"
+        for caption, url in plots
+    ) or _fallback_tables(report)
+    crops = ""
+    if report.crops:
+        crops = (
+            "<h2>Examples (clean | real | sim before | sim after)</h2><div class='crops'>"
+            + "".join(
+                f"<div>{html.escape(label)}<br>"
+                + "".join(f"<img src='{_png(image)}' alt=''>" for image in images)
+                + "</div>"
+                for label, images in report.crops
+            )
+            + "</div>"
+        )
+    title = f"camdegrade diagnosis: {html.escape(report.profile_name or 'profile')}"
+    return (
+        f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>{title}</title><style>{_STYLE}</style></head>"
+        f"<body><h1>{title}</h1><p class='verdict'>{html.escape(report.verdict)}</p>{numbers}"
+        f"<p class='muted'>{html.escape(report.split)}. Candidates are fitted on the calibration pairs; every gap "
+        "is measured on the held-out pairs. Gap = Σ over statistic families of RMS((real − sim)/τ).</p>"
+        f"<h2>Where the gap lies (before)</h2>{where}<h2>Which effect: candidates ranked</h2>{effects}{combos}"
+        f"<h2>Evidence</h2>{evidence}{crops}</body></html>\n"
+    )

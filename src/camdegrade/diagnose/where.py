@@ -1,0 +1,141 @@
+"""Where the gap lies: one human-readable finding per statistic family, with its score and null band."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import torch
+from torch import Tensor
+
+from camdegrade.diagnose.stats import BANDS, FAMILIES, INTENSITY_BINS, NOISE_BINS, SHIFT_TILES, TILES, StatisticSet
+
+_CHANNELS = ("R", "G", "B")
+#: The effects whose signature each axis carries (a hint; the ranking decides).
+SUSPECTS = {
+    "spatial": "vignetting, tone, colour",
+    "intensity": "tone, colour",
+    "noise": "noise",
+    "frequency": "blur, jpeg, misalignment",
+    "blocks": "jpeg",
+    "color": "colour, tone",
+    "alignment": "misalignment, distortion, chromatic_aberration",
+}
+
+
+def _tile_radius(tiles: int) -> Tensor:
+    centers = (torch.arange(tiles) + 0.5) / tiles - 0.5
+    y, x = torch.meshgrid(centers, centers, indexing="ij")
+    return torch.sqrt(x**2 + y**2) / (0.5 * 2**0.5)
+
+
+def _spatial(diff: Tensor) -> str:
+    maps = diff.reshape(3, TILES, TILES)
+    luma = maps.mean(0)
+    r2 = _tile_radius(TILES).pow(2)
+    design = torch.stack([torch.ones_like(r2), r2], -1).reshape(-1, 2)
+    coef = torch.linalg.lstsq(design, luma.reshape(-1, 1)).solution[:, 0]
+    mean = maps.mean((1, 2))
+    return f"real − sim: {coef[1]:+.1f} levels from centre to corners (radial), mean offset " + ", ".join(
+        f"{c} {m:+.1f}" for c, m in zip(_CHANNELS, mean.tolist(), strict=True)
+    )
+
+
+def _intensity(diff: Tensor) -> str:
+    table = diff.reshape(3, INTENSITY_BINS)
+    luma = torch.nanmean(table, 0)
+    valid = torch.isfinite(luma)
+    if not bool(valid.any()):
+        return "no populated intensity bins"
+    worst = int(torch.where(valid, luma.abs(), torch.tensor(-1.0)).argmax())
+    centre = (worst + 0.5) / INTENSITY_BINS
+    return f"real − sim tone residual up to {luma[worst]:+.1f} levels at clean value {centre:.2f}"
+
+
+def _noise(real: Tensor, sim: Tensor) -> str:
+    r = torch.nanmean(real.reshape(3, NOISE_BINS), 1)
+    s = torch.nanmean(sim.reshape(3, NOISE_BINS), 1)
+    return (
+        "noise std (levels, flat areas) real "
+        + ", ".join(f"{c} {a:.2f}" for c, a in zip(_CHANNELS, r.tolist(), strict=True))
+        + " vs sim "
+        + ", ".join(f"{c} {b:.2f}" for c, b in zip(_CHANNELS, s.tolist(), strict=True))
+    )
+
+
+def _frequency(real: Tensor, sim: Tensor) -> str:
+    band = BANDS - 3  # well above the lowest band, below the noisy top one
+    frequency = (band + 1 + 0.5) / BANDS * 0.5
+    ratio = real[band] / sim[band] if float(sim[band]) != 0 else float("nan")
+    kind = "softer (blur)" if ratio < 1 else "sharper"
+    return f"real/sim transfer at {frequency:.2f} cycles/px: {ratio:.2f} ({kind} than simulated)"
+
+
+def _blocks(real: Tensor, sim: Tensor) -> str:
+    edge = (real[7] + real[15]) / 2
+    simulated = (sim[7] + sim[15]) / 2
+    return f"gradient energy on 8×8 block edges: real {edge:.2f}× the mean vs sim {simulated:.2f}×"
+
+
+def _color(diff: Tensor) -> str:
+    matrix = diff.reshape(3, 3)
+    i, j = divmod(int(matrix.abs().argmax()), 3)
+    gains = matrix.diagonal()
+    return (
+        f"real − sim colour matrix: largest {matrix[i, j]:+.3f} ({_CHANNELS[i]}←{_CHANNELS[j]}); diagonal "
+        + ", ".join(f"{g:+.3f}" for g in gains.tolist())
+    )
+
+
+def _alignment(diff: Tensor) -> str:
+    shifts = diff.reshape(SHIFT_TILES * SHIFT_TILES, 3, 2)
+    mean = torch.nanmean(shifts[:, 1], 0)
+    centers = (torch.arange(SHIFT_TILES) + 0.5) / SHIFT_TILES - 0.5
+    y, x = torch.meshgrid(centers, centers, indexing="ij")
+    direction = torch.stack([x.flatten(), y.flatten()], -1)
+    green = shifts[:, 1] - mean
+    radial = torch.nanmean((green * direction).sum(-1) / direction.pow(2).sum(-1).clamp_min(1e-6))
+    chroma = []
+    for channel in (0, 2):
+        relative = shifts[:, channel] - shifts[:, 1]
+        chroma.append(float(torch.nanmean((relative * direction).sum(-1) / direction.pow(2).sum(-1))))
+    return (
+        f"real − sim shift (green) dx {mean[0]:+.2f}, dy {mean[1]:+.2f} px; radial scale {radial:+.2f} px per "
+        f"half-width; red/blue vs green radial {chroma[0]:+.2f}/{chroma[1]:+.2f}"
+    )
+
+
+def findings(
+    real: StatisticSet, sim: StatisticSet, scores: dict[str, float], nulls: dict[str, float]
+) -> list[dict[str, Any]]:
+    """One entry per family, largest score first: ``axis``, ``finding``, ``score``, ``null`` and ``significant``."""
+    real_values, sim_values = real.values(), sim.values()
+    out = []
+    for name in FAMILIES:
+        r, s = real_values[name], sim_values[name]
+        diff = r - s
+        if name == "spatial":
+            text = _spatial(diff)
+        elif name == "intensity":
+            text = _intensity(diff)
+        elif name == "noise":
+            text = _noise(r, s)
+        elif name == "frequency":
+            text = _frequency(r, s)
+        elif name == "blocks":
+            text = _blocks(r, s)
+        elif name == "color":
+            text = _color(diff)
+        else:
+            text = _alignment(diff)
+        score = scores[name]
+        null = nulls.get(name, 0.0)
+        out.append(
+            {
+                "axis": name,
+                "finding": f"{text} [suspects: {SUSPECTS[name]}]",
+                "score": round(score, 4),
+                "null": round(null, 4),
+                "significant": score > max(3 * null, 1.0),
+            }
+        )
+    return sorted(out, key=lambda entry: -entry["score"])
