@@ -59,6 +59,25 @@ def as_pairs(source: Pairs, target: Pairs) -> PairList:
     return pairs
 
 
+def huber_weights(residual: Tensor) -> Tensor:
+    """Iteratively-reweighted-least-squares weights of Huber's loss: 1 inside 1.345 robust σ (σ from the median
+    absolute residual), falling as 1/|r| outside."""
+    scale = 1.4826 * residual.median().clamp_min(1e-12)
+    return (1.345 * scale / residual.clamp_min(1e-15)).clamp(max=1.0)
+
+
+def robust_lstsq(design: Tensor, targets: Tensor, iterations: int) -> Tensor:
+    """``solution`` with ``design @ solution ≈ targets`` (``(n, p)``, ``(n, k)`` → ``(p, k)``), robust to outliers:
+    least squares reweighted ``iterations`` times with Huber weights on each row's residual norm."""
+    weights = torch.ones(design.shape[0], dtype=design.dtype, device=design.device)
+    solution = torch.zeros(design.shape[1], targets.shape[1], dtype=design.dtype, device=design.device)
+    for _ in range(max(1, iterations)):
+        root = weights.sqrt()[:, None]
+        solution = torch.linalg.lstsq(design * root, targets * root).solution
+        weights = huber_weights((targets - design @ solution).norm(dim=1))
+    return solution
+
+
 def downscale(image: Tensor, max_side: int) -> Tensor:
     """Area-average ``[..., 3, H, W]`` so that its longer side is at most ``max_side`` (a low-pass filter)."""
     height, width = image.shape[-2:]

@@ -9,7 +9,7 @@ import torch
 from torch import Tensor
 
 from camdegrade.effects._common import batch_shape, check_non_negative, resolve_params, scalar
-from camdegrade.effects._fitting import as_pairs, downscale, minimize
+from camdegrade.effects._fitting import as_pairs, downscale, huber_weights, minimize, robust_lstsq
 from camdegrade.effects.base import Effect, Pairs, register_effect
 from camdegrade.functional import color_matrix_image, srgb_to_linear, tone_curve_image
 from camdegrade.functional.tone import tone_curve
@@ -92,18 +92,14 @@ class Color(Effect):
 
 
 def _robust_matrix(x: Tensor, y: Tensor, *, diagonal: bool, iterations: int) -> Tensor:
+    if not diagonal:
+        return robust_lstsq(x, y, iterations).T
     weights = torch.ones(x.shape[0], dtype=x.dtype)
     matrix = torch.eye(3, dtype=x.dtype)
     for _ in range(max(1, iterations)):
-        if diagonal:
-            gains = (weights[:, None] * x * y).sum(0) / (weights[:, None] * x * x).sum(0).clamp_min(1e-12)
-            matrix = torch.diag(gains)
-        else:
-            root = weights.sqrt()[:, None]
-            matrix = torch.linalg.lstsq(x * root, y * root).solution.T
-        residual = (y - x @ matrix.T).norm(dim=1)
-        scale = 1.4826 * residual.median().clamp_min(1e-9)
-        weights = (1.345 * scale / residual.clamp_min(1e-12)).clamp(max=1.0)  # Huber weights
+        gains = (weights[:, None] * x * y).sum(0) / (weights[:, None] * x * x).sum(0).clamp_min(1e-12)
+        matrix = torch.diag(gains)
+        weights = huber_weights((y - x @ matrix.T).norm(dim=1))
     return matrix
 
 

@@ -10,7 +10,7 @@ import torch
 from torch import Tensor
 
 from camdegrade.effects._common import batch_shape, check_non_negative, resolve_params, scalar
-from camdegrade.effects._fitting import as_pairs, downscale
+from camdegrade.effects._fitting import as_pairs, downscale, robust_lstsq
 from camdegrade.effects._warp import fit_warp
 from camdegrade.effects.base import Effect, Pairs, register_effect
 from camdegrade.functional import (
@@ -65,7 +65,7 @@ class Vignetting(Effect):
                 continue
             s, t, r2 = low_src[usable], low_tgt[usable], r2[usable]
             columns = [s, s * r2, s * r2 * r2][: degree + 1]
-            beta = _robust_lstsq(torch.stack(columns, dim=1), t, iterations)
+            beta = robust_lstsq(torch.stack(columns, dim=1), t[:, None], iterations)[:, 0]
             estimates.append(torch.cat([beta[1:] / beta[0], torch.zeros(2 - degree, dtype=beta.dtype)]))
             weights.append(float(usable.sum()))
         if not estimates:
@@ -73,19 +73,6 @@ class Vignetting(Effect):
         w = torch.tensor(weights, dtype=torch.float64)
         k = (torch.stack(estimates) * w[:, None]).sum(0) / w.sum()
         return cls(float(k[0]), float(k[1]))
-
-
-def _robust_lstsq(design: Tensor, values: Tensor, iterations: int) -> Tensor:
-    """Least squares with Huber reweighting (``iterations`` rounds)."""
-    weights = torch.ones_like(values)
-    solution = torch.zeros(design.shape[1], dtype=design.dtype)
-    for _ in range(max(1, iterations)):
-        root = weights.sqrt()[:, None]
-        solution = torch.linalg.lstsq(design * root, values[:, None] * root).solution[:, 0]
-        residual = (values - design @ solution).abs()
-        scale = 1.4826 * residual.median().clamp_min(1e-12)
-        weights = (1.345 * scale / residual.clamp_min(1e-15)).clamp(max=1.0)
-    return solution
 
 
 @register_effect
