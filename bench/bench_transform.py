@@ -10,7 +10,8 @@ stated number of torch threads, so the ratios compare like with like. Cases (uin
 - ``torchvision_chain``: v2 ColorJitter + GaussianBlur + GaussianNoise + JPEG;
 - ``kornia_chain`` (single and batch 32): ColorJitter + RandomGaussianBlur + RandomGaussianNoise + RandomJPEG;
 - ``albumentations_chain``: ColorJitter + GaussianBlur + ISONoise + ImageCompression;
-- ``fit_crops_per_s``: training crops of 224² per second (forward + backward + Adam step, batch 8).
+- ``fit_pairs_per_s``: training pairs (224² crops) per second (forward + backward + Adam step, batch 8);
+- ``diagnose_seconds_100_pairs_256``: wall time of ``camdegrade diagnose`` on 100 pairs of 256² (the CLI).
 
 Peer libraries come from the ``bench`` extra and are skipped when missing. Run from the repo root::
 
@@ -127,7 +128,7 @@ def albumentations_chain() -> Callable[[Any], Any] | None:
     return lambda array: chain(image=array)["image"]
 
 
-def fit_crops_per_second(repeats: int) -> float:
+def fit_pairs_per_second(repeats: int) -> float:
     from camdegrade.network import DomainShiftNet
 
     network = DomainShiftNet()
@@ -142,11 +143,25 @@ def fit_crops_per_second(repeats: int) -> float:
     return images_per_second(step, 8, repeats, warmup=1, calls=2)
 
 
+def diagnose_time(threads: int) -> float | None:
+    """Seconds of ``camdegrade diagnose`` on 100 pairs of 256² (bench_diagnose's timing, run with ``threads``)."""
+    from bench_diagnose import timing
+
+    os.environ["OMP_NUM_THREADS"] = str(threads)  # the CLI runs in a child process, which reads this
+    result = timing()
+    if result["returncode"] != 0:
+        print(f"diagnose failed: {result['stderr']}")
+        return None
+    print(f"{'diagnose_100_pairs_256':28s} {result['seconds']:9.1f} s ({threads} threads)", flush=True)
+    return result["seconds"]
+
+
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--profile", default="city100-iphonex")
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--quick", action="store_true")
+    parser.add_argument("--skip-diagnose", action="store_true", help="leave out the diagnose timing (~1–2 min)")
     parser.add_argument("--out", type=Path, default=Path("out/bench/transform.json"))
     args = parser.parse_args(argv)
     warnings.filterwarnings("ignore")  # peer libraries' deprecation notices are not what is measured
@@ -177,8 +192,9 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     if album is not None:
         array = image.permute(1, 2, 0).numpy().copy()
         measure("albumentations_chain", lambda: album(array))
-    results["fit_crops_per_s"] = round(fit_crops_per_second(repeats), 2)
-    print(f"{'fit_crops_per_s':28s} {results['fit_crops_per_s']:9.2f} crops/s (224², batch 8)")
+    results["fit_pairs_per_s"] = round(fit_pairs_per_second(repeats), 2)
+    print(f"{'fit_pairs_per_s':28s} {results['fit_pairs_per_s']:9.2f} pairs/s (224² crops, batch 8)")
+    diagnose_seconds = None if args.skip_diagnose else diagnose_time(args.threads)
 
     single = results["camdegrade_single"]
     ratios = {
@@ -193,6 +209,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     print("ratios: " + ", ".join(f"{k} {v:.2f}x" for k, v in ratios.items()))
     record = {
         "images_per_s": results,
+        "diagnose_seconds_100_pairs_256": diagnose_seconds,
         "ratios": {k: round(v, 3) for k, v in ratios.items()},
         "profile": args.profile,
         "effects": load_profile(args.profile).effect_names,

@@ -9,6 +9,7 @@ import pytest
 import torch
 from torch import Tensor
 
+import camdegrade.effects.chain as chain_module
 from camdegrade.effects import (
     EFFECTS,
     JPEG,
@@ -24,6 +25,7 @@ from camdegrade.effects import (
     Vignetting,
     build_effect,
 )
+from camdegrade.effects.chain import apply_effects
 from effects_images import photo_batch
 
 VOCABULARY = {
@@ -201,3 +203,51 @@ def test_profile_with_an_effect_chain_round_trips(tmp_path) -> None:
     expected = profile(image, profile.make_params(image.shape, torch.Generator().manual_seed(11)))
     replayed = loaded(image, loaded.make_params(image.shape, torch.Generator().manual_seed(11)))
     assert torch.equal(replayed, expected)
+
+
+def _encoded_variants() -> list[Effect]:
+    """Every effect at strength, plus the forms whose encodings differ (sRGB-domain stages, tone without exposure)."""
+    return [strong(name) for name in sorted(VOCABULARY)] + [
+        Blur(1.0),
+        Blur(1.2, linear=False),
+        Noise(0.01, 1e-4, linear=False),
+        Noise(0.004, 0.0, 0.0),
+        Color(torch.eye(3) * 0.9, linear=False),
+        Tone(1.3, 0.02, 0.9),
+    ]
+
+
+@pytest.mark.parametrize("effect", _encoded_variants(), ids=lambda effect: f"{effect.name}({effect.extra_repr()[:40]})")
+def test_encoded_forward_in_a_chain_equals_forward(effect: Effect) -> None:
+    image = photo_batch()
+    params = _draw(effect, image, seed=3)
+    expected = effect(image, params)
+    before = image.clone()
+    with torch.no_grad():
+        chained = apply_effects([effect], [params], image)
+    assert torch.equal(image, before)
+    # JPEG re-encodes 8-bit values, where a float-rounding difference can flip one level.
+    tolerance = 1.5 / 255 if effect.name == "jpeg" else 2e-6
+    assert (chained - expected).abs().max() <= tolerance
+
+
+def test_chain_shares_one_srgb_decode_and_matches_stage_by_stage() -> None:
+    stages = [strong(name) for name in ("vignetting", "blur", "noise", "color", "tone")]
+    image = photo_batch()
+    params = [_draw(stage, image, seed=index) for index, stage in enumerate(stages)]
+    expected = image
+    for stage, stage_params in zip(stages, params, strict=True):
+        expected = stage(expected, stage_params)
+    decodes = []
+    original = chain_module.srgb_to_linear_
+    chain_module.srgb_to_linear_ = lambda x: decodes.append(1) or original(x)  # type: ignore[assignment]
+    try:
+        with torch.no_grad():
+            chained = apply_effects(stages, params, image)
+    finally:
+        chain_module.srgb_to_linear_ = original  # type: ignore[assignment]
+    assert len(decodes) == 1
+    assert (chained - expected).abs().max() <= 2e-6
+    with_graph = apply_effects(stages, params, image.clone().requires_grad_())
+    assert with_graph.requires_grad
+    assert (with_graph.detach() - expected).abs().max() <= 2e-6

@@ -7,7 +7,7 @@ import torch
 from skimage import data
 
 from camdegrade import CameraDegrade, load_profile
-from camdegrade.network import native_bfloat16, resolve_precision
+from camdegrade.network import BFloat16Inference, native_bfloat16, resolve_precision, run_network
 
 PHOTOS = ("astronaut", "chelsea", "coffee", "rocket")
 
@@ -39,3 +39,33 @@ def test_auto_picks_bfloat16_only_where_it_is_native():
 def test_unknown_precision_is_refused():
     with pytest.raises(ValueError, match=r"precision must be one of \('auto', 'float32', 'bfloat16'\), got"):
         CameraDegrade(load_profile("city100-iphonex"), precision="fp8")
+
+
+@pytest.mark.parametrize("shape", [(1, 3, 1, 1), (2, 3, 5, 7), (3, 3, 37, 61), (1, 3, 64, 48)])
+def test_bfloat16_plan_follows_the_module_at_every_size(shape):
+    network = load_profile("city100-iphonex").network
+    image = torch.rand(shape, generator=torch.Generator().manual_seed(1))
+    with torch.no_grad():
+        exact = network(image)
+        fast = BFloat16Inference(network).run(image)
+    assert fast.shape == exact.shape and fast.dtype == torch.float32 and fast.is_contiguous()
+    assert (fast - exact).abs().max() < 0.02  # bfloat16 keeps 8 mantissa bits
+
+
+def test_cached_plan_is_rebuilt_when_the_weights_change():
+    network = load_profile("city100-iphonex").network
+    image = torch.rand(1, 3, 32, 32, generator=torch.Generator().manual_seed(2))
+    with torch.no_grad():
+        before = run_network(network, image, "bfloat16")
+        network.decode2.bias.add_(1.0)
+        after = run_network(network, image, "bfloat16")
+        assert (after - network(image)).abs().max() < 0.02
+    assert (after - before).abs().mean() > 0.05
+
+
+def test_bfloat16_with_autograd_keeps_the_graph():
+    network = load_profile("city100-iphonex").network.requires_grad_(True)
+    output = run_network(network, torch.rand(1, 3, 16, 16), "bfloat16")
+    assert output.requires_grad
+    output.mean().backward()
+    assert network.encode1.weight.grad is not None

@@ -297,3 +297,48 @@ def test_functional_imports_nothing_else_from_camdegrade() -> None:
                 assert node.module.startswith("camdegrade.functional"), (module.name, node.module)
             if isinstance(node, ast.Import):
                 assert not any(alias.name.startswith("camdegrade") for alias in node.names), module.name
+
+
+def _srgb_reference(x: Tensor, decode: bool) -> Tensor:
+    """IEC 61966-2-1 written the textbook way, in float64."""
+    x = x.double().clamp(0, 1)
+    if decode:
+        return torch.where(x <= 0.04045, x / 12.92, ((x + 0.055) / 1.055) ** 2.4)
+    return torch.where(x <= 0.0031308, x * 12.92, 1.055 * x ** (1 / 2.4) - 0.055)
+
+
+@pytest.mark.parametrize("decode", [True, False], ids=["to_linear", "to_srgb"])
+def test_srgb_transfer_matches_the_standard_in_every_form(decode: bool) -> None:
+    values = torch.linspace(-0.1, 1.1, 200_001)
+    expected = _srgb_reference(values, decode)
+    plain, in_place = (F.srgb_to_linear, F.srgb_to_linear_) if decode else (F.linear_to_srgb, F.linear_to_srgb_)
+    graph = plain(values.clone().requires_grad_()).detach()
+    copy = values.clone()
+    for result in (plain(values), in_place(copy), graph):
+        assert (result.double() - expected).abs().max() < 5e-7
+    assert torch.equal(copy, in_place(values.clone()))
+    grid = torch.linspace(0.02, 0.98, 50, dtype=torch.float64, requires_grad=True)
+    assert torch.autograd.gradcheck(plain, (grid,))
+
+
+@pytest.mark.parametrize(
+    ("sigma_x", "sigma_y", "angle"),
+    [(0.8, 0.8, 0.0), (1.5, 0.6, 0.0), (1.5, 0.6, 90.0), (1.5, 0.6, -270.0), (2.0, 2.0, 33.0), (6.0, 6.0, 0.0)],
+)
+def test_separable_blur_equals_the_2d_psf_convolution(sigma_x: float, sigma_y: float, angle: float) -> None:
+    """Axis-aligned and isotropic Gaussians take the separable path; it must give the 2-D kernel's result,
+    per sample (including a zero sigma) and when the kernel is wider than the image (replicate padding)."""
+    image = torch.rand(3, 3, 20, 26, generator=torch.Generator().manual_seed(0))
+    sigma_x_t = torch.tensor([sigma_x, 0.5 * sigma_x, 0.0])
+    sigma_y_t = torch.tensor([sigma_y, 0.5 * sigma_y, 0.0])
+    angle_t = torch.full((3,), angle)
+    assert F.separable_taps(sigma_x_t, sigma_y_t, angle_t, torch.zeros(3)) is not None
+    kernels = F.psf_kernel(sigma_x_t, sigma_y_t, angle_t)
+    expected = blur_module._convolve(image, kernels)
+    torch.testing.assert_close(F.blur_image(image, sigma_x_t, sigma_y_t, angle_t), expected, atol=2e-6, rtol=0)
+
+
+def test_rotated_or_moving_psfs_are_not_taken_as_separable() -> None:
+    zeros = torch.zeros(1)
+    assert F.separable_taps(torch.tensor([1.5]), torch.tensor([0.6]), torch.tensor([30.0]), zeros) is None
+    assert F.separable_taps(torch.ones(1), torch.ones(1), zeros, torch.tensor([3.0])) is None

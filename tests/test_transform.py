@@ -14,6 +14,7 @@ from torchvision import tv_tensors
 from torchvision.transforms import v2
 from torchvision.transforms.v2 import functional as TF
 
+import camdegrade.transform as transform_module
 from camdegrade import CameraDegrade
 from profiles_for_tests import deterministic_profile, stochastic_profile
 
@@ -79,6 +80,19 @@ def test_batched_equals_unbatched(still):
     assert torch.equal(still(batch), one_by_one)
     nested = batch.reshape(2, 2, 3, 15, 21)
     assert torch.equal(still(nested).reshape(4, 3, 15, 21), one_by_one)
+
+
+@pytest.mark.parametrize("dtype", [torch.uint8, torch.float32])
+def test_cpu_chunks_give_the_same_bytes_as_one_pass(monkeypatch, dtype):
+    """Batches are degraded in cache-sized chunks on the CPU; params are sliced per chunk, so the bytes match."""
+    batch = uint8_images(5, 3, 24, 20)
+    batch = batch if dtype == torch.uint8 else batch.float() / 255
+    degrade = CameraDegrade(stochastic_profile(), seed=3)
+    params = degrade.make_params([batch])
+    monkeypatch.setattr(transform_module, "CHUNK_PIXELS", 10**9)
+    whole = degrade.transform(batch, params)
+    monkeypatch.setattr(transform_module, "CHUNK_PIXELS", 2 * 24 * 20)  # chunks of 2, 2 and 1 frames
+    assert torch.equal(degrade.transform(batch, params), whole)
 
 
 def test_empty_batch_keeps_its_shape(still):

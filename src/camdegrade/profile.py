@@ -18,6 +18,7 @@ from torch import Tensor, nn
 from camdegrade._files import atomic_path
 from camdegrade._version import __version__
 from camdegrade.effects import EFFECTS, STAGES, Effect, build_effect
+from camdegrade.effects.chain import apply_effects
 from camdegrade.errors import ProfileError, UnknownProfileError
 from camdegrade.network import DomainShiftNet, Precision, run_network
 
@@ -98,11 +99,12 @@ class CameraProfile(nn.Module):
             params = self.make_params(image.shape)
         if len(params) != len(self.effects):
             raise ValueError(f"params must hold one entry per effect ({len(self.effects)}), got {len(params)}")
+        owned = False  # whether ``image`` is a tensor this call made, which it may overwrite
         if self.network is not None:
-            image = run_network(self.network, image, precision)
-        for effect, effect_params in zip(self.effects, params):
-            image = effect(image, effect_params)
-        return image.clamp(0.0, 1.0)
+            image, owned = run_network(self.network, image, precision), True
+        if self.effects:
+            image, owned = apply_effects(self.effects, params, image, overwrite=owned), True
+        return image.clamp_(0.0, 1.0) if owned and not image.requires_grad else image.clamp(0.0, 1.0)
 
     def with_effects(self, *effects: Effect) -> CameraProfile:
         """A copy of this profile with ``effects`` added, each inserted after the last stage of its kind or earlier."""

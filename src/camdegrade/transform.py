@@ -6,6 +6,7 @@ import copy
 import math
 import os
 import threading
+from collections.abc import Iterator
 from typing import Any
 
 import PIL.Image
@@ -185,10 +186,7 @@ class CameraDegrade(Transform):
             {key: (value if everything else value[selected]).to(batch.device) for key, value in stage.items()}
             for stage in effect_params
         ]
-        with torch.no_grad():
-            result = from_unit_float(
-                profile(to_unit_float(subset), subset_params, precision=self.precision), batch.dtype
-            )
+        result = degrade_frames(profile, subset, subset_params, self.precision)
         if everything:
             return result
         out = batch.clone()
@@ -212,6 +210,32 @@ class CameraDegrade(Transform):
 
     def extra_repr(self) -> str:
         return f"profile={self.profile.name!r}, p={self.p}, seed={self.seed}, precision={self.precision!r}"
+
+
+#: On the CPU, frames are degraded in chunks of about this many pixels: a chunk's working tensors then stay in
+#: the CPU's L2 cache, where the memory-bound elementwise stages run several times faster than on a whole batch.
+CHUNK_PIXELS = 1 << 17
+
+
+def degrade_frames(profile: CameraProfile, frames: Tensor, params: EffectParams, precision: Precision) -> Tensor:
+    """``profile`` applied without autograd to ``frames`` ``(N, 3, H, W)`` (uint8 or float in [0, 1]), returned
+    in their dtype; on the CPU in chunks of :data:`CHUNK_PIXELS` (each param is sliced along its batch dim)."""
+    count, _, height, width = frames.shape
+    step = count if frames.device.type != "cpu" else max(1, CHUNK_PIXELS // max(1, height * width))
+    if step >= count:
+        return _degrade_chunk(profile, frames, params, precision)
+    out = torch.empty_like(frames)
+    for start in range(0, count, step):
+        chunk = slice(start, min(start + step, count))
+        chunk_params = [{key: value[chunk] for key, value in stage.items()} for stage in params]
+        out[chunk] = _degrade_chunk(profile, frames[chunk], chunk_params, precision)
+    return out
+
+
+def _degrade_chunk(profile: CameraProfile, frames: Tensor, params: EffectParams, precision: Precision) -> Tensor:
+    with torch.no_grad():
+        degraded = profile(to_unit_float(frames), params, precision=precision)
+        return from_unit_float(degraded, frames.dtype, overwrite=True)  # the profile returns a new tensor
 
 
 def check_probability(p: Any) -> float:
@@ -258,22 +282,28 @@ def to_unit_float(image: Tensor) -> Tensor:
     return image.float().clamp(0.0, 1.0)
 
 
-def from_unit_float(image: Tensor, dtype: torch.dtype) -> Tensor:
+def from_unit_float(image: Tensor, dtype: torch.dtype, *, overwrite: bool = False) -> Tensor:
+    """``image`` in [0, 1] as ``dtype`` (uint8: scaled and rounded); ``overwrite`` lets it reuse ``image``."""
     if dtype == torch.uint8:
-        return image.mul(255.0).round_().clamp_(0, 255).to(torch.uint8)
+        scaled = image.mul_(255.0) if overwrite else image.mul(255.0)
+        return scaled.round_().clamp_(0, 255).to(torch.uint8)
     return image.to(dtype)
+
+
+def _module_tensors(module: torch.nn.Module) -> Iterator[Tensor]:
+    yield from module.parameters()
+    yield from module.buffers()
 
 
 def _is_float32_on(module: torch.nn.Module, device: torch.device) -> bool:
     return all(
-        t.device == device and (t.dtype == torch.float32 or not t.is_floating_point())
-        for t in module.state_dict().values()
+        t.device == device and (t.dtype == torch.float32 or not t.is_floating_point()) for t in _module_tensors(module)
     )
 
 
 def _state_fingerprint(module: torch.nn.Module) -> tuple[int, ...]:
     """Changes whenever a tensor of ``module`` is replaced or modified in place."""
-    return tuple(part for t in module.state_dict().values() for part in (id(t), t._version, t.data_ptr()))
+    return tuple(part for t in _module_tensors(module) for part in (id(t), t._version, t.data_ptr()))
 
 
 def _worker_seed(seed: int, worker_id: int) -> int:

@@ -11,7 +11,7 @@ from camdegrade.data._keys import SharedEpoch, check_int, item_generator
 from camdegrade.data.datasets import DegradeLike, as_camera_degrade, resolve_seed
 from camdegrade.data.policies import Bernoulli, MixPolicy
 from camdegrade.profile import EffectParams
-from camdegrade.transform import check_image_tensor, from_unit_float, to_unit_float
+from camdegrade.transform import check_image_tensor, degrade_frames
 
 
 class BatchDegrade(nn.Module):
@@ -96,8 +96,7 @@ class BatchDegrade(nn.Module):
             for stage in self.make_params(tuple(images.shape[1:]), index_list, epoch)
         ]
         profile = self.degrade.profile_on(device)
-        with torch.no_grad():
-            degraded = from_unit_float(profile(to_unit_float(images), params), images.dtype)
+        degraded = degrade_frames(profile, images, params, self.degrade.precision)
         return torch.where(apply.view(batch, 1, 1, 1), degraded, images)
 
     def _index_list(self, indices: Tensor | Sequence[int] | None, batch: int) -> list[int]:

@@ -11,6 +11,8 @@ from torch import Tensor, nn
 #: Physical order of stages in a camera: light passes the optics, hits the sensor, is processed, then encoded.
 STAGES: tuple[str, ...] = ("optics", "sensor", "isp", "codec")
 Stage = Literal["optics", "sensor", "isp", "codec"]
+#: How float values encode light: sRGB-encoded (what images hold) or linear light (what sensors and lenses act on).
+Encoding = Literal["srgb", "linear"]
 
 #: What a fitter accepts: a float ``(N, 3, H, W)`` batch in [0, 1], or a sequence of ``(3, H, W)`` images
 #: that may differ in size from pair to pair (uint8 is accepted too and scaled to [0, 1]).
@@ -46,6 +48,19 @@ class Effect(nn.Module):
 
     def forward(self, image: Tensor, params: Mapping[str, Tensor] | None = None) -> Tensor:
         raise NotImplementedError
+
+    def encodings(self) -> tuple[Encoding, Encoding]:
+        """The encodings of :meth:`forward_encoded`'s input and output. sRGB for both unless overridden."""
+        return ("srgb", "srgb")
+
+    def forward_encoded(self, image: Tensor, params: Mapping[str, Tensor] | None = None) -> Tensor:
+        """The stage on a float ``image`` already in ``encodings()[0]``, returning values in ``encodings()[1]``.
+
+        For inference without autograd: the caller owns ``image`` and this may overwrite it. A profile runs
+        consecutive linear-light stages this way with one sRGB decode and one encode around them; the result
+        equals :meth:`forward` up to float rounding (tested for every effect). Default: :meth:`forward`.
+        """
+        return self.forward(image, params)
 
     def config(self) -> dict[str, Any]:
         """JSON-serialisable constructor arguments (not the fitted tensors, which are buffers)."""

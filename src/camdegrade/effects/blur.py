@@ -11,8 +11,8 @@ from torch import Tensor
 
 from camdegrade.effects._common import batch_shape, check_non_negative, resolve_params, scalar
 from camdegrade.effects._fitting import affine_residual, as_pairs, grid_search, minimize, textured_crops
-from camdegrade.effects.base import Effect, Pairs, register_effect
-from camdegrade.functional import blur_image
+from camdegrade.effects.base import Effect, Encoding, Pairs, register_effect
+from camdegrade.functional import blur_image, convolve_separable, separable_taps
 
 
 @register_effect
@@ -63,6 +63,7 @@ class Blur(Effect):
             self.register_buffer(key, scalar(value))
         self.linear = bool(linear)
         self.sigma_jitter = check_non_negative(sigma_jitter, "sigma_jitter")
+        self._taps_cache: tuple[tuple[Any, ...], tuple[Tensor, Tensor] | None] | None = None
 
     def config(self) -> dict[str, Any]:
         return {"linear": self.linear, "sigma_jitter": self.sigma_jitter}
@@ -76,6 +77,29 @@ class Blur(Effect):
         return {"sigma_scale": torch.exp(torch.randn(n, generator=generator) * self.sigma_jitter)}
 
     def forward(self, image: Tensor, params: Mapping[str, Tensor] | None = None) -> Tensor:
+        return self._blur(image, params, linear=self.linear)
+
+    def encodings(self) -> tuple[Encoding, Encoding]:
+        return ("linear", "linear") if self.linear else ("srgb", "srgb")
+
+    def forward_encoded(self, image: Tensor, params: Mapping[str, Tensor] | None = None) -> Tensor:
+        taps = self._fixed_taps(image) if self.sigma_jitter == 0 else None
+        if taps is None:
+            return self._blur(image, params, linear=False)
+        return convolve_separable(image, *taps)
+
+    def _fixed_taps(self, image: Tensor) -> tuple[Tensor, Tensor] | None:
+        """The separable taps of this (jitter-free) PSF for ``image``'s dtype and device, or None when it does
+        not factorise; cached until a buffer changes, as building them costs more than small blurs."""
+        key = (image.dtype, image.device, *((id(t), t._version) for t in self.buffers()))
+        if self._taps_cache is None or self._taps_cache[0] != key:
+            one = [value.reshape(1) for value in (self.sigma_x, self.sigma_y, self.angle, self.motion_length)]
+            taps = separable_taps(*one)
+            taps = None if taps is None else tuple(t.to(image.device, image.dtype) for t in taps)
+            self._taps_cache = (key, taps)
+        return self._taps_cache[1]
+
+    def _blur(self, image: Tensor, params: Mapping[str, Tensor] | None, *, linear: bool) -> Tensor:
         drawn = resolve_params(self, image, params)
         device = image.device
         sigma_x, sigma_y = self.sigma_x.to(device), self.sigma_y.to(device)
@@ -88,7 +112,7 @@ class Blur(Effect):
             self.angle.to(device),
             self.motion_length.to(device),
             self.motion_angle.to(device),
-            linear=self.linear,
+            linear=linear,
         )
 
     @classmethod

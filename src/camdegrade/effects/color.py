@@ -10,9 +10,10 @@ from torch import Tensor
 
 from camdegrade.effects._common import batch_shape, check_non_negative, resolve_params, scalar
 from camdegrade.effects._fitting import as_pairs, downscale, huber_weights, minimize, robust_lstsq
-from camdegrade.effects.base import Effect, Pairs, register_effect
+from camdegrade.effects.base import Effect, Encoding, Pairs, register_effect
 from camdegrade.functional import color_matrix_image, srgb_to_linear, tone_curve_image
-from camdegrade.functional.tone import tone_curve
+from camdegrade.functional._utils import as_channel_view, per_sample
+from camdegrade.functional.tone import exposed_, levels_gamma_, tone_curve
 
 
 @register_effect
@@ -51,11 +52,20 @@ class Color(Effect):
         return {"log_gain": torch.randn(n, 3, generator=generator) * self.gain_jitter}
 
     def forward(self, image: Tensor, params: Mapping[str, Tensor] | None = None) -> Tensor:
+        return color_matrix_image(image, self._matrix(image, params), linear=self.linear)
+
+    def encodings(self) -> tuple[Encoding, Encoding]:
+        return ("linear", "linear") if self.linear else ("srgb", "srgb")
+
+    def forward_encoded(self, image: Tensor, params: Mapping[str, Tensor] | None = None) -> Tensor:
+        return color_matrix_image(image, self._matrix(image, params), linear=False)
+
+    def _matrix(self, image: Tensor, params: Mapping[str, Tensor] | None) -> Tensor:
         drawn = resolve_params(self, image, params)
         matrix = self.matrix.to(image.device)
         if "log_gain" in drawn:
             matrix = drawn["log_gain"].exp()[:, :, None] * matrix
-        return color_matrix_image(image, matrix, linear=self.linear)
+        return matrix
 
     @classmethod
     def fit(
@@ -153,12 +163,28 @@ class Tone(Effect):
         return {"exposure": torch.randn(n, generator=generator) * self.exposure_jitter}
 
     def forward(self, image: Tensor, params: Mapping[str, Tensor] | None = None) -> Tensor:
+        device = image.device
+        exposure = self._exposure(image, params)
+        return tone_curve_image(image, self.gamma.to(device), self.black.to(device), self.white.to(device), exposure)
+
+    def encodings(self) -> tuple[Encoding, Encoding]:
+        """Linear-light input when an exposure gain applies (it acts on linear light), else sRGB."""
+        return ("linear", "srgb") if self._has_exposure() else ("srgb", "srgb")
+
+    def forward_encoded(self, image: Tensor, params: Mapping[str, Tensor] | None = None) -> Tensor:
+        exposure = as_channel_view(per_sample(self._exposure(image, params), image, "exposure"))
+        if self._has_exposure():
+            exposed_(image, exposure, linear_input=True)
+        device = image.device
+        return levels_gamma_(image, self.gamma.to(device), self.black.to(device), self.white.to(device))
+
+    def _has_exposure(self) -> bool:
+        return self.exposure_jitter > 0 or bool(self.exposure != 0)
+
+    def _exposure(self, image: Tensor, params: Mapping[str, Tensor] | None) -> Tensor:
         drawn = resolve_params(self, image, params)
         exposure = self.exposure.to(image.device)
-        if "exposure" in drawn:
-            exposure = exposure + drawn["exposure"]
-        device = image.device
-        return tone_curve_image(image, self.gamma.to(device), self.black.to(device), self.white.to(device), exposure)
+        return exposure + drawn["exposure"] if "exposure" in drawn else exposure
 
     @classmethod
     def fit(

@@ -12,7 +12,7 @@ from torch import Tensor
 from camdegrade.effects._common import batch_shape, check_non_negative, resolve_params, scalar
 from camdegrade.effects._fitting import as_pairs, downscale, robust_lstsq
 from camdegrade.effects._warp import fit_warp
-from camdegrade.effects.base import Effect, Pairs, register_effect
+from camdegrade.effects.base import Effect, Encoding, Pairs, register_effect
 from camdegrade.functional import (
     chromatic_aberration_image,
     distortion_image,
@@ -21,6 +21,7 @@ from camdegrade.functional import (
     srgb_to_linear,
     vignetting_image,
 )
+from camdegrade.functional.geometry import vignetting_gain
 
 
 @register_effect
@@ -41,6 +42,14 @@ class Vignetting(Effect):
 
     def forward(self, image: Tensor, params: Mapping[str, Tensor] | None = None) -> Tensor:
         return vignetting_image(image, self.k1.to(image.device), self.k2.to(image.device))
+
+    def encodings(self) -> tuple[Encoding, Encoding]:
+        return ("linear", "linear")
+
+    def forward_encoded(self, image: Tensor, params: Mapping[str, Tensor] | None = None) -> Tensor:
+        height, width = image.shape[-2:]
+        k1, k2 = (value.to(image.device, image.dtype) for value in (self.k1, self.k2))
+        return image.mul_(vignetting_gain(height, width, k1, k2, image.dtype, image.device)).clamp_(0.0, 1.0)
 
     @classmethod
     def fit(

@@ -12,8 +12,9 @@ from torch import Tensor
 
 from camdegrade.effects._common import batch_shape, check_non_negative, resolve_params, vector
 from camdegrade.effects._fitting import PairList, as_pairs, gradient_energy
-from camdegrade.effects.base import Effect, Pairs, register_effect
+from camdegrade.effects.base import Effect, Encoding, Pairs, register_effect
 from camdegrade.functional import poisson_gaussian_noise_image, srgb_to_linear
+from camdegrade.functional.noise import add_poisson_gaussian_noise_
 
 
 @register_effect
@@ -72,14 +73,30 @@ class Noise(Effect):
         return params
 
     def forward(self, image: Tensor, params: Mapping[str, Tensor] | None = None) -> Tensor:
+        drawn, (a, b, rows) = self._levels(image, params)
+        return poisson_gaussian_noise_image(
+            image, a, b, drawn["normal"], row_sigma=rows, row_normal=drawn["row_normal"], linear=self.linear
+        )
+
+    def encodings(self) -> tuple[Encoding, Encoding]:
+        return ("linear", "linear") if self.linear else ("srgb", "srgb")
+
+    def forward_encoded(self, image: Tensor, params: Mapping[str, Tensor] | None = None) -> Tensor:
+        drawn, levels = self._levels(image, params)
+        a, b, rows = (value[..., None, None] for value in levels)  # (3, 1, 1), or (N, 3, 1, 1) with a gain
+        row_normal = drawn["row_normal"] if bool((self.row_sigma > 0).any()) else None
+        return add_poisson_gaussian_noise_(image, a, b, drawn["normal"], rows, row_normal)
+
+    def _levels(
+        self, image: Tensor, params: Mapping[str, Tensor] | None
+    ) -> tuple[dict[str, Tensor], tuple[Tensor, Tensor, Tensor]]:
+        """The drawn params on ``image``'s device and this capture's ``(a, b, row_sigma)`` after the ISO gain."""
         drawn = resolve_params(self, image, params)
         a, b, rows = (value.to(image.device) for value in (self.a, self.b, self.row_sigma))
         if "gain" in drawn:
             gain = drawn["gain"][:, None]
             a, b, rows = a * gain, b * gain**2, rows * gain
-        return poisson_gaussian_noise_image(
-            image, a, b, drawn["normal"], row_sigma=rows, row_normal=drawn["row_normal"], linear=self.linear
-        )
+        return drawn, (a, b, rows)
 
     @classmethod
     def fit(

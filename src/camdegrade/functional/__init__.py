@@ -1,16 +1,18 @@
 """Pure image kernels on ``[..., 3, H, W]`` uint8 or float tensors, with per-sample parameters.
 
-Kernels keep the input's dtype, device and shape, never modify their input and draw no random numbers: noise
-kernels take pre-drawn standard normals, so every degradation can be replayed exactly. This package imports
-nothing from the rest of camdegrade.
+Kernels keep the input's dtype, device and shape, never modify their input (the in-place ``*_`` forms excepted)
+and draw no random numbers: noise kernels take pre-drawn standard normals, so every degradation can be replayed
+exactly. This package imports nothing from the rest of camdegrade.
 """
 
-from camdegrade.functional.blur import blur_image, convolve_image, psf_kernel
+from camdegrade.functional.blur import blur_image, convolve_image, convolve_separable, psf_kernel, separable_taps
 from camdegrade.functional.codec import jpeg_image
 from camdegrade.functional.color import (
     color_matrix_image,
     linear_to_srgb,
+    linear_to_srgb_,
     srgb_to_linear,
+    srgb_to_linear_,
     white_balance_image,
 )
 from camdegrade.functional.geometry import (
@@ -28,14 +30,18 @@ __all__ = [
     "chromatic_aberration_image",
     "color_matrix_image",
     "convolve_image",
+    "convolve_separable",
     "distortion_image",
     "jpeg_image",
     "linear_to_srgb",
+    "linear_to_srgb_",
     "misalignment_image",
     "poisson_gaussian_noise_image",
     "psf_kernel",
     "relative_radius",
+    "separable_taps",
     "srgb_to_linear",
+    "srgb_to_linear_",
     "tone_curve",
     "tone_curve_image",
     "vignetting_image",

@@ -9,7 +9,7 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from camdegrade.functional._utils import ParamLike, apply_float, check_image, flat_param
-from camdegrade.functional.color import linear_to_srgb, srgb_to_linear
+from camdegrade.functional.color import linear_to_srgb, linear_to_srgb_, srgb_to_linear
 
 #: Gaussian support in standard deviations; the mass left out is below 1e-4, far under one 8-bit level.
 TRUNCATE = 4.0
@@ -154,13 +154,94 @@ def blur_image(
     for name, value in (("sigma", sx), ("sigma_y", sy), ("motion_length", length)):
         if bool((value < 0).any()):
             raise ValueError(f"{name} must be non-negative, got {name}={value[value < 0][0].item():g}")
-    kernels = psf_kernel(
-        sx, sy, flat_param(angle, image, "angle"), length, flat_param(motion_angle, image, "motion_angle")
-    )
+    angles = flat_param(angle, image, "angle")
+    motion_angles = flat_param(motion_angle, image, "motion_angle")
+    needs_graph = torch.is_grad_enabled() and any(t.requires_grad for t in (image, sx, sy, angles, length))
+    taps = None if needs_graph else separable_taps(sx, sy, angles, length)
+    if taps is None:
+        kernels = psf_kernel(sx, sy, angles, length, motion_angles)
+        convolve = lambda x: _convolve(x, kernels.to(x.dtype))  # noqa: E731
+    else:
+        convolve = lambda x: convolve_separable(x, taps[0].to(x.dtype), taps[1].to(x.dtype))  # noqa: E731
 
     def kernel(x: Tensor) -> Tensor:
         if not linear:
-            return _convolve(x, kernels.to(x.dtype))
-        return linear_to_srgb(_convolve(srgb_to_linear(x), kernels.to(x.dtype)))
+            return convolve(x)
+        blurred = convolve(srgb_to_linear(x))
+        return linear_to_srgb(blurred) if needs_graph else linear_to_srgb_(blurred)
 
     return apply_float(image, kernel)
+
+
+def separable_taps(
+    sigma_x: Tensor, sigma_y: Tensor, angle: Tensor, motion_length: Tensor
+) -> tuple[Tensor, Tensor] | None:
+    """1-D taps ``(M, K)`` along x and along y whose outer product is :func:`psf_kernel` for per-sample ``(M,)``
+    parameters, when every sample's PSF is a Gaussian that factorises (no motion; isotropic or aligned with the
+    axes); else None. Use them with :func:`convolve_separable`."""
+    sigmas = _separable_sigmas(sigma_x, sigma_y, angle, motion_length)
+    return None if sigmas is None else _gaussian_taps(*sigmas)
+
+
+def _separable_sigmas(sigma_x: Tensor, sigma_y: Tensor, angle: Tensor, length: Tensor) -> tuple[Tensor, Tensor] | None:
+    """The Gaussian's sigmas along the image's x and y axes when every sample's PSF is one (no motion, and
+    isotropic or aligned with the axes), else None."""
+    if bool((length > 0).any()):
+        return None
+    quarter_turns = angle / 90.0
+    aligned = (quarter_turns == quarter_turns.round()) | (sigma_x == sigma_y)
+    if not bool(aligned.all()):
+        return None
+    swapped = (quarter_turns.round().remainder(2) == 1) & (sigma_x != sigma_y)
+    return torch.where(swapped, sigma_y, sigma_x), torch.where(swapped, sigma_x, sigma_y)
+
+
+def _gaussian_taps(sigma_x: Tensor, sigma_y: Tensor) -> tuple[Tensor, Tensor]:
+    """Per-sample 1-D taps ``(M, K)`` along x and along y whose outer product is :func:`psf_kernel`'s axis-aligned
+    Gaussian (same square support of ``TRUNCATE`` times the larger sigma, each factor normalised)."""
+    largest = torch.maximum(sigma_x, sigma_y).clamp_min(0.0)
+    own_radius = torch.ceil(TRUNCATE * largest).where(largest > 0.05, torch.zeros_like(largest))
+    radius = int(own_radius.max().item()) if own_radius.numel() else 0
+    coords = torch.arange(-radius, radius + 1, dtype=sigma_x.dtype, device=sigma_x.device)
+    inside = coords.abs() <= own_radius[:, None]
+
+    def taps(sigma: Tensor) -> Tensor:
+        weights = torch.exp(-0.5 * (coords / sigma.clamp_min(_MIN_SIGMA)[:, None]) ** 2) * inside
+        return weights / weights.sum(dim=-1, keepdim=True)
+
+    return taps(sigma_x), taps(sigma_y)
+
+
+def convolve_separable(x: Tensor, across: Tensor, down: Tensor) -> Tensor:
+    """Reflect-padded convolution of float ``x`` ``[..., 3, H, W]`` with separable kernels: taps ``(1, K)``
+    shared by every sample or ``(M, K)`` per sample, along x (``across``) then y (``down``).
+
+    Computed as sums of shifted planes: on the CPU this is several times faster than a depthwise ``conv2d`` for
+    the small kernels cameras need."""
+    radius = across.shape[-1] // 2
+    if x.numel() == 0 or radius == 0:
+        return x.clone()
+    height, width = x.shape[-2:]
+    planes = x.reshape(-1, 3, height, width)
+    mode = "reflect" if radius < min(height, width) else "replicate"
+    padded = F.pad(planes, (radius, radius, radius, radius), mode=mode)
+    rows = _shifted_sum(padded, across, dim=-1, size=width)
+    return _shifted_sum(rows, down, dim=-2, size=height).reshape(x.shape)
+
+
+def _shifted_sum(planes: Tensor, taps: Tensor, dim: int, size: int) -> Tensor:
+    """``Σ_i taps[:, i] · planes.narrow(dim, i, size)`` with one weight per sample (leading dim of ``planes``)."""
+    weights: list[float] | Tensor = taps[0].tolist() if taps.shape[0] == 1 else taps[:, :, None, None, None]
+    # One shared kernel: Python floats, so each step is a single fused multiply-add with no broadcasting.
+    total = None
+    for index in range(taps.shape[-1]):
+        shifted = planes.narrow(dim, index, size)
+        weight = weights[index] if isinstance(weights, list) else weights[:, index]
+        if total is None:
+            total = shifted * weight
+        elif isinstance(weight, float):
+            total.add_(shifted, alpha=weight)
+        else:
+            total.addcmul_(shifted, weight)
+    assert total is not None
+    return total

@@ -13,16 +13,39 @@ _LINEAR_KNEE = 0.0031308
 
 def srgb_to_linear(image: Tensor) -> Tensor:
     """Decode sRGB-encoded floats to linear light (IEC 61966-2-1); differentiable, clamped to [0, 1]."""
+    if not image.requires_grad:
+        return srgb_to_linear_(image.clone())
     x = image.clamp(0.0, 1.0)
-    curve = ((x.clamp_min(_SRGB_KNEE) + 0.055) / 1.055) ** 2.4
-    return torch.where(x <= _SRGB_KNEE, x / 12.92, curve)
+    curve = torch.exp2(torch.log2((x.clamp_min(_SRGB_KNEE) + 0.055) / 1.055) * 2.4)
+    return curve + (x.clamp_max(_SRGB_KNEE) - _SRGB_KNEE) / 12.92
 
 
 def linear_to_srgb(image: Tensor) -> Tensor:
     """Encode linear-light float values with the sRGB transfer function. Values are clamped to [0, 1]."""
+    if not image.requires_grad:
+        return linear_to_srgb_(image.clone())
     x = image.clamp(0.0, 1.0)
-    curve = 1.055 * x.clamp_min(_LINEAR_KNEE) ** (1.0 / 2.4) - 0.055
-    return torch.where(x <= _LINEAR_KNEE, x * 12.92, curve)
+    curve = torch.exp2(torch.log2(x.clamp_min(_LINEAR_KNEE)) / 2.4) * 1.055 - 0.055
+    return curve + (x.clamp_max(_LINEAR_KNEE) - _LINEAR_KNEE) * 12.92
+
+
+# The in-place forms below compute the same curves with one temporary. Each curve is evaluated on values clamped
+# to its knee, and the straight segment below the knee is added as (x − knee) · slope: torch.where and ``**`` are
+# several times slower on the CPU, and fresh buffers cost more than the arithmetic.
+
+
+def srgb_to_linear_(image: Tensor) -> Tensor:
+    """In-place :func:`srgb_to_linear` of a float tensor (no autograd); returns ``image``."""
+    below = image.clamp(0.0, _SRGB_KNEE).sub_(_SRGB_KNEE).div_(12.92)
+    image.clamp_(_SRGB_KNEE, 1.0).add_(0.055).div_(1.055).log2_().mul_(2.4).exp2_()
+    return image.add_(below)
+
+
+def linear_to_srgb_(image: Tensor) -> Tensor:
+    """In-place :func:`linear_to_srgb` of a float tensor (no autograd); returns ``image``."""
+    below = image.clamp(0.0, _LINEAR_KNEE).sub_(_LINEAR_KNEE).mul_(12.92)
+    image.clamp_(_LINEAR_KNEE, 1.0).log2_().div_(2.4).exp2_().mul_(1.055).sub_(0.055)
+    return image.add_(below)
 
 
 def color_matrix_image(image: Tensor, matrix: ParamLike, *, linear: bool = True) -> Tensor:

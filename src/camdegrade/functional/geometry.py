@@ -47,11 +47,18 @@ def vignetting_image(image: Tensor, k1: ParamLike, k2: ParamLike = 0.0) -> Tenso
     height, width = image.shape[-2:]
 
     def kernel(x: Tensor) -> Tensor:
-        r2 = relative_radius(height, width, x.dtype, x.device) ** 2
-        gain = radial_polynomial(r2, k1_t, k2_t).clamp_min(0.0)
+        gain = vignetting_gain(height, width, k1_t, k2_t, x.dtype, x.device)
         return linear_to_srgb((srgb_to_linear(x) * gain).clamp(0.0, 1.0))
 
     return apply_float(image, kernel)
+
+
+def vignetting_gain(
+    height: int, width: int, k1: Tensor, k2: Tensor, dtype: torch.dtype, device: torch.device
+) -> Tensor:
+    """The gain map ``max(0, 1 + k1 r² + k2 r⁴)`` of :func:`vignetting_image` (``k1``, ``k2`` broadcast over it)."""
+    r2 = relative_radius(height, width, dtype, device) ** 2
+    return radial_polynomial(r2, k1, k2).clamp_min(0.0)
 
 
 def remap_image(planes: Tensor, source_x: Tensor, source_y: Tensor) -> Tensor:

@@ -6,7 +6,7 @@ import torch
 from torch import Tensor
 
 from camdegrade.functional._utils import ParamLike, apply_float, check_image, per_sample
-from camdegrade.functional.color import linear_to_srgb, srgb_to_linear
+from camdegrade.functional.color import linear_to_srgb_, srgb_to_linear
 
 
 def channel_param(value: ParamLike, image: Tensor, name: str) -> Tensor:
@@ -54,15 +54,25 @@ def poisson_gaussian_noise_image(
     rows = _noise_tensor(row_normal, image, "row_normal", (*image.shape[:-1], 1)) if has_rows else None
 
     def kernel(x: Tensor) -> Tensor:
-        intensity = srgb_to_linear(x) if linear else x
-        std = (a_t * intensity + b_t).clamp_min(0.0).sqrt()
-        noisy = intensity + std * normal.to(x.dtype)
-        if rows is not None:
-            noisy = noisy + row_t * rows.to(x.dtype)
-        noisy = noisy.clamp(0.0, 1.0)
-        return linear_to_srgb(noisy) if linear else noisy
+        if not linear:
+            return add_poisson_gaussian_noise_(x.clone(), a_t, b_t, normal, row_t, rows)
+        return linear_to_srgb_(add_poisson_gaussian_noise_(srgb_to_linear(x), a_t, b_t, normal, row_t, rows))
 
     return apply_float(image, kernel)
+
+
+def add_poisson_gaussian_noise_(
+    intensity: Tensor, a: Tensor, b: Tensor, normal: Tensor, row_sigma: Tensor, row_normal: Tensor | None
+) -> Tensor:
+    """In place: ``intensity + sqrt(a · intensity + b) · normal + row_sigma · row_normal``, clamped to [0, 1].
+
+    The float ``intensity`` is overwritten and returned; parameters are already shaped to broadcast (no checks).
+    """
+    std = torch.mul(intensity, a).add_(b).clamp_min_(0.0).sqrt_().mul_(normal)
+    intensity.add_(std)
+    if row_normal is not None:
+        intensity.add_(row_normal * row_sigma)
+    return intensity.clamp_(0.0, 1.0)
 
 
 def _noise_tensor(value: Tensor | None, image: Tensor, name: str, shape: tuple[int, ...] | torch.Size) -> Tensor:

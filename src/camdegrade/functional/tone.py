@@ -6,7 +6,7 @@ import torch
 from torch import Tensor
 
 from camdegrade.functional._utils import ParamLike, apply_float, as_channel_view, check_image, per_sample
-from camdegrade.functional.color import linear_to_srgb, srgb_to_linear
+from camdegrade.functional.color import linear_to_srgb, linear_to_srgb_, srgb_to_linear, srgb_to_linear_
 
 
 def tone_curve_image(
@@ -43,8 +43,28 @@ def tone_curve_image(
 
 def tone_curve(x: Tensor, gamma: Tensor, black: Tensor, white: Tensor, exposure: Tensor) -> Tensor:
     """The curve of :func:`tone_curve_image` on float values of any shape (broadcasting; differentiable)."""
+    if not any(t.requires_grad for t in (x, gamma, black, white, exposure)):
+        return levels_gamma_(exposed_(x.clone(), exposure), gamma, black, white)
     exposed = linear_to_srgb(srgb_to_linear(x) * torch.exp2(exposure))
     levels = ((exposed - black) / (white - black)).clamp(0.0, 1.0)
     # 0 ** gamma has an undefined gradient in gamma; keep the graph finite at black pixels.
     powered = levels.clamp_min(1e-12) ** gamma
     return torch.where(levels > 0, powered, torch.zeros_like(powered))
+
+
+def exposed_(x: Tensor, exposure: Tensor, *, linear_input: bool = False) -> Tensor:
+    """In place: sRGB values of ``2**exposure`` times the linear light of ``x`` (``x`` linear if ``linear_input``)."""
+    if not linear_input:
+        if not bool((exposure != 0).any()):
+            return x
+        srgb_to_linear_(x)
+    return linear_to_srgb_(x.mul_(torch.exp2(exposure)))
+
+
+def levels_gamma_(x: Tensor, gamma: Tensor, black: Tensor, white: Tensor) -> Tensor:
+    """In place: ``clip((x − black) / (white − black), 0, 1) ** gamma`` (no autograd)."""
+    x.sub_(black).div_(white - black).clamp_(0.0, 1.0)
+    if bool((gamma != 1).any()):
+        # x ** gamma as exp2(gamma · log2 x), exact at black too: log2 0 = −inf and exp2(−inf) = 0 for gamma > 0.
+        x.log2_().mul_(gamma).exp2_()
+    return x

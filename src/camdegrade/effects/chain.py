@@ -1,0 +1,41 @@
+"""Running a sequence of effect stages, decoding sRGB to linear light only where the encoding changes."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+
+from torch import Tensor
+
+from camdegrade.effects.base import Effect, Encoding
+from camdegrade.functional.color import linear_to_srgb_, srgb_to_linear_
+
+
+def apply_effects(
+    effects: Sequence[Effect], params: Sequence[Mapping[str, Tensor]], image: Tensor, *, overwrite: bool = False
+) -> Tensor:
+    """``image`` (sRGB floats) through every stage in order, as stage-by-stage ``effect(image, params)`` would be.
+
+    Without autograd, stages run through :meth:`Effect.forward_encoded` on one working tensor (``image`` itself
+    when ``overwrite``, else a copy): a run of linear-light stages (blur, vignetting, noise, colour, …) shares a
+    single decode and encode instead of one per stage, and stages work in place. With a graph to build, each
+    stage's ``forward`` runs in turn.
+    """
+    if image.requires_grad:
+        for effect, effect_params in zip(effects, params, strict=True):
+            image = effect(image, effect_params)
+        return image
+    encoding: Encoding = "srgb"
+    if not overwrite:
+        image = image.clone()
+    for effect, effect_params in zip(effects, params, strict=True):
+        wanted, produced = effect.encodings()
+        image = _encode(image, encoding, wanted)
+        image = effect.forward_encoded(image, effect_params)
+        encoding = produced
+    return _encode(image, encoding, "srgb")
+
+
+def _encode(image: Tensor, current: Encoding, wanted: Encoding) -> Tensor:
+    if current == wanted:
+        return image
+    return srgb_to_linear_(image) if wanted == "linear" else linear_to_srgb_(image)
