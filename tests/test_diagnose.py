@@ -9,12 +9,23 @@ from pathlib import Path
 
 import pytest
 import torch
+import torch.nn.functional as F
 
 from camdegrade.diagnose import DiagnosisReport, diagnose
-from camdegrade.diagnose.attribute import HeldOut, simulate, split_pairs
+from camdegrade.diagnose.attribute import HeldOut, add_effect, fit_candidate, simulate, split_pairs
 from camdegrade.diagnose.cli import add_diagnose_parser, run_diagnose
+from camdegrade.diagnose.noise_fit import NoiseMoments, calibrate_noise
 from camdegrade.diagnose.report import REQUIRED_KEYS
-from camdegrade.diagnose.stats import FAMILIES, gap
+from camdegrade.diagnose.stats import (
+    FAMILIES,
+    StatisticSet,
+    _box,
+    bootstrap_indices,
+    family_gaps,
+    flat_mask,
+    gap,
+    measurement_scale,
+)
 from camdegrade.effects import EFFECTS, JPEG, Noise, Tone, Vignetting
 from camdegrade.io import write_image
 from camdegrade.profile import CameraProfile, load_profile
@@ -63,6 +74,76 @@ def test_gap_is_fair_to_noise() -> None:
     )
     mse_correct = sum(float((s - r).pow(2).mean()) for s, r in zip(sims, held.reals, strict=True))
     assert mse_correct > mse_without  # why paired MSE cannot be the measure
+
+
+def test_box_filter_matches_the_two_dimensional_mean() -> None:
+    image = torch.rand(3, 40, 33, generator=torch.Generator().manual_seed(0))
+    for size in (5, 9, 17):
+        reference = F.avg_pool2d(image[:, None], size, stride=1, padding=size // 2, count_include_pad=False)[:, 0]
+        assert torch.allclose(_box(image, size), reference, atol=1e-6)
+
+
+def test_noise_family_compares_levels_relatively() -> None:
+    """A 10 % noise-level miss counts the same at std 2 and at std 20 levels (noise levels are scales)."""
+    cleans = [torch.full((3, 64, 64), 0.5)]
+    masks = [torch.ones(64, 64, dtype=torch.bool)]
+    generator = torch.Generator().manual_seed(0)
+    scores = []
+    for level in (2.0, 20.0):
+        normal = [torch.randn(3, 64, 64, generator=generator) for _ in range(2)]
+        real = StatisticSet.measure([cleans[0] + normal[0] * level / 255], cleans, masks)
+        sim = StatisticSet.measure([cleans[0] + normal[1] * 1.1 * level / 255], cleans, masks)
+        scores.append(family_gaps(real, sim)["noise"])
+    assert scores[0] == pytest.approx(scores[1], rel=0.15)
+    assert scores[0] > 1.0
+
+
+def test_components_resting_on_one_pair_are_left_out_of_the_gap() -> None:
+    """An intensity bin only one of eight pairs populates has no bootstrap spread: it must not enter the gap."""
+    cleans = [torch.full((3, 32, 32), 0.3) for _ in range(7)] + [torch.full((3, 32, 32), 0.9)]
+    masks = [torch.ones(32, 32, dtype=torch.bool)] * 8
+    generator = torch.Generator().manual_seed(1)
+    reals = [clean + torch.randn(3, 32, 32, generator=generator) * 0.01 for clean in cleans]
+    real = StatisticSet.measure(reals, cleans, masks)
+    sim = StatisticSet.measure(cleans, cleans, masks)
+    scale = measurement_scale(real, sim, bootstrap_indices(8, 100, seed=0))
+    noise_scale = scale["noise"].reshape(3, -1)
+    assert torch.isfinite(noise_scale[:, 2]).all()  # clean 0.3: seven pairs
+    assert torch.isnan(noise_scale[:, 7]).all()  # clean 0.9: one pair
+
+
+def test_noise_level_is_calibrated_through_the_later_stages() -> None:
+    """Noise at the sensor, then a strong tone curve and JPEG: the closed-form fit reads the noise at the end of
+    the chain; calibrating by simulation recovers the sensor level."""
+    truth = Noise(a=0.003, b=2e-5)
+    later = [Tone(gamma=0.6, black=0.04, white=0.9), JPEG(quality=50)]
+    camera = _camera(truth, *later)
+    profile = CameraProfile(None, list(later))
+    pairs = _pairs(camera, 12, 64, seed=11)
+    cleans, reals = [c for c, _ in pairs], [r for _, r in pairs]
+    masks = [flat_mask(clean) for clean in cleans]
+    sources = simulate(profile, cleans, 0, deterministic=True)
+    real = NoiseMoments.measure(reals, cleans, masks)
+
+    def moments(effect: Noise) -> torch.Tensor:  # simulated / real noise std per populated bin
+        simulated = NoiseMoments.measure(simulate(add_effect(profile, effect), cleans, 9), cleans, masks)
+        return (simulated.variance / real.variance)[real.count > 1000].sqrt()
+
+    def level(effect: Noise) -> float:  # sensor noise std at a dark linear intensity, relative to the truth
+        return float((effect.a * 0.1 + effect.b).sqrt().mean() / (truth.a * 0.1 + truth.b).sqrt().mean())
+
+    closed_form = fit_candidate("noise", sources, reals)
+    calibrated = calibrate_noise(
+        closed_form,
+        lambda effect: add_effect(profile, effect),
+        lambda p: simulate(p, cleans, 5),
+        real,
+        NoiseMoments.measure(sources, cleans, masks),
+        lambda images: NoiseMoments.measure(images, cleans, masks),
+    )
+    assert level(calibrated) == pytest.approx(1.0, abs=0.12)
+    assert moments(calibrated).median() == pytest.approx(1.0, abs=0.05)
+    assert (moments(calibrated) - 1).abs().max() < 0.5 * (moments(closed_form) - 1).abs().max()
 
 
 def test_split_keeps_scenes_apart() -> None:

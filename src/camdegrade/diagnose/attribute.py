@@ -22,6 +22,7 @@ from typing import Any
 import torch
 from torch import Tensor
 
+from camdegrade.diagnose.noise_fit import NoiseMoments, calibrate_noise
 from camdegrade.diagnose.stats import (
     Scale,
     StatisticSet,
@@ -32,7 +33,7 @@ from camdegrade.diagnose.stats import (
     gap_spread,
     measurement_scale,
 )
-from camdegrade.effects import EFFECTS, Effect
+from camdegrade.effects import EFFECTS, Effect, Noise
 from camdegrade.errors import CamdegradeError
 from camdegrade.pairs import Pair, PairReport, discover_pairs, load_pair, split_by_scene
 from camdegrade.profile import CameraProfile, load_profile
@@ -50,6 +51,11 @@ MIN_RELATIVE = 0.1
 BOOTSTRAP_ROUNDS = 100
 #: Calibration pairs on which the strength of each fitted candidate is refined.
 REFINE_PAIRS = 12
+#: Calibration pairs on which the noise candidate's level is calibrated by simulation (noise statistics only):
+#: at most ``NOISE_PAIRS``, fewer for large images (about ``NOISE_PIXELS`` pixels), at least ``MIN_NOISE_PAIRS``.
+NOISE_PAIRS = 32
+NOISE_PIXELS = 1 << 20
+MIN_NOISE_PAIRS = 8
 
 ImagePairs = list[tuple[Tensor, Tensor]]
 PairsInput = str | os.PathLike[str] | PairReport | Sequence[Pair] | Sequence[tuple[Tensor, Tensor]]
@@ -68,6 +74,7 @@ class Candidate:
     significant: bool = False
     families: dict[str, float] = field(default_factory=dict)
     error: str | None = None
+    stats: StatisticSet | None = field(default=None, repr=False)
 
     def params(self) -> dict[str, Any]:
         return {effect.name: effect_params(effect) for effect in self.effects}
@@ -279,11 +286,12 @@ class HeldOut:
         real = StatisticSet.measure(reals, cleans, masks)
         return cls(cleans, reals, masks, real, bootstrap_indices(len(cleans), BOOTSTRAP_ROUNDS, seed), seed)
 
-    def calibrate(self, profile: CameraProfile) -> StatisticSet:
-        """Fix the yardstick (:func:`measurement_scale`) against ``profile``; return its statistics."""
-        stats, _ = self.statistics(profile)
+    def calibrate(self, profile: CameraProfile) -> tuple[StatisticSet, list[Tensor]]:
+        """Fix the yardstick (:func:`measurement_scale`) against ``profile``; return its statistics and
+        simulations."""
+        stats, sims = self.statistics(profile)
         self.scale = measurement_scale(self.real, stats, self.indices)
-        return stats
+        return stats, sims
 
     def gap(self, stats: StatisticSet) -> float:
         return gap(self.real, stats, scale=self.scale)
@@ -294,6 +302,44 @@ class HeldOut:
     def statistics(self, profile: CameraProfile, seed_offset: int = 0) -> tuple[StatisticSet, list[Tensor]]:
         sims = simulate(profile, self.cleans, self.seed + seed_offset)
         return StatisticSet.measure(sims, self.cleans, self.masks), sims
+
+
+@dataclass
+class _NoiseCalibration:
+    """Calibration pairs (every ``NOISE_PAIRS``-th) on which a noise candidate is calibrated by simulation."""
+
+    index: list[int]
+    cleans: list[Tensor]
+    masks: list[Tensor]
+    real: NoiseMoments
+    seed: int
+
+    @classmethod
+    def build(cls, pairs: ImagePairs, seed: int) -> _NoiseCalibration:
+        pixels = sum(clean.shape[-1] * clean.shape[-2] for clean, _ in pairs) / len(pairs)
+        count = min(NOISE_PAIRS, max(MIN_NOISE_PAIRS, round(NOISE_PIXELS / pixels)))
+        index = _every(list(range(len(pairs))), count)
+        cleans = [pairs[i][0] for i in index]
+        masks = [flat_mask(clean) for clean in cleans]
+        real = NoiseMoments.measure([pairs[i][1] for i in index], cleans, masks)
+        return cls(index, cleans, masks, real, seed)
+
+    def measure(self, images: list[Tensor]) -> NoiseMoments:
+        return NoiseMoments.measure(images, self.cleans, self.masks)
+
+    def calibrate(
+        self, effect: Noise, current: CameraProfile, sources: Sequence[Tensor], say: Callable[[str], None]
+    ) -> Noise:
+        """``effect`` rescaled so that ``current`` with it reproduces the real noise-level function."""
+        return calibrate_noise(
+            effect,
+            lambda e: add_effect(current, e),
+            lambda p: simulate(p, self.cleans, self.seed),
+            self.real,
+            self.measure([sources[i] for i in self.index]),
+            self.measure,
+            say=say,
+        )
 
 
 @dataclass
@@ -336,9 +382,8 @@ def _evaluate(
         spreads = gap_spread(held.real, [base, stats], held.indices, held.scale)
         se = float((spreads[:, 0] - spreads[:, 1]).std())
         significant = reduction > max(SIGNIFICANCE * se, threshold)
-    return Candidate(
-        names, effects, profile, after, reduction, se, significant, family_gaps(held.real, stats, scale=held.scale)
-    )
+    families = family_gaps(held.real, stats, scale=held.scale)
+    return Candidate(names, effects, profile, after, reduction, se, significant, families, stats=stats)
 
 
 def attribute(
@@ -358,8 +403,7 @@ def attribute(
     if unknown:
         raise ValueError(f"candidates must be effect names from {sorted(EFFECTS)}, got unknown {unknown}")
     held = HeldOut.build(held_out, seed)
-    base_stats = held.calibrate(profile)
-    base_sims = simulate(profile, held.cleans, held.seed)
+    base_stats, base_sims = held.calibrate(profile)
     null_stats, _ = held.statistics(profile, seed_offset=1)
     before = held.gap(base_stats)
     base_null_families = family_gaps(null_stats, base_stats, scale=held.scale)
@@ -374,13 +418,14 @@ def attribute(
     cal_cleans = [clean for clean, _ in calibration]
     cal_reals = [real for _, real in calibration]
     check = HeldOut.build(_every(calibration, REFINE_PAIRS), seed + 3)
-    check.calibrate(profile)
+    check_base, _ = check.calibrate(profile)
+    moments = _NoiseCalibration.build(calibration, seed + 5)
 
     def evaluate_on(
         current: CameraProfile, current_stats: StatisticSet, current_gap: float, chain: list[Candidate], pool: list[str]
     ) -> list[Candidate]:
         sources = simulate(current, cal_cleans, seed + 2, deterministic=True)
-        check_gap = check.gap(check.statistics(current)[0])
+        check_gap = check.gap(check_base if current is profile else check.statistics(current)[0])
         results = []
         for name in pool:
             previous = chain[-1] if chain else None
@@ -388,12 +433,15 @@ def attribute(
             prefix_effects = previous.effects if previous else []
             try:
                 effect = fit_candidate(name, sources, cal_reals)
-                effect, _ = refine_strength(
-                    effect,
-                    lambda e: check.gap(check.statistics(add_effect(current, e))[0]),
-                    check_gap,
-                    say,
-                )
+                if isinstance(effect, Noise):
+                    effect = moments.calibrate(effect, current, sources, say)
+                else:
+                    effect, _ = refine_strength(
+                        effect,
+                        lambda e: check.gap(check.statistics(add_effect(current, e))[0]),
+                        check_gap,
+                        say,
+                    )
             except (ValueError, RuntimeError, CamdegradeError) as error:
                 say(f"  {name}: not fitted ({error})")
                 results.append(
@@ -428,7 +476,7 @@ def attribute(
         while True:
             chain.append(best)
             current = best.profile  # type: ignore[assignment]
-            current_stats, _ = held.statistics(current)
+            current_stats = best.stats if best.stats is not None else held.statistics(current)[0]
             current_gap = best.gap_after
             pool = [name for name in pool if name not in best.names]
             if len(chain) >= max_added or not pool:
@@ -441,7 +489,10 @@ def attribute(
             best = extended[0]
     chosen = chain[-1] if chain else None
     final_profile = chosen.profile if chosen and chosen.profile is not None else profile
-    final_stats, final_sims = held.statistics(final_profile)
+    if chosen is not None and chosen.stats is not None:  # measured on the same seed when it was evaluated
+        final_stats, final_sims = chosen.stats, simulate(final_profile, held.cleans, held.seed)
+    else:
+        final_stats, final_sims = base_stats, base_sims
     final_null, _ = held.statistics(final_profile, seed_offset=1)
     noise_floor = held.gap_between(final_null, final_stats)
     return Attribution(

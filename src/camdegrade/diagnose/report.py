@@ -77,7 +77,10 @@ class DiagnosisReport:
             "held_out_pairs": self.held_out_pairs,
             "families_before": {k: _number(v) for k, v in self.families_before.items()},
             "families_after": {k: _number(v) for k, v in self.families_after.items()},
-            "gap_definition": "sum over statistic families of RMS((real - sim) / tau); see docs/diagnosis.md",
+            "gap_definition": (
+                "sum over statistic families of RMS((real - sim) / sqrt(tau^2 + SE^2)), noise levels as log std; "
+                "see docs/diagnosis.md"
+            ),
             "family_tau": {name: family.tau for name, family in FAMILIES.items()},
             "profile": self.profile_name,
         }
