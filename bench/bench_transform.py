@@ -39,7 +39,8 @@ import torch
 import torch.nn.functional as F
 
 from camdegrade import CameraDegrade, load_profile
-from camdegrade.network import resolve_precision
+from camdegrade.effects.chain import apply_effects
+from camdegrade.network import resolve_precision, run_network
 
 SIZE = 224
 
@@ -143,6 +144,28 @@ def fit_pairs_per_second(repeats: int) -> float:
     return images_per_second(step, 8, repeats, warmup=1, calls=2)
 
 
+def time_split(degrade: CameraDegrade, image: torch.Tensor, repeats: int) -> dict[str, float]:
+    """Milliseconds (medians) of the parts of one single-image call: drawing the params, the network, the effect
+    stages, and the whole call (the rest is conversion and the transform's own work)."""
+    profile = degrade.profile
+    unit = image[None].float() / 255.0
+    generator = torch.Generator().manual_seed(0)
+    with torch.no_grad():
+        output = run_network(profile.network, unit, degrade.precision) if profile.network is not None else unit
+        params = profile.make_params(unit.shape, generator)
+        parts = {
+            "draw_params": lambda: degrade.make_params([image]),
+            "network": lambda: run_network(profile.network, unit, degrade.precision),
+            "effects": lambda: apply_effects(profile.effects, params, output),
+            "whole_call": lambda: degrade(image),
+        }
+        split = {}
+        for name, step in parts.items():
+            split[name] = round(1000.0 / images_per_second(step, 1, repeats, warmup=3, calls=30), 3)
+    print("time split (ms per single-image call): " + ", ".join(f"{k} {v:.2f}" for k, v in split.items()))
+    return split
+
+
 def diagnose_time(threads: int) -> float | None:
     """Seconds of ``camdegrade diagnose`` on 100 pairs of 256² (bench_diagnose's timing, run with ``threads``)."""
     from bench_diagnose import timing
@@ -192,6 +215,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     if album is not None:
         array = image.permute(1, 2, 0).numpy().copy()
         measure("albumentations_chain", lambda: album(array))
+    split = time_split(degrade, image, repeats) if load_profile(args.profile).network is not None else None
     results["fit_pairs_per_s"] = round(fit_pairs_per_second(repeats), 2)
     print(f"{'fit_pairs_per_s':28s} {results['fit_pairs_per_s']:9.2f} pairs/s (224² crops, batch 8)")
     diagnose_seconds = None if args.skip_diagnose else diagnose_time(args.threads)
@@ -210,6 +234,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     record = {
         "images_per_s": results,
         "diagnose_seconds_100_pairs_256": diagnose_seconds,
+        "single_call_split_ms": split,
         "ratios": {k: round(v, 3) for k, v in ratios.items()},
         "profile": args.profile,
         "effects": load_profile(args.profile).effect_names,
