@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import threading
 import weakref
 from typing import Any, Literal
@@ -82,8 +83,13 @@ def native_bfloat16(device: torch.device) -> bool:
     if device.type == "cuda":
         return torch.cuda.is_bf16_supported()
     if device.type == "cpu":
-        return bool(torch.backends.mkldnn.is_available() and torch.ops.mkldnn._is_mkldnn_bf16_supported())
+        return _cpu_native_bfloat16()
     return False
+
+
+@functools.cache
+def _cpu_native_bfloat16() -> bool:
+    return bool(torch.backends.mkldnn.is_available() and torch.ops.mkldnn._is_mkldnn_bf16_supported())
 
 
 def resolve_precision(precision: Precision, device: torch.device) -> str:
@@ -104,7 +110,8 @@ def run_network(network: DomainShiftNet, image: Tensor, precision: Precision = "
     """
     if resolve_precision(precision, image.device) == "float32":
         return network(image)
-    if image.device.type == "cpu" and not (torch.is_grad_enabled() and _needs_grad(network, image)):
+    on_native_cpu = image.device.type == "cpu" and native_bfloat16(image.device)
+    if on_native_cpu and not (torch.is_grad_enabled() and _needs_grad(network, image)):
         return _cpu_inference(network).run(image)
     with torch.autocast(image.device.type, dtype=torch.bfloat16):
         output = network(image.contiguous(memory_format=torch.channels_last))

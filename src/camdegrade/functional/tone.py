@@ -44,7 +44,7 @@ def tone_curve_image(
 def tone_curve(x: Tensor, gamma: Tensor, black: Tensor, white: Tensor, exposure: Tensor) -> Tensor:
     """The curve of :func:`tone_curve_image` on float values of any shape (broadcasting; differentiable)."""
     if not any(t.requires_grad for t in (x, gamma, black, white, exposure)):
-        return levels_gamma_(exposed_(x.clone(), exposure), gamma, black, white)
+        return levels_gamma_(exposed_(x.clamp(0.0, 1.0), exposure), gamma, black, white)
     exposed = linear_to_srgb(srgb_to_linear(x) * torch.exp2(exposure))
     levels = ((exposed - black) / (white - black)).clamp(0.0, 1.0)
     # 0 ** gamma has an undefined gradient in gamma; keep the graph finite at black pixels.
