@@ -342,3 +342,17 @@ def test_rotated_or_moving_psfs_are_not_taken_as_separable() -> None:
     zeros = torch.zeros(1)
     assert F.separable_taps(torch.tensor([1.5]), torch.tensor([0.6]), torch.tensor([30.0]), zeros) is None
     assert F.separable_taps(torch.ones(1), torch.ones(1), zeros, torch.tensor([3.0])) is None
+
+
+@pytest.mark.parametrize("linear", [True, False])
+def test_noise_kernel_keeps_a_graph_and_matches_its_in_place_form(linear: bool) -> None:
+    image = torch.rand(2, 3, 12, 10, generator=torch.Generator().manual_seed(4)) * 0.8 + 0.1
+    normal = torch.randn(image.shape, generator=torch.Generator().manual_seed(5))
+    rows = torch.randn(2, 3, 12, 1, generator=torch.Generator().manual_seed(6))
+    args = (0.01, 1e-4, normal)
+    plain = F.poisson_gaussian_noise_image(image, *args, row_sigma=0.01, row_normal=rows, linear=linear)
+    tracked = image.clone().requires_grad_()
+    graph = F.poisson_gaussian_noise_image(tracked, *args, row_sigma=0.01, row_normal=rows, linear=linear)
+    graph.sum().backward()
+    assert tracked.grad is not None and bool(torch.isfinite(tracked.grad).all())
+    torch.testing.assert_close(graph.detach(), plain, atol=1e-6, rtol=0)

@@ -6,7 +6,7 @@ import torch
 from torch import Tensor
 
 from camdegrade.functional._utils import ParamLike, apply_float, check_image, per_sample
-from camdegrade.functional.color import linear_to_srgb_, srgb_to_linear
+from camdegrade.functional.color import linear_to_srgb, linear_to_srgb_, srgb_to_linear
 
 
 def channel_param(value: ParamLike, image: Tensor, name: str) -> Tensor:
@@ -54,9 +54,13 @@ def poisson_gaussian_noise_image(
     rows = _noise_tensor(row_normal, image, "row_normal", (*image.shape[:-1], 1)) if has_rows else None
 
     def kernel(x: Tensor) -> Tensor:
-        if not linear:
-            return add_poisson_gaussian_noise_(x.clone(), a_t, b_t, normal, row_t, rows)
-        return linear_to_srgb_(add_poisson_gaussian_noise_(srgb_to_linear(x), a_t, b_t, normal, row_t, rows))
+        intensity = srgb_to_linear(x) if linear else x
+        if intensity.requires_grad:
+            noisy = intensity + (a_t * intensity + b_t).clamp_min(0.0).sqrt() * normal
+            noisy = (noisy if rows is None else noisy + row_t * rows).clamp(0.0, 1.0)
+            return linear_to_srgb(noisy) if linear else noisy
+        noisy = add_poisson_gaussian_noise_(intensity if linear else x.clone(), a_t, b_t, normal, row_t, rows)
+        return linear_to_srgb_(noisy) if linear else noisy
 
     return apply_float(image, kernel)
 
