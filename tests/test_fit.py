@@ -44,6 +44,24 @@ def test_fit_profile_records_how_it_was_made(tmp_path):
     assert any("6 pair" in line for line in lines)
 
 
+def test_fit_profile_threads_apply_during_the_fit_and_are_restored(tmp_path):
+    before = torch.get_num_threads()
+    seen: list[int] = []
+    fit_profile(
+        make_pairs_folder(tmp_path / "pairs"),
+        epochs=1,
+        crop=16,
+        batch_size=4,
+        crops_per_pair=1,
+        threads=before + 1,
+        callback=lambda result: seen.append(torch.get_num_threads()),
+    )
+    assert seen == [before + 1]
+    assert torch.get_num_threads() == before
+    with pytest.raises(ValueError, match="threads must be a positive integer or None, got threads=0"):
+        fit_profile(make_pairs_folder(tmp_path / "other"), threads=0)
+
+
 def test_fit_profile_same_seed_same_bytes(tmp_path):
     folder = make_pairs_folder(tmp_path / "pairs")
     options = dict(epochs=2, crop=16, batch_size=4, crops_per_pair=2, seed=3)

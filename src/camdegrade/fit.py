@@ -7,10 +7,11 @@ on the validation residuals → a :class:`CameraProfile` whose metadata records 
 
 from __future__ import annotations
 
+import contextlib
 import os
 import platform
 import time
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from pathlib import Path
 from typing import Any, Literal
 
@@ -86,40 +87,64 @@ def fit_profile(
         seed=seed,
     )
     effect_names = _check_effect_names(effects)
+    with torch_threads(threads):
+        report = _as_report(
+            pairs,
+            clean_suffix=clean_suffix,
+            captured_suffix=captured_suffix,
+            strict=strict,
+            size_mismatch=size_mismatch,
+        )
+        say(report.summary())
+        train_pairs, val_pairs = _split(report.pairs, val_fraction, seed)
+        train = _load(train_pairs, align, say)
+        val = _load(val_pairs, align, say)
+        say(f"training on {len(train)} pairs, validating on {len(val)} ({len({p.scene for p in val_pairs})} scenes)")
+        started = time.perf_counter()
+        network, history = fit_network(
+            train,
+            val,
+            config,
+            device=device,
+            callback=callback,
+            checkpoint=checkpoint,
+            resume=resume,
+            progress=progress,
+        )
+        minutes = (time.perf_counter() - started) / 60
+        profile = CameraProfile(network, name=name, description=description)
+        profile, effect_notes = _fit_effects(profile, [*val, *train], effect_names, say)
+        best = max(history, key=lambda r: r.val_psnr if val else -r.train_loss)
+        profile.fitted = {
+            "pairs": len(report.pairs),
+            "skipped": len(report.skipped),
+            "train_pairs": len(train),
+            "validation_pairs": len(val),
+            "validation_scenes": sorted({p.scene for p in val_pairs}),
+            "aligned": align,
+            "recipe": config.as_dict(),
+            "best_epoch": best.epoch,
+            "fit_minutes": round(minutes, 2),
+            "effects": effect_notes,
+            "machine": f"{platform.machine()}, {torch.get_num_threads()} threads, torch {torch.__version__}",
+            "camdegrade": __version__,
+        }
+        profile.quality = _quality(profile, val) if val else {}
+        return profile
+
+
+@contextlib.contextmanager
+def torch_threads(threads: int | None) -> Iterator[None]:
+    """Run the block with ``threads`` torch threads (unchanged when None), then restore the previous count."""
+    if threads is not None and (isinstance(threads, bool) or not isinstance(threads, int) or threads < 1):
+        raise ValueError(f"threads must be a positive integer or None, got threads={threads!r}")
+    previous = torch.get_num_threads()
     if threads is not None:
         torch.set_num_threads(threads)
-    report = _as_report(
-        pairs, clean_suffix=clean_suffix, captured_suffix=captured_suffix, strict=strict, size_mismatch=size_mismatch
-    )
-    say(report.summary())
-    train_pairs, val_pairs = _split(report.pairs, val_fraction, seed)
-    train = _load(train_pairs, align, say)
-    val = _load(val_pairs, align, say)
-    say(f"training on {len(train)} pairs, validating on {len(val)} ({len({p.scene for p in val_pairs})} scenes)")
-    started = time.perf_counter()
-    network, history = fit_network(
-        train, val, config, device=device, callback=callback, checkpoint=checkpoint, resume=resume, progress=progress
-    )
-    minutes = (time.perf_counter() - started) / 60
-    profile = CameraProfile(network, name=name, description=description)
-    profile, effect_notes = _fit_effects(profile, [*val, *train], effect_names, say)
-    best = max(history, key=lambda r: r.val_psnr if val else -r.train_loss)
-    profile.fitted = {
-        "pairs": len(report.pairs),
-        "skipped": len(report.skipped),
-        "train_pairs": len(train),
-        "validation_pairs": len(val),
-        "validation_scenes": sorted({p.scene for p in val_pairs}),
-        "aligned": align,
-        "recipe": config.as_dict(),
-        "best_epoch": best.epoch,
-        "fit_minutes": round(minutes, 2),
-        "effects": effect_notes,
-        "machine": f"{platform.machine()}, {torch.get_num_threads()} threads, torch {torch.__version__}",
-        "camdegrade": __version__,
-    }
-    profile.quality = _quality(profile, val) if val else {}
-    return profile
+    try:
+        yield
+    finally:
+        torch.set_num_threads(previous)
 
 
 def _check_effect_names(effects: Iterable[str]) -> list[str]:
