@@ -270,19 +270,33 @@ def _binned_robust_variance(key: Tensor, residual: Tensor, count: Tensor) -> Ten
 
 
 def _row_sigma(pairs: PairList, flat_quantile: float, linear: bool) -> Tensor:
-    """Per-channel banding std: the variance of row means beyond what independent pixel noise explains."""
+    """Per-channel banding std: the variance of row means beyond what the noise without banding explains.
+
+    That null is the larger of two predictions: independent pixels (pixel variance / pixels per row), and the
+    column means (banding moves rows, not columns; their variance, scaled by the pixels per column over the
+    pixels per row, is what row means would show without it). The second holds for spatially correlated noise
+    and for 8×8 codec blocking, which raise row and column means alike and would otherwise read as banding.
+    """
     estimates = torch.zeros(3)
     weights = 0
     for _, _, diff, mask in _residuals(pairs, flat_quantile, linear):
-        counts = mask.sum(1).double()
-        rows = counts >= max(8, mask.shape[1] // 4)
-        if int(rows.sum()) < 8:
+        row_counts, column_counts = mask.sum(1).double(), mask.sum(0).double()
+        rows = row_counts >= max(8, mask.shape[1] // 4)
+        columns = column_counts >= max(8, mask.shape[0] // 4)
+        if int(rows.sum()) < 8 or int(columns.sum()) < 8:
             continue
+        length_ratio = float(column_counts[columns].median() / row_counts[rows].median())
         for channel in range(3):
             r = diff[channel].double() * mask
-            means = r.sum(1)[rows] / counts[rows]
-            spread = (r.pow(2).sum(1)[rows] / counts[rows] - means.pow(2)) / (counts[rows] - 1)
-            row_variance = (1.4826 * (means - means.median()).abs().median()) ** 2
-            estimates[channel] += float((row_variance - spread.median()).clamp_min(0.0)) * int(rows.sum())
+            means = r.sum(1)[rows] / row_counts[rows]
+            spread = (r.pow(2).sum(1)[rows] / row_counts[rows] - means.pow(2)) / (row_counts[rows] - 1)
+            column_means = r.sum(0)[columns] / column_counts[columns]
+            null = max(float(spread.median()), _robust_variance(column_means) * length_ratio)
+            estimates[channel] += max(_robust_variance(means) - null, 0.0) * int(rows.sum())
         weights += int(rows.sum())
     return (estimates / max(weights, 1)).sqrt()
+
+
+def _robust_variance(values: Tensor) -> float:
+    """Variance from the median absolute deviation (Gaussian-consistent), unmoved by a few outlying rows."""
+    return float((1.4826 * (values - values.median()).abs().median()) ** 2)
