@@ -35,6 +35,8 @@ class Effect(nn.Module):
       replayed exactly and a subset of a batch can be taken by indexing every param with the same index.
     - :meth:`forward` takes float ``(N, 3, H, W)`` in ``[0, 1]``, returns the same shape, dtype and device, and never
       modifies its input. Pure kernels live in :mod:`camdegrade.functional`.
+    - Optionally, :meth:`encodings` and :meth:`forward_encoded` run the same stage in linear light and in place, so
+      that a profile decodes sRGB once for a run of such stages (see :mod:`camdegrade.effects.chain`).
     """
 
     name: ClassVar[str] = ""
