@@ -7,8 +7,7 @@ Nothing is downloaded: the clean images are the colour photographs that ship ins
 column in the manifest), so the validation split never sees a training photograph. The held-out numbers come
 from crops of *other* scikit-image photographs, never used in fitting. Run from the repo root::
 
-    OMP_NUM_THREADS=1 .venv/bin/python examples/fit_lowcost_robot_sim.py \\
-        --out src/camdegrade/profiles/lowcost-robot-sim.safetensors
+    .venv/bin/python examples/fit_lowcost_robot_sim.py --out src/camdegrade/profiles/lowcost-robot-sim.safetensors
 """
 
 from __future__ import annotations
@@ -169,8 +168,9 @@ def main() -> None:
         "virtual_camera": PRESETS[PRESET].description,
         "held_out_data": f"{args.held_out_crops} crops each of {list(HELD_OUT_IMAGES)} (never used in fitting)",
         "command": (
-            "OMP_NUM_THREADS=1 python examples/fit_lowcost_robot_sim.py "
-            f"--out {args.out} --crops-per-pair {args.crops_per_pair} --seed {args.seed}"
+            f"python examples/fit_lowcost_robot_sim.py --out {args.out} --crops-per-image {args.crops_per_image} "
+            f"--held-out-crops {args.held_out_crops} --size {args.size} --epochs {args.epochs} "
+            f"--crops-per-pair {args.crops_per_pair} --seed {args.seed}"
         ),
         "script": "examples/fit_lowcost_robot_sim.py",
         "total_minutes": round(minutes, 1),
