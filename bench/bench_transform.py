@@ -146,12 +146,12 @@ def fit_pairs_per_second(repeats: int) -> float:
 
 def time_split(degrade: CameraDegrade, image: torch.Tensor, repeats: int) -> dict[str, float]:
     """Milliseconds (medians) of the parts of one single-image call: drawing the params, the network, the effect
-    stages, and the whole call (the rest is conversion and the transform's own work)."""
+    stages, and the whole call (the rest is conversion and the transform's own work). Needs a network."""
     profile = degrade.profile
     unit = image[None].float() / 255.0
     generator = torch.Generator().manual_seed(0)
     with torch.no_grad():
-        output = run_network(profile.network, unit, degrade.precision) if profile.network is not None else unit
+        output = run_network(profile.network, unit, degrade.precision)
         params = profile.make_params(unit.shape, generator)
         parts = {
             "draw_params": lambda: degrade.make_params([image]),
@@ -215,7 +215,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     if album is not None:
         array = image.permute(1, 2, 0).numpy().copy()
         measure("albumentations_chain", lambda: album(array))
-    split = time_split(degrade, image, repeats) if load_profile(args.profile).network is not None else None
+    split = time_split(degrade, image, repeats) if degrade.profile.network is not None else None
     results["fit_pairs_per_s"] = round(fit_pairs_per_second(repeats), 2)
     print(f"{'fit_pairs_per_s':28s} {results['fit_pairs_per_s']:9.2f} pairs/s (224² crops, batch 8)")
     diagnose_seconds = None if args.skip_diagnose else diagnose_time(args.threads)

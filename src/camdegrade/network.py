@@ -11,6 +11,8 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
+from camdegrade._fingerprint import tensors_fingerprint
+
 #: Total down-sampling of the encoder; inputs are padded to a multiple of this.
 SIZE_MULTIPLE = 4
 #: How the network runs at inference: ``"float32"`` is the exact reference; ``"bfloat16"`` runs the convolutions in
@@ -128,17 +130,13 @@ _INFERENCE_LOCK = threading.Lock()
 
 def _cpu_inference(network: DomainShiftNet) -> BFloat16Inference:
     """The cached bfloat16 plan of ``network``, rebuilt whenever one of its parameters changes."""
-    fingerprint = _parameter_fingerprint(network)
+    fingerprint = tensors_fingerprint(network.parameters())
     with _INFERENCE_LOCK:
         plan = _INFERENCE_CACHE.get(network)
         if plan is None or plan.fingerprint != fingerprint:
             plan = BFloat16Inference(network, fingerprint)
             _INFERENCE_CACHE[network] = plan
         return plan
-
-
-def _parameter_fingerprint(network: nn.Module) -> tuple[int, ...]:
-    return tuple(part for p in network.parameters() for part in (id(p), p._version, p.data_ptr()))
 
 
 class BFloat16Inference:

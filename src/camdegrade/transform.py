@@ -18,6 +18,7 @@ from torchvision import tv_tensors
 from torchvision.transforms.v2 import Transform
 from torchvision.transforms.v2 import functional as TF
 
+from camdegrade._fingerprint import tensors_fingerprint
 from camdegrade.network import Precision, resolve_precision
 from camdegrade.profile import CameraProfile, EffectParams, load_profile
 
@@ -200,7 +201,7 @@ class CameraDegrade(Transform):
         """
         if _is_float32_on(self.profile, device):
             return self.profile
-        fingerprint = _state_fingerprint(self.profile)
+        fingerprint = tensors_fingerprint(_module_tensors(self.profile))
         with self._lock:
             cached = self._device_profiles.get(device)
             if cached is None or cached[0] != fingerprint:
@@ -299,11 +300,6 @@ def _is_float32_on(module: torch.nn.Module, device: torch.device) -> bool:
     return all(
         t.device == device and (t.dtype == torch.float32 or not t.is_floating_point()) for t in _module_tensors(module)
     )
-
-
-def _state_fingerprint(module: torch.nn.Module) -> tuple[int, ...]:
-    """Changes whenever a tensor of ``module`` is replaced or modified in place."""
-    return tuple(part for t in _module_tensors(module) for part in (id(t), t._version, t.data_ptr()))
 
 
 def _worker_seed(seed: int, worker_id: int) -> int:
