@@ -69,3 +69,29 @@ def test_bfloat16_with_autograd_keeps_the_graph():
     assert output.requires_grad
     output.mean().backward()
     assert network.encode1.weight.grad is not None
+
+
+@pytest.mark.parametrize("shape", [(1, 3, 1, 1), (2, 3, 5, 7), (1, 3, 64, 48)])
+def test_bfloat16_plan_reads_uint8_as_value_over_255(shape):
+    network = load_profile("city100-iphonex").network
+    image = torch.randint(0, 256, shape, dtype=torch.uint8, generator=torch.Generator().manual_seed(3))
+    with torch.no_grad():
+        exact = network(image.float() / 255.0)
+        from_bytes = BFloat16Inference(network).run(image)
+    assert from_bytes.shape == exact.shape and from_bytes.dtype == torch.float32
+    assert (from_bytes - exact).abs().max() < 0.02
+
+
+@pytest.mark.parametrize("precision", ["float32", "bfloat16"])
+def test_profile_reads_uint8_like_the_same_image_in_unit_floats(precision):
+    profile = load_profile("city100-iphonex")
+    image = torch.randint(0, 256, (2, 3, 24, 20), dtype=torch.uint8, generator=torch.Generator().manual_seed(4))
+    params = profile.make_params(image.shape, torch.Generator().manual_seed(5))
+    with torch.no_grad():
+        from_bytes = profile(image, params, precision=precision)
+        from_floats = profile(image.float() / 255.0, params, precision=precision)
+    assert from_bytes.dtype == torch.float32
+    if precision == "float32":
+        assert torch.equal(from_bytes, from_floats)
+    else:  # the 1/255 sits in the first layer's bfloat16 weights instead of in the image
+        assert (from_bytes - from_floats).abs().max() < 0.02

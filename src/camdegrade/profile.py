@@ -16,6 +16,7 @@ from safetensors.torch import save_file
 from torch import Tensor, nn
 
 from camdegrade._files import atomic_path
+from camdegrade._pixels import bytes_to_unit
 from camdegrade._version import __version__
 from camdegrade.effects import EFFECTS, STAGES, Effect, build_effect
 from camdegrade.effects.chain import apply_effects
@@ -46,8 +47,8 @@ class CameraProfile(nn.Module):
         quality: held-out quality numbers (e.g. PSNR against the captures), JSON-serialisable.
 
     Shape:
-        - Input: ``(N, 3, H, W)``, float in ``[0, 1]``.
-        - Output: ``(N, 3, H, W)``, float in ``[0, 1]``.
+        - Input: ``(N, 3, H, W)``, float in ``[0, 1]``, or uint8 (read as ``value / 255``).
+        - Output: ``(N, 3, H, W)``, float32 in ``[0, 1]``.
 
     Examples:
         >>> profile = CameraProfile(DomainShiftNet(), name="untrained")
@@ -102,6 +103,8 @@ class CameraProfile(nn.Module):
         owned = False  # whether ``image`` is a tensor this call made, which it may overwrite
         if self.network is not None:
             image, owned = run_network(self.network, image, precision), True
+        elif image.dtype == torch.uint8:
+            image, owned = bytes_to_unit(image), True
         if self.effects:
             image, owned = apply_effects(self.effects, params, image, overwrite=owned), True
         return image.clamp_(0.0, 1.0) if owned and not image.requires_grad else image.clamp(0.0, 1.0)

@@ -6,7 +6,6 @@ import copy
 import math
 import os
 import threading
-from collections.abc import Iterator
 from typing import Any
 
 import PIL.Image
@@ -18,7 +17,8 @@ from torchvision import tv_tensors
 from torchvision.transforms.v2 import Transform
 from torchvision.transforms.v2 import functional as TF
 
-from camdegrade._fingerprint import tensors_fingerprint
+from camdegrade._fingerprint import module_tensors, tensors_fingerprint
+from camdegrade._pixels import bytes_to_unit, unit_to_bytes
 from camdegrade.network import Precision, resolve_precision
 from camdegrade.profile import CameraProfile, EffectParams, load_profile
 
@@ -131,7 +131,7 @@ class CameraDegrade(Transform):
         decisions = torch.rand(samples, generator=generator) < p
         frames_per_sample = frames[0] // samples if samples else 0
         return {
-            "apply": decisions.repeat_interleave(frames_per_sample),
+            "apply": decisions if frames_per_sample == 1 else decisions.repeat_interleave(frames_per_sample),
             "effects": self.profile.make_params(frames, generator),
             "frames": frames,
         }
@@ -180,18 +180,14 @@ class CameraDegrade(Transform):
 
     def _degrade_frames(self, batch: Tensor, apply: Tensor, effect_params: EffectParams) -> Tensor:
         profile = self.profile_on(batch.device)
+        if bool(apply.all()):
+            return degrade_frames(profile, batch, _params_on(effect_params, batch.device), self.precision)
         selected = apply.nonzero().squeeze(1)
-        everything = selected.numel() == batch.shape[0]
-        subset = batch if everything else batch[selected.to(batch.device)]
-        subset_params = [
-            {key: (value if everything else value[selected]).to(batch.device) for key, value in stage.items()}
-            for stage in effect_params
-        ]
-        result = degrade_frames(profile, subset, subset_params, self.precision)
-        if everything:
-            return result
+        subset_params = [{key: value[selected] for key, value in stage.items()} for stage in effect_params]
+        selected = selected.to(batch.device)
+        result = degrade_frames(profile, batch[selected], _params_on(subset_params, batch.device), self.precision)
         out = batch.clone()
-        out[selected.to(batch.device)] = result
+        out[selected] = result
         return out
 
     def profile_on(self, device: torch.device) -> CameraProfile:
@@ -201,7 +197,7 @@ class CameraDegrade(Transform):
         """
         if _is_float32_on(self.profile, device):
             return self.profile
-        fingerprint = tensors_fingerprint(_module_tensors(self.profile))
+        fingerprint = tensors_fingerprint(module_tensors(self.profile))
         with self._lock:
             cached = self._device_profiles.get(device)
             if cached is None or cached[0] != fingerprint:
@@ -235,8 +231,13 @@ def degrade_frames(profile: CameraProfile, frames: Tensor, params: EffectParams,
 
 def _degrade_chunk(profile: CameraProfile, frames: Tensor, params: EffectParams, precision: Precision) -> Tensor:
     with torch.no_grad():
-        degraded = profile(to_unit_float(frames), params, precision=precision)
+        unit = frames if frames.dtype == torch.uint8 else to_unit_float(frames)  # the profile reads uint8 itself
+        degraded = profile(unit, params, precision=precision)
         return from_unit_float(degraded, frames.dtype, overwrite=True)  # the profile returns a new tensor
+
+
+def _params_on(params: EffectParams, device: torch.device) -> EffectParams:
+    return [{key: value.to(device) for key, value in stage.items()} for stage in params]
 
 
 def check_probability(p: Any) -> float:
@@ -279,26 +280,20 @@ def check_image_tensor(image: Tensor) -> None:
 
 def to_unit_float(image: Tensor) -> Tensor:
     if image.dtype == torch.uint8:
-        return image.float().div_(255.0)
+        return bytes_to_unit(image)
     return image.float().clamp(0.0, 1.0)
 
 
 def from_unit_float(image: Tensor, dtype: torch.dtype, *, overwrite: bool = False) -> Tensor:
     """``image`` in [0, 1] as ``dtype`` (uint8: scaled and rounded); ``overwrite`` lets it reuse ``image``."""
     if dtype == torch.uint8:
-        scaled = image.mul_(255.0) if overwrite else image.mul(255.0)
-        return scaled.round_().clamp_(0, 255).to(torch.uint8)
+        return unit_to_bytes(image, overwrite=overwrite)
     return image.to(dtype)
-
-
-def _module_tensors(module: torch.nn.Module) -> Iterator[Tensor]:
-    yield from module.parameters()
-    yield from module.buffers()
 
 
 def _is_float32_on(module: torch.nn.Module, device: torch.device) -> bool:
     return all(
-        t.device == device and (t.dtype == torch.float32 or not t.is_floating_point()) for t in _module_tensors(module)
+        t.device == device and (t.dtype == torch.float32 or not t.is_floating_point()) for t in module_tensors(module)
     )
 
 

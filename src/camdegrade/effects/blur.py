@@ -9,7 +9,7 @@ from typing import Any
 import torch
 from torch import Tensor
 
-from camdegrade._fingerprint import tensors_fingerprint
+from camdegrade._fingerprint import module_tensors, tensors_fingerprint
 from camdegrade.effects._common import batch_shape, check_non_negative, resolve_params, scalar
 from camdegrade.effects._fitting import affine_residual, as_pairs, grid_search, minimize, textured_crops
 from camdegrade.effects.base import Effect, Encoding, Pairs, register_effect
@@ -92,7 +92,7 @@ class Blur(Effect):
     def _fixed_taps(self, image: Tensor) -> tuple[Tensor, Tensor] | None:
         """The separable taps of this (jitter-free) PSF for ``image``'s dtype and device, or None when it does
         not factorise; cached until a buffer changes, as building them costs more than small blurs."""
-        key = (image.dtype, image.device, *tensors_fingerprint(self.buffers()))
+        key = (image.dtype, image.device, *tensors_fingerprint(module_tensors(self)))
         if self._taps_cache is None or self._taps_cache[0] != key:
             one = [value.reshape(1) for value in (self.sigma_x, self.sigma_y, self.angle, self.motion_length)]
             taps = separable_taps(*one)

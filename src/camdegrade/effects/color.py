@@ -172,8 +172,8 @@ class Tone(Effect):
         return ("linear", "srgb") if self._has_exposure() else ("srgb", "srgb")
 
     def forward_encoded(self, image: Tensor, params: Mapping[str, Tensor] | None = None) -> Tensor:
-        exposure = as_channel_view(per_sample(self._exposure(image, params), image, "exposure"))
         if self._has_exposure():
+            exposure = as_channel_view(per_sample(self._exposure(image, params), image, "exposure"))
             exposed_(image, exposure, linear_input=True)
         device = image.device
         return levels_gamma_(image, self.gamma.to(device), self.black.to(device), self.white.to(device))

@@ -10,6 +10,7 @@ from typing import Any
 import torch
 from torch import Tensor
 
+from camdegrade._random import standard_normal
 from camdegrade.effects._common import batch_shape, check_non_negative, resolve_params, vector
 from camdegrade.effects._fitting import PairList, as_pairs, gradient_energy
 from camdegrade.effects.base import Effect, Encoding, Pairs, register_effect
@@ -65,7 +66,7 @@ class Noise(Effect):
     ) -> dict[str, Tensor]:
         n, channels, height, width = batch_shape(shape)
         params = {
-            "normal": torch.randn(n, channels, height, width, generator=generator),
+            "normal": standard_normal((n, channels, height, width), generator),
             "row_normal": torch.randn(n, channels, height, 1, generator=generator),
         }
         if self.gain_jitter > 0:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import torch
 from torch import Tensor
 
@@ -29,23 +31,34 @@ def linear_to_srgb(image: Tensor) -> Tensor:
     return curve + (x.clamp_max(_LINEAR_KNEE) - _LINEAR_KNEE) * 12.92
 
 
-# The in-place forms below compute the same curves with one temporary. Each curve is evaluated on values clamped
-# to its knee, and the straight segment below the knee is added as (x − knee) · slope: torch.where and ``**`` are
-# several times slower on the CPU, and fresh buffers cost more than the arithmetic.
+# The in-place forms below compute the same curves with one temporary and as few passes as possible. Each curve is
+# evaluated on values clamped to its knee, and the straight segment below the knee is added as (x − knee) · slope:
+# torch.where and ``**`` are several times slower on the CPU, and fresh buffers cost more than the arithmetic.
+# Constant factors are moved into the log domain or into the final add, where they cost no pass of their own.
+
+_DECODE_LOG_OFFSET = -2.4 * math.log2(1.055)  # ((x + 0.055) / 1.055) ** 2.4 = exp2(2.4 · log2(x + 0.055) + this)
 
 
 def srgb_to_linear_(image: Tensor) -> Tensor:
     """In-place :func:`srgb_to_linear` of a float tensor (no autograd); returns ``image``."""
-    below = image.clamp(0.0, _SRGB_KNEE).sub_(_SRGB_KNEE).div_(12.92)
-    image.clamp_(_SRGB_KNEE, 1.0).add_(0.055).div_(1.055).log2_().mul_(2.4).exp2_()
-    return image.add_(below)
+    below = image.clamp(0.0, _SRGB_KNEE).sub_(_SRGB_KNEE)
+    logs = image.clamp_(_SRGB_KNEE, 1.0).add_(0.055).log2_()
+    torch.add(_scalar(_DECODE_LOG_OFFSET, image), logs, alpha=2.4, out=image).exp2_()
+    return image.add_(below, alpha=1.0 / 12.92)
 
 
 def linear_to_srgb_(image: Tensor) -> Tensor:
     """In-place :func:`linear_to_srgb` of a float tensor (no autograd); returns ``image``."""
-    below = image.clamp(0.0, _LINEAR_KNEE).sub_(_LINEAR_KNEE).mul_(12.92)
-    image.clamp_(_LINEAR_KNEE, 1.0).log2_().div_(2.4).exp2_().mul_(1.055).sub_(0.055)
-    return image.add_(below)
+    below = image.clamp(0.0, _LINEAR_KNEE).sub_(_LINEAR_KNEE)
+    curve = image.clamp_(_LINEAR_KNEE, 1.0).log2_().div_(2.4).exp2_()
+    torch.add(_scalar(-0.055, image), curve, alpha=1.055, out=image)
+    return image.add_(below, alpha=12.92)
+
+
+def _scalar(value: float, like: Tensor) -> Tensor:
+    """``value`` as a 0-d tensor that broadcasts into one fused ``torch.add`` with ``like`` (a scalar ``alpha``
+    scales only the second operand)."""
+    return torch.tensor(value, dtype=like.dtype, device=like.device)
 
 
 def color_matrix_image(image: Tensor, matrix: ParamLike, *, linear: bool = True) -> Tensor:

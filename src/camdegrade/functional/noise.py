@@ -72,8 +72,8 @@ def add_poisson_gaussian_noise_(
 
     The float ``intensity`` is overwritten and returned; parameters are already shaped to broadcast (no checks).
     """
-    std = torch.mul(intensity, a).add_(b).clamp_min_(0.0).sqrt_().mul_(normal)
-    intensity.add_(std)
+    std = torch.addcmul(b, intensity, a).clamp_min_(0.0).sqrt_()
+    intensity.addcmul_(std, normal)
     if row_normal is not None:
         intensity.add_(row_normal * row_sigma)
     return intensity.clamp_(0.0, 1.0)
