@@ -1,7 +1,8 @@
 """Throughput of CameraDegrade against the paper's network alone and the augmentation chains users pick instead.
 
-Plain script, not a test. Every number is a median over repeats after warm-up, measured in this one run with the
-stated number of torch threads, so the ratios compare like with like. Cases (uint8 224² RGB in, uint8 out):
+Plain script, not a test. Every number is a median over repeated rounds after warm-up, measured in this one run
+with the stated number of torch threads; each round times every case in turn, so the machine's drifts in speed hit
+all cases alike and the ratios compare like with like. Cases (uint8 224² RGB in, uint8 out):
 
 - ``reference_network_fp32``: the paper's network alone, float32 eager, with the uint8 ↔ float conversion;
 - ``camdegrade_single`` / ``camdegrade_batch32``: ``CameraDegrade(profile)`` with its effect stages and the
@@ -30,6 +31,7 @@ import statistics
 import time
 import warnings
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -56,16 +58,33 @@ def natural_image(size: int = SIZE) -> torch.Tensor:
     return F.interpolate(image, size=(size, size), mode="area")[0].round().clamp(0, 255).to(torch.uint8)
 
 
-def images_per_second(step: Callable[[], Any], images_per_call: int, repeats: int, warmup: int, calls: int) -> float:
-    for _ in range(warmup):
-        step()
-    rates = []
+@dataclass
+class Case:
+    """One measured step: ``calls`` calls per round, each handling ``images_per_call`` images."""
+
+    step: Callable[[], Any]
+    images_per_call: int = 1
+    calls: int = 30
+
+
+def interleaved_rates(cases: dict[str, Case], repeats: int, warmup: int = 3) -> dict[str, float]:
+    """Median images/s of every case over ``repeats`` rounds, each round timing every case in turn.
+
+    Interleaving matters on shared machines, whose speed drifts by tens of percent within minutes: a slow spell
+    then slows every case of a round alike, so the ratios between cases stay right where back-to-back blocks of
+    repeats would compare a fast spell with a slow one.
+    """
+    for case in cases.values():
+        for _ in range(warmup):
+            case.step()
+    rates: dict[str, list[float]] = {name: [] for name in cases}
     for _ in range(repeats):
-        started = time.perf_counter()
-        for _ in range(calls):
-            step()
-        rates.append(calls * images_per_call / (time.perf_counter() - started))
-    return statistics.median(rates)
+        for name, case in cases.items():
+            started = time.perf_counter()
+            for _ in range(case.calls):
+                case.step()
+            rates[name].append(case.calls * case.images_per_call / (time.perf_counter() - started))
+    return {name: statistics.median(values) for name, values in rates.items()}
 
 
 def reference_network(profile_name: str) -> Callable[[torch.Tensor], torch.Tensor]:
@@ -141,7 +160,7 @@ def fit_pairs_per_second(repeats: int) -> float:
         F.mse_loss(network.forward_aligned(clean), captured).backward()
         optimizer.step()
 
-    return images_per_second(step, 8, repeats, warmup=1, calls=2)
+    return interleaved_rates({"fit": Case(step, images_per_call=8, calls=2)}, repeats, warmup=1)["fit"]
 
 
 def time_split(degrade: CameraDegrade, image: torch.Tensor, repeats: int) -> dict[str, float]:
@@ -159,9 +178,8 @@ def time_split(degrade: CameraDegrade, image: torch.Tensor, repeats: int) -> dic
             "effects": lambda: apply_effects(profile.effects, params, output),
             "whole_call": lambda: degrade(image),
         }
-        split = {}
-        for name, step in parts.items():
-            split[name] = round(1000.0 / images_per_second(step, 1, repeats, warmup=3, calls=30), 3)
+        rates = interleaved_rates({name: Case(step) for name, step in parts.items()}, repeats)
+        split = {name: round(1000.0 / rate, 3) for name, rate in rates.items()}
     print("time split (ms per single-image call): " + ", ".join(f"{k} {v:.2f}" for k, v in split.items()))
     return split
 
@@ -189,32 +207,34 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     args = parser.parse_args(argv)
     warnings.filterwarnings("ignore")  # peer libraries' deprecation notices are not what is measured
     torch.set_num_threads(args.threads)
-    repeats, calls = (3, 5) if args.quick else (7, 30)
+    repeats, calls = (3, 5) if args.quick else (11, 30)
     image = natural_image()
     batch = image.expand(32, -1, -1, -1).contiguous()
     degrade = CameraDegrade(args.profile, seed=0)
     exact = CameraDegrade(args.profile, seed=0, precision="float32")
-    results: dict[str, float | None] = {}
-
-    def measure(name: str, step: Callable[[], Any], per_call: int = 1, n_calls: int = calls) -> None:
-        results[name] = round(images_per_second(step, per_call, repeats, warmup=3, calls=n_calls), 1)
-        print(f"{name:28s} {results[name]:9.1f} images/s", flush=True)
-
+    batch_calls = max(1, calls // 8)
     reference = reference_network(args.profile)
-    measure("reference_network_fp32", lambda: reference(image))
-    measure("camdegrade_single", lambda: degrade(image))
-    measure("camdegrade_batch32", lambda: degrade(batch), per_call=32, n_calls=max(1, calls // 8))
-    measure("camdegrade_single_fp32", lambda: exact(image))
+    cases = {
+        "reference_network_fp32": Case(lambda: reference(image), calls=calls),
+        "camdegrade_single": Case(lambda: degrade(image), calls=calls),
+        "camdegrade_batch32": Case(lambda: degrade(batch), images_per_call=32, calls=batch_calls),
+        "camdegrade_single_fp32": Case(lambda: exact(image), calls=calls),
+    }
     tv = torchvision_chain()
-    measure("torchvision_chain", lambda: tv(image))
+    cases["torchvision_chain"] = Case(lambda: tv(image), calls=calls)
     kornia = kornia_chain()
     if kornia is not None:
-        measure("kornia_chain", lambda: kornia(image))
-        measure("kornia_chain_batch32", lambda: kornia(batch), per_call=32, n_calls=max(1, calls // 8))
+        cases["kornia_chain"] = Case(lambda: kornia(image), calls=calls)
+        cases["kornia_chain_batch32"] = Case(lambda: kornia(batch), images_per_call=32, calls=batch_calls)
     album = albumentations_chain()
     if album is not None:
         array = image.permute(1, 2, 0).numpy().copy()
-        measure("albumentations_chain", lambda: album(array))
+        cases["albumentations_chain"] = Case(lambda: album(array), calls=calls)
+    results: dict[str, float | None] = {
+        name: round(rate, 1) for name, rate in interleaved_rates(cases, repeats).items()
+    }
+    for name, rate in results.items():
+        print(f"{name:28s} {rate:9.1f} images/s", flush=True)
     split = time_split(degrade, image, repeats) if degrade.profile.network is not None else None
     results["fit_pairs_per_s"] = round(fit_pairs_per_second(repeats), 2)
     print(f"{'fit_pairs_per_s':28s} {results['fit_pairs_per_s']:9.2f} pairs/s (224² crops, batch 8)")

@@ -367,3 +367,17 @@ def test_separable_taps_leave_out_only_negligible_outer_taps() -> None:
     assert float(across.min()) > blur_module.NEGLIGIBLE_TAP
     wide, _ = F.separable_taps(torch.tensor([3.0]), torch.tensor([3.0]), torch.zeros(1), torch.zeros(1))
     assert wide.shape == (1, 25)  # every tap of a 3-sigma Gaussian truncated at 4 sigma weighs more than 1e-5
+
+
+@pytest.mark.parametrize(("gamma", "black_at_most"), [(1.3, 3e-10), (0.25, 1e-9), (0.1, 0.0)])
+def test_in_place_levels_gamma_keeps_black_below_any_quantisation_step(gamma: float, black_at_most: float) -> None:
+    from camdegrade.functional.tone import levels_gamma_
+
+    values = torch.linspace(-0.1, 1.1, 1201)
+    black, white = torch.tensor(0.05), torch.tensor(0.95)
+    curve = levels_gamma_(values.clone(), torch.tensor(gamma), black, white)
+    levels = ((values - black) / (white - black)).clamp(0, 1)  # float32, as the kernel computes them
+    expected = levels.double() ** gamma
+    black = levels == 0
+    assert float(curve[black].max()) <= black_at_most
+    assert (curve[~black].double() - expected[~black]).abs().max() < 2e-6

@@ -61,10 +61,23 @@ def exposed_(x: Tensor, exposure: Tensor, *, linear_input: bool = False) -> Tens
     return linear_to_srgb_(x.mul_(torch.exp2(exposure)))
 
 
+#: Gammas from this one up lift black to at most ``tiny ** gamma`` (3e-10 in float32) instead of exactly 0.
+_LIFT_BLACK_FROM_GAMMA = 0.25
+
+
 def levels_gamma_(x: Tensor, gamma: Tensor, black: Tensor, white: Tensor) -> Tensor:
-    """In place: ``clip((x − black) / (white − black), 0, 1) ** gamma`` (no autograd)."""
-    x.sub_(black).div_(white - black).clamp_(0.0, 1.0)
-    if bool((gamma != 1).any()):
-        # x ** gamma as exp2(gamma · log2 x), exact at black too: log2 0 = −inf and exp2(−inf) = 0 for gamma > 0.
+    """In place: ``clip((x − black) / (white − black), 0, 1) ** gamma`` (no autograd).
+
+    ``x ** gamma`` runs as ``exp2(gamma · log2 x)``. On the CPU, log2 takes a path several times slower when any
+    value is exactly 0, so for gammas of at least 0.25 black is clipped to the smallest normal float instead of 0
+    and comes out at most 3e-10 (float32), far below any quantisation step. Smaller gammas keep an exact black:
+    log2 0 = −inf and exp2(−inf) = 0.
+    """
+    smallest, largest = gamma.aminmax()
+    smallest, largest = float(smallest), float(largest)
+    powered = smallest != 1.0 or largest != 1.0
+    floor = torch.finfo(x.dtype).tiny if powered and smallest >= _LIFT_BLACK_FROM_GAMMA else 0.0
+    x.sub_(black).div_(white - black).clamp_(floor, 1.0)
+    if powered:
         x.log2_().mul_(gamma).exp2_()
     return x
