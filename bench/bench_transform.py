@@ -67,19 +67,19 @@ class Case:
     calls: int = 30
 
 
-def interleaved_rates(cases: dict[str, Case], repeats: int, warmup: int = 3) -> dict[str, float]:
+def interleaved_rates(cases: dict[str, Case], repeats: int, warmup: int = 2) -> dict[str, float]:
     """Median images/s of every case over ``repeats`` rounds, each round timing every case in turn.
 
     Interleaving matters on shared machines, whose speed drifts by tens of percent within minutes: a slow spell
     then slows every case of a round alike, so the ratios between cases stay right where back-to-back blocks of
-    repeats would compare a fast spell with a slow one.
+    repeats would compare a fast spell with a slow one. Each case's turn starts with ``warmup`` untimed calls, so
+    it is not charged for refilling the caches and the heap that the previous case left.
     """
-    for case in cases.values():
-        for _ in range(warmup):
-            case.step()
     rates: dict[str, list[float]] = {name: [] for name in cases}
     for _ in range(repeats):
         for name, case in cases.items():
+            for _ in range(warmup):
+                case.step()
             started = time.perf_counter()
             for _ in range(case.calls):
                 case.step()
