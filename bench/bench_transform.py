@@ -42,7 +42,7 @@ import torch.nn.functional as F
 
 from camdegrade import CameraDegrade, load_profile
 from camdegrade.effects.chain import apply_effects
-from camdegrade.network import resolve_precision, run_network
+from camdegrade.inference import resolve_precision, run_network
 
 SIZE = 224
 

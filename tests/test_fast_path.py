@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import copy
+
 import pytest
 import torch
 from skimage import data
 
 from camdegrade import CameraDegrade, load_profile
-from camdegrade.network import BFloat16Inference, native_bfloat16, resolve_precision, run_network
+from camdegrade.inference import CpuInference, native_bfloat16, resolve_precision, run_network
 
 PHOTOS = ("astronaut", "chelsea", "coffee", "rocket")
 
@@ -41,15 +43,54 @@ def test_unknown_precision_is_refused():
         CameraDegrade(load_profile("city100-iphonex"), precision="fp8")
 
 
-@pytest.mark.parametrize("shape", [(1, 3, 1, 1), (2, 3, 5, 7), (3, 3, 37, 61), (1, 3, 64, 48)])
-def test_bfloat16_plan_follows_the_module_at_every_size(shape):
+#: Largest difference from the module: bfloat16 keeps 8 mantissa bits; float32 only sums in another order.
+PLAN_TOLERANCE = {torch.bfloat16: 0.02, torch.float32: 2e-6}
+SIZES = [(1, 3, 1, 1), (2, 3, 5, 7), (3, 3, 37, 61), (1, 3, 64, 48), (2, 3, 132, 128)]  # the last skips channels
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.bfloat16])
+@pytest.mark.parametrize("shape", SIZES)
+def test_cpu_plan_follows_the_module_at_every_size(shape, dtype):
     network = load_profile("city100-iphonex").network
     image = torch.rand(shape, generator=torch.Generator().manual_seed(1))
     with torch.no_grad():
         exact = network(image)
-        fast = BFloat16Inference(network).run(image)
+        fast = CpuInference(network, dtype).run(image)
     assert fast.shape == exact.shape and fast.dtype == torch.float32 and fast.is_contiguous()
-    assert (fast - exact).abs().max() < 0.02  # bfloat16 keeps 8 mantissa bits
+    assert (fast - exact).abs().max() < PLAN_TOLERANCE[dtype]
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.bfloat16])
+def test_cpu_plan_gives_every_image_the_bytes_it_gets_alone(dtype):
+    """Batching and chunking must not change results: each image is computed as if it were alone, on both sides
+    of the size from which zero channels are skipped."""
+    network = load_profile("city100-iphonex").network
+    plan = CpuInference(network, dtype)
+    for shape in [(3, 3, 24, 20), (3, 3, 128, 136)]:
+        batch = torch.rand(shape, generator=torch.Generator().manual_seed(6))
+        with torch.no_grad():
+            together = plan.run(batch)
+            for index in range(shape[0]):
+                assert torch.equal(plan.run(batch[index : index + 1]), together[index : index + 1])
+
+
+def test_cpu_plan_skips_channels_that_are_zero_over_the_image():
+    """A network whose encoder leaves half its channels at zero gives the module's output through the sparse
+    product (the gathered channels), within float32 rounding."""
+    network = load_profile("city100-iphonex").network
+    sparse = copy.deepcopy(network)
+    with torch.no_grad():
+        sparse.encode2.bias[::2] = -1e3  # every other channel can never fire
+        image = torch.rand(1, 3, 128, 128, generator=torch.Generator().manual_seed(7))
+        plan = CpuInference(sparse, torch.float32)
+        hidden = plan._conv_relu(plan._conv_relu(image, *plan.encode[0]), *plan.encode[1])
+        assert int((hidden.amax(dim=(0, 2, 3)) > 0).sum()) <= 64
+        assert (plan.run(image) - sparse(image)).abs().max() < PLAN_TOLERANCE[torch.float32]
+
+
+def test_plan_refuses_other_dtypes():
+    with pytest.raises(ValueError, match=r"dtype must be torch.float32 or torch.bfloat16, got dtype=torch.float16"):
+        CpuInference(load_profile("city100-iphonex").network, torch.float16)
 
 
 def test_cached_plan_is_rebuilt_when_the_weights_change():
@@ -71,15 +112,16 @@ def test_bfloat16_with_autograd_keeps_the_graph():
     assert network.encode1.weight.grad is not None
 
 
+@pytest.mark.parametrize("dtype", [torch.float32, torch.bfloat16])
 @pytest.mark.parametrize("shape", [(1, 3, 1, 1), (2, 3, 5, 7), (1, 3, 64, 48)])
-def test_bfloat16_plan_reads_uint8_as_value_over_255(shape):
+def test_cpu_plan_reads_uint8_as_value_over_255(shape, dtype):
     network = load_profile("city100-iphonex").network
     image = torch.randint(0, 256, shape, dtype=torch.uint8, generator=torch.Generator().manual_seed(3))
     with torch.no_grad():
         exact = network(image.float() / 255.0)
-        from_bytes = BFloat16Inference(network).run(image)
+        from_bytes = CpuInference(network, dtype).run(image)
     assert from_bytes.shape == exact.shape and from_bytes.dtype == torch.float32
-    assert (from_bytes - exact).abs().max() < 0.02
+    assert (from_bytes - exact).abs().max() < PLAN_TOLERANCE[dtype]
 
 
 @pytest.mark.parametrize("precision", ["float32", "bfloat16"])

@@ -21,7 +21,8 @@ from camdegrade._version import __version__
 from camdegrade.effects import EFFECTS, STAGES, Effect, build_effect
 from camdegrade.effects.chain import apply_effects
 from camdegrade.errors import ProfileError, UnknownProfileError
-from camdegrade.network import DomainShiftNet, Precision, run_network
+from camdegrade.inference import Precision, run_network
+from camdegrade.network import DomainShiftNet
 
 #: Value of the ``format`` metadata key in every profile file.
 FORMAT_NAME = "camdegrade-profile"
@@ -95,7 +96,7 @@ class CameraProfile(nn.Module):
 
     def forward(self, image: Tensor, params: EffectParams | None = None, *, precision: Precision = "float32") -> Tensor:
         """Degrade ``image``; ``params`` from :meth:`make_params` (drawn from the global RNG when omitted);
-        ``precision`` of the network (see :func:`camdegrade.network.run_network`)."""
+        ``precision`` of the network (see :func:`camdegrade.inference.run_network`)."""
         if params is None:
             params = self.make_params(image.shape)
         if len(params) != len(self.effects):

@@ -19,7 +19,7 @@ from torchvision.transforms.v2 import functional as TF
 
 from camdegrade._fingerprint import module_tensors, tensors_fingerprint
 from camdegrade._pixels import bytes_to_unit, unit_to_bytes
-from camdegrade.network import Precision, resolve_precision
+from camdegrade.inference import Precision, resolve_precision
 from camdegrade.profile import CameraProfile, EffectParams, load_profile
 
 _MAIN_PROCESS = -1
