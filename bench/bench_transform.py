@@ -12,6 +12,9 @@ all cases alike and the ratios compare like with like. Cases (uint8 224² RGB in
 - ``kornia_chain`` (single and batch 32): ColorJitter + RandomGaussianBlur + RandomGaussianNoise + RandomJPEG;
 - ``albumentations_chain``: ColorJitter + GaussianBlur + ISONoise + ImageCompression;
 - ``fit_pairs_per_s``: training pairs (224² crops) per second (forward + backward + Adam step, batch 8);
+- ``float32_gemm_gflops``: this CPU's float32 matrix-product rate on the shape of the network's largest layer
+  (3136×576 by 576×128, GFLOP/s), timed in the same rounds; with the network's 0.73 GFLOP per 224² image it bounds
+  what any float32 path can reach (``float32_network_ceiling_images_per_s``);
 - ``diagnose_seconds_100_pairs_256``: wall time of ``camdegrade diagnose`` on 100 pairs of 256² (the CLI).
 
 Peer libraries come from the ``bench`` extra and are skipped when missing. Run from the repo root::
@@ -42,7 +45,7 @@ import torch.nn.functional as F
 
 from camdegrade import CameraDegrade, load_profile
 from camdegrade.effects.chain import apply_effects
-from camdegrade.inference import resolve_precision, run_network
+from camdegrade.inference import native_bfloat16, resolve_precision, run_network
 
 SIZE = 224
 
@@ -85,6 +88,35 @@ def interleaved_rates(cases: dict[str, Case], repeats: int, warmup: int = 2) -> 
                 case.step()
             rates[name].append(case.calls * case.images_per_call / (time.perf_counter() - started))
     return {name: statistics.median(values) for name, values in rates.items()}
+
+
+def network_gflop(size: int = SIZE) -> float:
+    """GFLOP (2 × multiply-adds) of the paper's network on one ``size``² image: output pixels × fan-in × fan-out."""
+    quarter, half = size // 4, size // 2
+    conv1 = half**2 * 64 * 3 * 9
+    conv2 = quarter**2 * 128 * 64 * 9
+    deconv1 = quarter**2 * 128 * 64 * 4
+    deconv2 = half**2 * 64 * 3 * 4
+    return 2 * (conv1 + conv2 + deconv1 + deconv2) / 1e9
+
+
+def gemm_case() -> tuple[Case, float]:
+    """A float32 matrix product shaped like the network's second convolution, and its GFLOP per call."""
+    generator = torch.Generator().manual_seed(0)
+    left, right = torch.rand(56 * 56, 576, generator=generator), torch.rand(576, 128, generator=generator)
+    out = torch.empty(56 * 56, 128)
+    return Case(lambda: torch.mm(left, right, out=out)), 2 * left.shape[0] * left.shape[1] * right.shape[1] / 1e9
+
+
+def cpu_description() -> str:
+    """The CPU's model name (Linux), the vector ISA torch dispatches to, and whether bfloat16 is native."""
+    model = platform.processor() or platform.machine()
+    cpuinfo = Path("/proc/cpuinfo")
+    if cpuinfo.exists():
+        names = [line.split(":", 1)[1].strip() for line in cpuinfo.read_text().splitlines() if "model name" in line]
+        model = names[0] if names else model
+    native = "native bfloat16" if native_bfloat16(torch.device("cpu")) else "no native bfloat16"
+    return f"{model}, {torch.backends.cpu.get_cpu_capability()}, {native}"
 
 
 def reference_network(profile_name: str) -> Callable[[torch.Tensor], torch.Tensor]:
@@ -207,6 +239,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     args = parser.parse_args(argv)
     warnings.filterwarnings("ignore")  # peer libraries' deprecation notices are not what is measured
     torch.set_num_threads(args.threads)
+    print(f"cpu: {cpu_description()}; {args.threads} torch threads", flush=True)
     repeats, calls = (3, 5) if args.quick else (11, 30)
     image = natural_image()
     batch = image.expand(32, -1, -1, -1).contiguous()
@@ -230,11 +263,17 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     if album is not None:
         array = image.permute(1, 2, 0).numpy().copy()
         cases["albumentations_chain"] = Case(lambda: album(array), calls=calls)
-    results: dict[str, float | None] = {
-        name: round(rate, 1) for name, rate in interleaved_rates(cases, repeats).items()
-    }
+    cases["float32_gemm"], gemm_gflop = gemm_case()
+    rates = interleaved_rates(cases, repeats)
+    gemm_gflops = rates.pop("float32_gemm") * gemm_gflop
+    results: dict[str, float | None] = {name: round(rate, 1) for name, rate in rates.items()}
     for name, rate in results.items():
         print(f"{name:28s} {rate:9.1f} images/s", flush=True)
+    ceiling = gemm_gflops / network_gflop()
+    print(
+        f"float32 matrix products run at {gemm_gflops:.0f} GFLOP/s here; the network's {network_gflop():.2f} GFLOP "
+        f"per image caps any float32 path at {ceiling:.0f} images/s before effects and conversions"
+    )
     split = time_split(degrade, image, repeats) if degrade.profile.network is not None else None
     results["fit_pairs_per_s"] = round(fit_pairs_per_second(repeats), 2)
     print(f"{'fit_pairs_per_s':28s} {results['fit_pairs_per_s']:9.2f} pairs/s (224² crops, batch 8)")
@@ -255,6 +294,9 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         "images_per_s": results,
         "diagnose_seconds_100_pairs_256": diagnose_seconds,
         "single_call_split_ms": split,
+        "float32_gemm_gflops": round(gemm_gflops, 1),
+        "network_gflop_per_image": round(network_gflop(), 3),
+        "float32_network_ceiling_images_per_s": round(ceiling, 1),
         "ratios": {k: round(v, 3) for k, v in ratios.items()},
         "profile": args.profile,
         "effects": load_profile(args.profile).effect_names,
@@ -263,6 +305,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         "image": f"uint8 3x{SIZE}x{SIZE}",
         "peak_rss_mib": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1),
         "machine": f"{platform.machine()}, {os.cpu_count()} cores, torch {torch.__version__}",
+        "cpu": cpu_description(),
         "repeats": repeats,
         "quick": args.quick,
     }

@@ -1,0 +1,185 @@
+"""Which reduced precisions keep the network within one 8-bit level of float32, and what int8 would buy.
+
+Plain script, not a test. ``precision="auto"`` may only pick arithmetic whose 8-bit output stays within one level of
+float32 on at least 99.9 % of pixels of natural images (issue 8). For each built-in profile's network, on four
+scikit-image photos, this compares with float32:
+
+- ``bfloat16``: the module under autocast (what ``precision="bfloat16"`` computes, up to summation order);
+- ``int8_weights``: every layer's weights rounded to 8 bits per output channel, activations in float32;
+- ``int8_activations``: the three hidden activations rounded to 8 bits (unsigned, one scale per tensor set by the
+  largest value on these photos), weights in float32;
+- ``int8``: both, which is what an int8 inference path computes.
+
+It also times the network's largest layer (3×3 conv, 64 → 128 channels at 112² → 56²) in float32 against oneDNN's
+int8 kernel, to show what int8 would buy. Run from the repo root::
+
+    .venv/bin/python bench/bench_precision.py         # writes out/bench/precision.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import time
+import warnings
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+
+from camdegrade import list_profiles, load_profile
+from camdegrade.network import DomainShiftNet
+
+PHOTOS = ("astronaut", "chelsea", "coffee", "rocket")
+REQUIRED = 0.999
+
+
+def photos() -> list[Tensor]:
+    from skimage import data
+
+    return [torch.from_numpy(getattr(data, name)()).permute(2, 0, 1)[None].float() / 255.0 for name in PHOTOS]
+
+
+def round_weights(weight: Tensor, out_dim: int) -> Tensor:
+    """Symmetric 8-bit rounding with one scale per output channel (``out_dim`` of the weight)."""
+    dims = [d for d in range(weight.ndim) if d != out_dim]
+    scale = weight.abs().amax(dim=dims, keepdim=True).clamp_min(1e-12) / 127.0
+    return (weight / scale).round().clamp(-127, 127) * scale
+
+
+def round_activation(hidden: Tensor, largest: float) -> Tensor:
+    """Unsigned 8-bit rounding of ReLU outputs on ``[0, largest]``."""
+    scale = largest / 255.0
+    return (hidden / scale).round().clamp(0, 255) * scale
+
+
+def hidden_maxima(network: DomainShiftNet, images: list[Tensor]) -> list[float]:
+    """The largest value of each hidden activation over ``images`` (the int8 calibration)."""
+    maxima = [0.0, 0.0, 0.0]
+    for image in images:
+        _, hidden = forward(network, image, lambda h, _: h, lambda w, _: w)
+        maxima = [max(m, float(h.max())) for m, h in zip(maxima, hidden)]
+    return maxima
+
+
+def forward(
+    network: DomainShiftNet,
+    image: Tensor,
+    activation: Callable[[Tensor, int], Tensor],
+    weights: Callable[[Tensor, int], Tensor],
+) -> tuple[Tensor, list[Tensor]]:
+    """The module's arithmetic with ``weights(w, out_dim)`` and ``activation(h, layer)`` applied in between."""
+    pad = (0, -image.shape[-1] % 4, 0, -image.shape[-2] % 4)
+    x = F.pad(image, pad, mode="replicate")
+    e1, e2, d1, d2 = network.encode1, network.encode2, network.decode1, network.decode2
+    h1 = activation(F.relu(F.conv2d(x, weights(e1.weight, 0), e1.bias, stride=2, padding=1)), 0)
+    h2 = activation(F.relu(F.conv2d(h1, weights(e2.weight, 0), e2.bias, stride=2, padding=1)), 1)
+    h3 = activation(F.relu(F.conv_transpose2d(h2, weights(d1.weight, 1), d1.bias, stride=2)), 2)
+    out = torch.sigmoid(F.conv_transpose2d(h3, weights(d2.weight, 1), d2.bias, stride=2))
+    return out[..., : image.shape[-2], : image.shape[-1]], [h1, h2, h3]
+
+
+def levels(image: Tensor) -> Tensor:
+    return image.mul(255.0).round()
+
+
+def agreement(network: DomainShiftNet, images: list[Tensor]) -> dict[str, dict[str, float]]:
+    maxima = hidden_maxima(network, images)
+    keep = lambda value, _: value  # noqa: E731
+    variants: dict[str, Callable[[Tensor], Tensor]] = {
+        "bfloat16": lambda x: _autocast(network, x),
+        "int8_weights": lambda x: forward(network, x, keep, round_weights)[0],
+        "int8_activations": lambda x: forward(network, x, lambda h, i: round_activation(h, maxima[i]), keep)[0],
+        "int8": lambda x: forward(network, x, lambda h, i: round_activation(h, maxima[i]), round_weights)[0],
+    }
+    results = {}
+    for name, run in variants.items():
+        within = same = total = 0
+        largest = 0.0
+        for image in images:
+            difference = (levels(network(image)) - levels(run(image))).abs()
+            within += int((difference <= 1).sum())
+            same += int((difference == 0).sum())
+            total += difference.numel()
+            largest = max(largest, float(difference.max()))
+        results[name] = {
+            "within_one_level": round(within / total, 5),
+            "identical": round(same / total, 4),
+            "largest_difference": largest,
+            "meets_999": within / total >= REQUIRED,
+        }
+    return results
+
+
+def _autocast(network: DomainShiftNet, image: Tensor) -> Tensor:
+    with torch.autocast("cpu", dtype=torch.bfloat16):
+        return network(image).float()
+
+
+def conv2_milliseconds(repeats: int) -> dict[str, float | None]:
+    """Median ms of the 64 → 128 channel 3×3/2 convolution on 112², float32 and int8 (oneDNN), if available."""
+    generator = torch.Generator().manual_seed(0)
+    hidden = torch.rand(1, 64, 112, 112, generator=generator).contiguous(memory_format=torch.channels_last)
+    weight = torch.randn(128, 64, 3, 3, generator=generator).contiguous(memory_format=torch.channels_last)
+    times = {"float32": _median_ms(lambda: F.conv2d(hidden, weight, stride=2, padding=1), repeats)}
+    try:
+        import torch.ao.nn.quantized as quantized
+
+        torch.backends.quantized.engine = "onednn"
+        conv = quantized.Conv2d(64, 128, 3, stride=2, padding=1)
+        quantized_hidden = torch.quantize_per_tensor(hidden, 0.01, 0, torch.quint8)
+        times["int8"] = _median_ms(lambda: conv(quantized_hidden), repeats)
+    except (ImportError, RuntimeError, AttributeError) as error:
+        print(f"int8 convolution unavailable here: {error}")
+        times["int8"] = None
+    return times
+
+
+def _median_ms(step: Callable[[], Any], repeats: int, calls: int = 20) -> float:
+    for _ in range(3):
+        step()
+    samples = []
+    for _ in range(repeats):
+        started = time.perf_counter()
+        for _ in range(calls):
+            step()
+        samples.append((time.perf_counter() - started) / calls * 1000.0)
+    return round(statistics.median(samples), 3)
+
+
+def main(argv: list[str] | None = None) -> dict[str, Any]:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--out", type=Path, default=Path("out/bench/precision.json"))
+    args = parser.parse_args(argv)
+    warnings.filterwarnings("ignore")  # torch.ao's deprecation notice is not what is measured
+    torch.set_num_threads(args.threads)
+    images = photos()
+    record: dict[str, Any] = {"required_within_one_level": REQUIRED, "photos": list(PHOTOS), "profiles": {}}
+    with torch.no_grad():
+        for name in list_profiles():
+            network = load_profile(name).network
+            if network is None:
+                continue
+            record["profiles"][name] = agreement(network, images)
+            for variant, numbers in record["profiles"][name].items():
+                print(
+                    f"{name:20s} {variant:17s} within one level {numbers['within_one_level']:.5f} "
+                    f"(identical {numbers['identical']:.4f}, largest {numbers['largest_difference']:.0f}) "
+                    f"{'meets' if numbers['meets_999'] else 'misses'} the 99.9 % bar",
+                    flush=True,
+                )
+        record["conv2_ms"] = conv2_milliseconds(repeats=9)
+    print(f"largest layer, ms per 224² image: {record['conv2_ms']}")
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps(record, indent=2) + "\n")
+    print(f"wrote {args.out}")
+    return record
+
+
+if __name__ == "__main__":
+    main()
