@@ -10,8 +10,10 @@ scikit-image photos, this compares with float32:
   largest value on these photos), weights in float32;
 - ``int8``: both, which is what an int8 inference path computes.
 
-It also times the network's largest layer (3×3 conv, 64 → 128 channels at 112² → 56²) in float32 against oneDNN's
-int8 kernel, to show what int8 would buy. Run from the repo root::
+It also times the network's largest layer (3×3 conv, 64 → 128 channels at 112² → 56²) in float32, in bfloat16 (plain
+``conv2d``; emulated where the CPU lacks it) and in oneDNN's int8 kernel, to show what each would buy; and it counts
+the encoder channels that ReLU leaves at zero over a whole photo, which the CPU plan's first decoder product skips.
+Run from the repo root::
 
     .venv/bin/python bench/bench_precision.py         # writes out/bench/precision.json
 """
@@ -120,12 +122,22 @@ def _autocast(network: DomainShiftNet, image: Tensor) -> Tensor:
         return network(image).float()
 
 
+def zero_channels(network: DomainShiftNet, images: list[Tensor]) -> list[int]:
+    """How many of the encoder's output channels are zero over each whole image."""
+    keep = lambda value, _: value  # noqa: E731
+    return [int((forward(network, image, keep, keep)[1][1].amax(dim=(0, 2, 3)) == 0).sum()) for image in images]
+
+
 def conv2_milliseconds(repeats: int) -> dict[str, float | None]:
-    """Median ms of the 64 → 128 channel 3×3/2 convolution on 112², float32 and int8 (oneDNN), if available."""
+    """Median ms of the 64 → 128 channel 3×3/2 convolution on 112² in float32, bfloat16 and int8 (oneDNN)."""
     generator = torch.Generator().manual_seed(0)
     hidden = torch.rand(1, 64, 112, 112, generator=generator).contiguous(memory_format=torch.channels_last)
     weight = torch.randn(128, 64, 3, 3, generator=generator).contiguous(memory_format=torch.channels_last)
-    times = {"float32": _median_ms(lambda: F.conv2d(hidden, weight, stride=2, padding=1), repeats)}
+    times: dict[str, float | None] = {
+        "float32": _median_ms(lambda: F.conv2d(hidden, weight, stride=2, padding=1), repeats)
+    }
+    hidden_bf16, weight_bf16 = hidden.bfloat16(), weight.bfloat16()
+    times["bfloat16"] = _median_ms(lambda: F.conv2d(hidden_bf16, weight_bf16, stride=2, padding=1), repeats)
     try:
         import torch.ao.nn.quantized as quantized
 
@@ -165,8 +177,12 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             network = load_profile(name).network
             if network is None:
                 continue
-            record["profiles"][name] = agreement(network, images)
+            zeros = zero_channels(network, images)
+            record["profiles"][name] = {**agreement(network, images), "zero_encoder_channels_of_128": zeros}
+            print(f"{name:20s} encoder channels zero over each whole photo: {zeros} of 128")
             for variant, numbers in record["profiles"][name].items():
+                if variant.startswith("zero"):
+                    continue
                 print(
                     f"{name:20s} {variant:17s} within one level {numbers['within_one_level']:.5f} "
                     f"(identical {numbers['identical']:.4f}, largest {numbers['largest_difference']:.0f}) "

@@ -15,8 +15,8 @@ from camdegrade._fingerprint import module_tensors, tensors_fingerprint
 from camdegrade._pixels import bytes_to_unit
 from camdegrade.network import SIZE_MULTIPLE, DomainShiftNet
 
-#: How the network runs at inference: ``"float32"`` is the exact reference; ``"bfloat16"`` runs the convolutions in
-#: bfloat16 (channels-last); ``"auto"`` picks bfloat16 where the device computes it natively, else float32.
+#: How the network runs at inference: ``"float32"`` is the reference; ``"bfloat16"`` runs the convolutions and
+#: products in bfloat16; ``"auto"`` picks bfloat16 where the device computes it natively, else float32.
 Precision = Literal["auto", "float32", "bfloat16"]
 PRECISIONS: tuple[str, ...] = ("auto", "float32", "bfloat16")
 _DTYPES = {"float32": torch.float32, "bfloat16": torch.bfloat16}
@@ -104,7 +104,7 @@ def cpu_inference(network: DomainShiftNet, dtype: torch.dtype) -> CpuInference:
 class CpuInference:
     """``DomainShiftNet`` for CPU inference in float32 or bfloat16: the module's arithmetic up to rounding.
 
-    - The encoder runs as channels-last convolutions, in bfloat16 with the ReLU fused in (oneDNN's kernel).
+    - The encoder runs as channels-last convolutions (with the ReLU fused in, oneDNN's kernel, for native bfloat16).
     - Each 2×2/stride-2 transposed convolution maps every input pixel to its own 2×2 output block, so both decoders
       together are matrix products per encoder pixel: ``128 → (2·2·64)`` with ReLU, then for each block row, block-
       diagonally, ``(2·64) → (3·2·2·2)``. The columns are ordered so that one strided copy per block row lays the
@@ -128,7 +128,7 @@ class CpuInference:
             raise ValueError(f"dtype must be torch.float32 or torch.bfloat16, got dtype={dtype}")
         self.dtype = dtype
         self.fingerprint = fingerprint
-        self._fused = _fused_kernels_pay(dtype)
+        self._fused = _use_fused_kernels(dtype)
         channels_last = torch.channels_last
         with torch.no_grad():
             self.encode = [
@@ -217,7 +217,7 @@ class CpuInference:
         return torch.addmm(self.decode1_bias, rows, self.decode1_weight_t).relu_()
 
 
-def _fused_kernels_pay(dtype: torch.dtype) -> bool:
+def _use_fused_kernels(dtype: torch.dtype) -> bool:
     """Whether to call oneDNN's fused kernels (private torch ops that torch.compile uses): for native bfloat16 only.
 
     They raise for bfloat16 on CPUs without it, and in float32 they are no faster than the plain ops at 224² and

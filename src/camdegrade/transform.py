@@ -52,7 +52,7 @@ class CameraDegrade(Transform):
             transform copied into DataLoader workers re-seeds once per worker from ``(seed, worker id)``.
         precision: the network's arithmetic: ``"auto"`` (default) uses bfloat16 where the device computes it
             natively (modern x86 CPUs with AVX-512 BF16/AMX, recent GPUs) — 8-bit outputs stay within one level of
-            float32 on ≥ 99.9 % of pixels — else float32; ``"float32"`` is the exact reference.
+            float32 on ≥ 99.9 % of pixels — else float32; ``"float32"`` is the reference.
 
     Examples:
         >>> degrade = CameraDegrade("city100-iphonex", seed=0)
