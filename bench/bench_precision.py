@@ -22,8 +22,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import statistics
-import time
 import warnings
 from collections.abc import Callable
 from pathlib import Path
@@ -31,6 +29,7 @@ from typing import Any
 
 import torch
 import torch.nn.functional as F
+from bench_transform import Case, interleaved_rates
 from torch import Tensor
 
 from camdegrade import list_profiles, load_profile
@@ -129,38 +128,27 @@ def zero_channels(network: DomainShiftNet, images: list[Tensor]) -> list[int]:
 
 
 def conv2_milliseconds(repeats: int) -> dict[str, float | None]:
-    """Median ms of the 64 → 128 channel 3×3/2 convolution on 112² in float32, bfloat16 and int8 (oneDNN)."""
+    """Median ms of the 64 → 128 channel 3×3/2 convolution on 112² in float32, bfloat16 and int8 (oneDNN), timed in
+    interleaved rounds (see ``bench_transform.interleaved_rates``)."""
     generator = torch.Generator().manual_seed(0)
     hidden = torch.rand(1, 64, 112, 112, generator=generator).contiguous(memory_format=torch.channels_last)
     weight = torch.randn(128, 64, 3, 3, generator=generator).contiguous(memory_format=torch.channels_last)
-    times: dict[str, float | None] = {
-        "float32": _median_ms(lambda: F.conv2d(hidden, weight, stride=2, padding=1), repeats)
-    }
     hidden_bf16, weight_bf16 = hidden.bfloat16(), weight.bfloat16()
-    times["bfloat16"] = _median_ms(lambda: F.conv2d(hidden_bf16, weight_bf16, stride=2, padding=1), repeats)
+    cases = {
+        "float32": Case(lambda: F.conv2d(hidden, weight, stride=2, padding=1), calls=20),
+        "bfloat16": Case(lambda: F.conv2d(hidden_bf16, weight_bf16, stride=2, padding=1), calls=3),
+    }
     try:
         import torch.ao.nn.quantized as quantized
 
         torch.backends.quantized.engine = "onednn"
         conv = quantized.Conv2d(64, 128, 3, stride=2, padding=1)
         quantized_hidden = torch.quantize_per_tensor(hidden, 0.01, 0, torch.quint8)
-        times["int8"] = _median_ms(lambda: conv(quantized_hidden), repeats)
+        cases["int8"] = Case(lambda: conv(quantized_hidden), calls=20)
     except (ImportError, RuntimeError, AttributeError) as error:
         print(f"int8 convolution unavailable here: {error}")
-        times["int8"] = None
-    return times
-
-
-def _median_ms(step: Callable[[], Any], repeats: int, calls: int = 20) -> float:
-    for _ in range(3):
-        step()
-    samples = []
-    for _ in range(repeats):
-        started = time.perf_counter()
-        for _ in range(calls):
-            step()
-        samples.append((time.perf_counter() - started) / calls * 1000.0)
-    return round(statistics.median(samples), 3)
+    rates = interleaved_rates(cases, repeats)
+    return {name: round(1000.0 / rates[name], 3) if name in rates else None for name in ("float32", "bfloat16", "int8")}
 
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
