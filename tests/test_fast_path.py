@@ -9,7 +9,7 @@ import torch
 from skimage import data
 
 from camdegrade import CameraDegrade, load_profile
-from camdegrade.inference import CpuInference, native_bfloat16, resolve_precision, run_network
+from camdegrade.inference import SPARSE_MAX_LIVE, CpuInference, native_bfloat16, resolve_precision, run_network
 
 PHOTOS = ("astronaut", "chelsea", "coffee", "rocket")
 
@@ -86,6 +86,20 @@ def test_cpu_plan_skips_channels_that_are_zero_over_the_image():
         hidden = plan._conv_relu(plan._conv_relu(image, *plan.encode[0]), *plan.encode[1])
         assert int((hidden.amax(dim=(0, 2, 3)) > 0).sum()) <= 64
         assert (plan.run(image) - sparse(image)).abs().max() < PLAN_TOLERANCE[torch.float32]
+
+
+@pytest.mark.parametrize("name", ["city100-iphonex", "lowcost-robot-sim"])
+def test_float32_plan_follows_the_module_on_photos(photos, name):
+    """On natural photos the built-in networks leave about half their encoder channels at zero, so the plan takes
+    its sparse product; the output stays within float32 rounding of the module."""
+    network = load_profile(name).network
+    plan = CpuInference(network, torch.float32)
+    with torch.no_grad():
+        for image in photos:
+            unit = image[None].float() / 255.0
+            hidden = plan._conv_relu(plan._conv_relu(unit, *plan.encode[0]), *plan.encode[1])
+            assert int((hidden.amax(dim=(0, 2, 3)) > 0).sum()) <= SPARSE_MAX_LIVE * 128  # the sparse path runs
+            assert (plan.run(image[None]) - network(unit)).abs().max() < PLAN_TOLERANCE[torch.float32]
 
 
 def test_plan_refuses_other_dtypes():
