@@ -142,9 +142,8 @@ class CpuInference:
             first, second = network.decode1, network.decode2
             hidden, width = first.weight.shape[:2]
             # first.weight is (in, out, dy, dx); the product's outputs are ordered (dy, dx, c): a linear layer's
-            # weight (out, in) = ((dy, dx, c), in), kept transposed too for gathering the live input channels.
+            # weight (out, in) = ((dy, dx, c), in).
             self.decode1_weight = first.weight.permute(2, 3, 1, 0).reshape(4 * width, hidden).to(dtype).contiguous()
-            self.decode1_weight_t = self.decode1_weight.t().contiguous()
             self.decode1_bias = first.bias.repeat(4).to(dtype)
             # Per block row dy: rows (dx, c), columns (k, ey, dx, ex) = channel k, output row 4i + 2dy + ey,
             # column 4j + 2dx + ex.
@@ -200,8 +199,8 @@ class CpuInference:
         if count >= SPARSE_MIN_PIXELS:
             live = pixels.amax(dim=0).nonzero().squeeze(1)  # ReLU outputs: a channel's maximum is 0 only if all are
             if live.numel() <= SPARSE_MAX_LIVE * channels:
-                weight = self.decode1_weight_t.index_select(0, live)
-                return torch.addmm(self.decode1_bias, pixels.index_select(1, live), weight).relu_()
+                weight = self.decode1_weight.index_select(1, live)
+                return torch.addmm(self.decode1_bias, pixels.index_select(1, live), weight.t()).relu_()
         return self._linear_relu(pixels)
 
     def _conv_relu(self, image: Tensor, weight: Tensor, bias: Tensor) -> Tensor:
@@ -214,7 +213,7 @@ class CpuInference:
         """ReLU(rows @ decode1_weightᵀ + decode1_bias)."""
         if self._fused:
             return _FUSED_LINEAR(rows, self.decode1_weight, self.decode1_bias, "relu", [], "")
-        return torch.addmm(self.decode1_bias, rows, self.decode1_weight_t).relu_()
+        return torch.addmm(self.decode1_bias, rows, self.decode1_weight.t()).relu_()
 
 
 def _use_fused_kernels(dtype: torch.dtype) -> bool:
