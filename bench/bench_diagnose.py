@@ -226,8 +226,9 @@ def timing(pairs: int = 100, size: int = 256) -> dict[str, Any]:
         profile.save(root / "profile.safetensors")
         command = [
             sys.executable,
-            "-c",
-            "import sys; from camdegrade.diagnose.cli import standalone; sys.exit(standalone())",
+            "-m",
+            "camdegrade",
+            "diagnose",
             str(root / "profile.safetensors"),
             str(root / "pairs"),
             "--json",

@@ -32,8 +32,8 @@ from torch import Tensor
 
 from camdegrade import CameraProfile, load_profile
 from camdegrade.effects import EFFECTS, Effect
+from camdegrade.fitting.pairs import discover_pairs, filter_pairs, load_pair
 from camdegrade.metrics import psnr, ssim
-from camdegrade.pairs import discover_pairs, filter_pairs, load_pair
 
 DEFAULT_DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "real-pairs"
 HELD_OUT = {f"{n:03d}" for n in range(56, 71)} | {"098"}

@@ -19,9 +19,9 @@ from pathlib import Path
 import torch
 
 from camdegrade import CameraProfile
+from camdegrade.fitting.pairs import Pair, discover_pairs, filter_pairs, load_pair
+from camdegrade.fitting.training import FitConfig, evaluate_psnr, fit_network
 from camdegrade.metrics import psnr, ssim
-from camdegrade.pairs import Pair, discover_pairs, filter_pairs, load_pair
-from camdegrade.training import FitConfig, evaluate_psnr, fit_network
 
 DEFAULT_DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "real-pairs"
 HELD_OUT = {f"{n:03d}" for n in range(56, 71)} | {"098"}

@@ -25,10 +25,10 @@ import torch
 from skimage import data as skdata
 
 from camdegrade import CameraProfile
-from camdegrade.fit import fit_profile
+from camdegrade.fitting.fit import fit_profile
+from camdegrade.fitting.pairs import discover_pairs, load_pair
 from camdegrade.io import write_image
 from camdegrade.metrics import psnr, ssim
-from camdegrade.pairs import discover_pairs, load_pair
 from camdegrade.sim import PRESETS, simulate_pairs
 
 PRESET = "lowcost-robot"

@@ -15,7 +15,7 @@ Rows (the paper's four, then ablations), each trained with 3+ seeds and tested o
 - ``unsupervised``: the same, with the profile fitted on captured task images (labels unused);
 - ``oracle``: trained on the camera's own captures of the training images;
 - ablations of the zero-shot profile: network only (no fitted effect stages) and the mixing policy
-  (``Union`` — the paper's, ``Bernoulli(0.5)``, ``Pair`` with a consistency loss).
+  (``Union`` — the paper's, ``Bernoulli(0.5)``, ``PairedViews`` with a consistency loss).
 
 Run from the repo root (the full run; ``--quick`` is the smoke test's one-seed version)::
 
@@ -45,7 +45,7 @@ from torch import Tensor, nn
 from torch.utils.data import DataLoader, TensorDataset
 
 from camdegrade import CameraProfile, DegradedDataset, VirtualCamera, fit_profile, simulate_pairs
-from camdegrade.data import Bernoulli, MixPolicy, Pair, Union
+from camdegrade.data import Bernoulli, MixPolicy, PairedViews, Union
 from camdegrade.io import write_image
 
 #: Stripe period (pixels at the 64² rendering) of each class; neighbours differ by a factor √2.
@@ -271,7 +271,7 @@ def train_classifier(
     images: Tensor, labels: Tensor, recipe: Recipe, settings: Settings, seed: int, classes: int
 ) -> nn.Module:
     """Train :func:`classifier` with Adam; degraded views come from :class:`DegradedDataset` (per item, epoch and
-    seed, independent of loading order). ``Pair`` trains on both views with a KL consistency term."""
+    seed, independent of loading order). ``PairedViews`` trains on both views with a KL consistency term."""
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(seed)
         model = classifier(classes)
@@ -289,7 +289,7 @@ def train_classifier(
             data.set_epoch(epoch)
         model.train()
         for batch in loader:
-            if isinstance(recipe.policy, Pair):
+            if isinstance(recipe.policy, PairedViews):
                 (clean, target), (degraded, _) = batch
                 logits = model(_normalize(torch.cat([clean, degraded])))
                 loss = F.cross_entropy(logits, torch.cat([target, target]))
@@ -360,7 +360,7 @@ def run_seed(seed: int, settings: Settings, work: Path, log: Callable[[str], Non
     if settings.ablations:
         recipes["zero-shot network only"] = (train, Recipe(network_only(zero_shot), Union()))
         recipes["zero-shot Bernoulli(0.5)"] = (train, Recipe(zero_shot, Bernoulli(0.5)))
-        recipes["zero-shot Pair + consistency"] = (train, Recipe(zero_shot, Pair(), consistency=1.0))
+        recipes["zero-shot Pair + consistency"] = (train, Recipe(zero_shot, PairedViews(), consistency=1.0))
     results = {}
     for row, (images, recipe) in recipes.items():
         started = time.perf_counter()

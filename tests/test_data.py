@@ -19,7 +19,7 @@ from camdegrade.data import (
     DegradedDataset,
     DegradedIterableDataset,
     IndexedDataset,
-    Pair,
+    PairedViews,
     Ratio,
     Schedule,
     Union,
@@ -66,13 +66,13 @@ def test_union_doubles_length_and_degrades_odd_indices(noisy):
 
 def test_union_is_the_default_and_names_resolve(noisy):
     assert DegradedDataset(TinyImages(2), noisy, seed=0).policy == Union()
-    assert DegradedDataset(TinyImages(2), noisy, policy="pair", seed=0).policy == Pair()
+    assert DegradedDataset(TinyImages(2), noisy, policy="pair", seed=0).policy == PairedViews()
     assert DegradedDataset(TinyImages(2), noisy, policy="Alternate", seed=0).policy == Alternate()
 
 
 def test_pair_returns_clean_and_degraded_views(noisy):
     source = TinyImages(3, size=8)
-    dataset = DegradedDataset(source, noisy, policy=Pair(), seed=0)
+    dataset = DegradedDataset(source, noisy, policy=PairedViews(), seed=0)
     assert len(dataset) == 3
     clean, degraded = dataset[2]
     assert torch.equal(clean[0], source[2][0])
@@ -136,7 +136,15 @@ def _half(epoch: int) -> float:
 
 
 def test_policies_pickle_and_compare():
-    for policy in (Union(), Pair(), Bernoulli(0.2), Alternate(), Ratio(2, 5), Schedule([0.1, 0.2]), Schedule(_half)):
+    for policy in (
+        Union(),
+        PairedViews(),
+        Bernoulli(0.2),
+        Alternate(),
+        Ratio(2, 5),
+        Schedule([0.1, 0.2]),
+        Schedule(_half),
+    ):
         assert pickle.loads(pickle.dumps(policy)) == policy
         assert type(policy).__name__ in repr(policy)
 
@@ -179,7 +187,7 @@ def test_dict_sample_structure_and_untouched_items(noisy):
     boxes = tv_tensors.BoundingBoxes([[1, 2, 5, 6]], format="XYXY", canvas_size=(12, 12))
     mask = tv_tensors.Mask(torch.zeros(12, 12, dtype=torch.uint8))
     sample = {"image": image, "boxes": boxes, "mask": mask, "label": 3, "name": "x", "none": None, "path": Path("p")}
-    dataset = DegradedDataset([sample], noisy, policy=Pair(), seed=0)
+    dataset = DegradedDataset([sample], noisy, policy=PairedViews(), seed=0)
     clean, degraded = dataset[0]
     assert clean is sample
     assert degraded.keys() == sample.keys()
@@ -197,7 +205,9 @@ def test_pil_tuple_sample_comes_back_as_pil(noisy):
 
 
 def test_transform_applies_to_every_view(noisy):
-    dataset = DegradedDataset(TinyImages(2), noisy, policy=Pair(), seed=0, transform=lambda s: (s[0].float(), s[1]))
+    dataset = DegradedDataset(
+        TinyImages(2), noisy, policy=PairedViews(), seed=0, transform=lambda s: (s[0].float(), s[1])
+    )
     clean, degraded = dataset[0]
     assert clean[0].dtype == degraded[0].dtype == torch.float32
 
@@ -294,7 +304,7 @@ def test_batch_degrade_errors():
     with pytest.raises(ValueError, match="one-view policy"):
         BatchDegrade(deterministic_profile(), p=Union())
     with pytest.raises(ValueError, match="one-view policy"):
-        BatchDegrade(deterministic_profile(), p=Pair())
+        BatchDegrade(deterministic_profile(), p=PairedViews())
     batch_degrade = BatchDegrade(deterministic_profile(), p=0.5, seed=0)
     with pytest.raises(ValueError, match="one integer dataset index per image"):
         batch_degrade(torch.zeros(2, 3, 4, 4), [0])

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import argparse
 import json
 import re
 from pathlib import Path
@@ -11,15 +10,14 @@ import pytest
 import torch
 import torch.nn.functional as F
 
+from camdegrade.__main__ import main
 from camdegrade.diagnose import DiagnosisReport, diagnose
-from camdegrade.diagnose.attribute import HeldOut, add_effect, fit_candidate, simulate, split_pairs
-from camdegrade.diagnose.cli import add_diagnose_parser, run_diagnose
+from camdegrade.diagnose.attribute import HeldOut, add_effect, fit_candidate
 from camdegrade.diagnose.noise_fit import NoiseMoments, calibrate_noise
 from camdegrade.diagnose.report import REQUIRED_KEYS
 from camdegrade.diagnose.stats import (
     FAMILIES,
     StatisticSet,
-    _box,
     bootstrap_indices,
     family_gaps,
     flat_mask,
@@ -27,6 +25,8 @@ from camdegrade.diagnose.stats import (
     measurement_scale,
 )
 from camdegrade.effects import EFFECTS, JPEG, Noise, Tone, Vignetting
+from camdegrade.fitting.pairset import PairSet, simulate
+from camdegrade.functional.analysis import box_mean
 from camdegrade.io import write_image
 from camdegrade.profile import CameraProfile, load_profile
 from camdegrade.sim import VirtualCamera
@@ -64,13 +64,15 @@ def _camera(*effects) -> VirtualCamera:
 def test_gap_is_fair_to_noise() -> None:
     """A correct noise stage lowers the gap; paired MSE would punish it."""
     camera = _camera(Noise(a=0.004, b=1e-5), Tone(gamma=1.1))
-    held = HeldOut.build(_pairs(camera, 12, 64, seed=3), seed=0)
+    held = HeldOut.build(_pairs(camera, 12, 64, seed=3), seed=0, stream="held-out")
     without, _ = held.statistics(CameraProfile(None, [Tone(gamma=1.1)]))
     correct, sims = held.statistics(CameraProfile(None, [Noise(a=0.004, b=1e-5), Tone(gamma=1.1)]))
     assert gap(held.real, correct) < 0.5 * gap(held.real, without)
     mse_without = sum(
         float((s - r).pow(2).mean())
-        for s, r in zip(simulate(CameraProfile(None, [Tone(gamma=1.1)]), held.cleans, 0), held.reals, strict=True)
+        for s, r in zip(
+            simulate(CameraProfile(None, [Tone(gamma=1.1)]), held.cleans, 0, stream="held-out"), held.reals, strict=True
+        )
     )
     mse_correct = sum(float((s - r).pow(2).mean()) for s, r in zip(sims, held.reals, strict=True))
     assert mse_correct > mse_without  # why paired MSE cannot be the measure
@@ -80,7 +82,7 @@ def test_box_filter_matches_the_two_dimensional_mean() -> None:
     image = torch.rand(3, 40, 33, generator=torch.Generator().manual_seed(0))
     for size in (5, 9, 17):
         reference = F.avg_pool2d(image[:, None], size, stride=1, padding=size // 2, count_include_pad=False)[:, 0]
-        assert torch.allclose(_box(image, size), reference, atol=1e-6)
+        assert torch.allclose(box_mean(image, size), reference, atol=1e-6)
 
 
 def test_noise_family_compares_levels_relatively() -> None:
@@ -148,10 +150,12 @@ def test_noise_level_is_calibrated_through_the_later_stages() -> None:
 
 def test_split_keeps_scenes_apart() -> None:
     scenes = ["a", "a", "b", "b", "c", "d", "e", "e"]
-    calibration, held_out = split_pairs(scenes, 0.5, seed=0)
-    assert sorted(calibration + held_out) == list(range(len(scenes)))
-    assert not {scenes[i] for i in calibration} & {scenes[i] for i in held_out}
-    assert calibration and held_out
+    image = torch.zeros(3, 4, 4)
+    pair_set = PairSet([(image, image)] * len(scenes), scenes, [str(i) for i in range(len(scenes))])
+    calibration, held_out = pair_set.split(0.5, seed=0)
+    assert sorted(calibration.names + held_out.names, key=int) == pair_set.names
+    assert not set(calibration.scenes) & set(held_out.scenes)
+    assert len(calibration) and len(held_out)
 
 
 @pytest.fixture(scope="module")
@@ -224,9 +228,7 @@ def _write_pairs(root: Path, pairs: list[tuple[torch.Tensor, torch.Tensor]]) -> 
 
 
 def _cli(argv: list[str]) -> int:
-    parser = argparse.ArgumentParser(prog="camdegrade")
-    add_diagnose_parser(parser.add_subparsers(dest="command"))
-    return run_diagnose(parser.parse_args(["diagnose", *argv]))
+    return main(["diagnose", *argv], prog="camdegrade")
 
 
 def test_cli_writes_json_html_and_profile(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
@@ -244,9 +246,10 @@ def test_cli_writes_json_html_and_profile(tmp_path: Path, capsys: pytest.Capture
     assert "closes" in capsys.readouterr().out
 
 
-def test_cli_rejects_a_bad_profile_suffix(tmp_path: Path) -> None:
-    with pytest.raises(ValueError, match=r"--out-profile must end in \.safetensors"):
-        _cli(["city100-iphonex", str(tmp_path), "--out-profile", str(tmp_path / "p.pt")])
+def test_cli_rejects_a_bad_profile_suffix(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert _cli(["city100-iphonex", str(tmp_path), "--out-profile", str(tmp_path / "p.pt")]) == 1
+    error = capsys.readouterr().err
+    assert re.search(r"--out-profile must end in \.safetensors", error) and error.count("\n") == 1
 
 
 def test_unpaired_mode(tmp_path: Path) -> None:

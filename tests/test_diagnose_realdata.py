@@ -16,9 +16,9 @@ import pytest
 import torch
 
 from camdegrade.diagnose import DiagnosisReport, diagnose
-from camdegrade.diagnose.attribute import simulate
 from camdegrade.diagnose.stats import flat_mask
-from camdegrade.pairs import discover_pairs, filter_pairs, load_pair
+from camdegrade.fitting.pairs import discover_pairs, filter_pairs, load_pair
+from camdegrade.fitting.pairset import simulate
 from camdegrade.profile import CameraProfile
 
 pytestmark = [pytest.mark.realdata, pytest.mark.slow]

@@ -12,7 +12,7 @@ import torch.nn.functional as F
 
 from camdegrade import CameraDegrade, load_profile
 from camdegrade.__main__ import main
-from camdegrade.fit import fit_profile
+from camdegrade.fitting.fit import fit_profile
 from camdegrade.io import write_image
 
 QUICK = ["--epochs", "2", "--crop", "16", "--batch-size", "4", "--crops-per-pair", "2", "--quiet"]
@@ -94,7 +94,7 @@ def test_cli_fit_interrupted_keeps_the_good_profile_and_resumes(tmp_path, monkey
     assert main(["fit", str(folder), "-o", str(out), *QUICK]) == 0
     good = out.read_bytes()
 
-    import camdegrade.training as training
+    import camdegrade.fitting.training as training
 
     real_epoch = training._train_one_epoch
     calls = {"n": 0}

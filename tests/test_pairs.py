@@ -9,7 +9,7 @@ import torch
 from PIL import Image
 
 from camdegrade.errors import PairsError
-from camdegrade.pairs import (
+from camdegrade.fitting.pairs import (
     AMBIGUOUS,
     BAD_ROW,
     DUPLICATE,

@@ -6,8 +6,8 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-from camdegrade.checkpoint import load_checkpoint
-from camdegrade.training import EpochResult, FitConfig, FitInterrupted, evaluate_psnr, fit_network
+from camdegrade.fitting.checkpoint import load_checkpoint
+from camdegrade.fitting.training import EpochResult, FitConfig, FitInterrupted, evaluate_psnr, fit_network
 
 TINY = FitConfig(epochs=4, crop=16, batch_size=4, crops_per_pair=4, lr=0.01, seed=0)
 

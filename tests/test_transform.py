@@ -14,7 +14,7 @@ from torchvision import tv_tensors
 from torchvision.transforms import v2
 from torchvision.transforms.v2 import functional as TF
 
-import camdegrade.transform as transform_module
+import camdegrade.engine as engine_module
 from camdegrade import CameraDegrade
 from profiles_for_tests import deterministic_profile, stochastic_profile
 
@@ -89,9 +89,9 @@ def test_cpu_chunks_give_the_same_bytes_as_one_pass(monkeypatch, dtype):
     batch = batch if dtype == torch.uint8 else batch.float() / 255
     degrade = CameraDegrade(stochastic_profile(), seed=3)
     params = degrade.make_params([batch])
-    monkeypatch.setattr(transform_module, "CHUNK_PIXELS", 10**9)
+    monkeypatch.setattr(engine_module, "CHUNK_PIXELS", 10**9)
     whole = degrade.transform(batch, params)
-    monkeypatch.setattr(transform_module, "CHUNK_PIXELS", 2 * 24 * 20)  # chunks of 2, 2 and 1 frames
+    monkeypatch.setattr(engine_module, "CHUNK_PIXELS", 2 * 24 * 20)  # chunks of 2, 2 and 1 frames
     assert torch.equal(degrade.transform(batch, params), whole)
 
 

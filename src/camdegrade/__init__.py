@@ -10,7 +10,7 @@ Public API::
 from camdegrade._version import __version__
 from camdegrade.data import BatchDegrade, DegradedDataset, DegradedIterableDataset, IndexedDataset
 from camdegrade.errors import CamdegradeError, PairsError, ProfileError, UnknownProfileError
-from camdegrade.fit import fit_profile
+from camdegrade.fitting import fit_profile
 from camdegrade.network import DomainShiftNet
 from camdegrade.profile import CameraProfile, list_profiles, load_profile
 from camdegrade.sim import VirtualCamera, simulate_pairs

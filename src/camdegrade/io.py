@@ -12,6 +12,7 @@ from PIL import ExifTags, Image, ImageOps
 from torch import Tensor
 
 from camdegrade._files import atomic_path
+from camdegrade._pixels import as_unit, unit_to_bytes
 
 #: File extensions read as images (compared case-insensitively).
 _ORIENTATION_TAG = ExifTags.Base.Orientation
@@ -87,7 +88,7 @@ def write_image(image: Tensor, path: str | os.PathLike[str]) -> None:
     if image.ndim != 3 or image.shape[0] != 3:
         raise ValueError(f"image must have shape (3, H, W), got shape {tuple(image.shape)}")
     if image.dtype != torch.uint8:
-        image = image.detach().float().clamp(0, 1).mul(255).round().to(torch.uint8)
+        image = unit_to_bytes(as_unit(image.detach()))
     pil = Image.fromarray(image.permute(1, 2, 0).cpu().numpy())
     path.parent.mkdir(parents=True, exist_ok=True)
     image_format = Image.registered_extensions().get(path.suffix.lower())

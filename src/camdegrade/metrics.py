@@ -6,9 +6,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-
-def _as_unit_float(image: Tensor) -> Tensor:
-    return image.float().div(255.0) if image.dtype == torch.uint8 else image.float()
+from camdegrade._pixels import as_unit
 
 
 def psnr(prediction: Tensor, target: Tensor) -> float:
@@ -17,7 +15,7 @@ def psnr(prediction: Tensor, target: Tensor) -> float:
         raise ValueError(
             f"prediction and target must have the same shape, got {tuple(prediction.shape)} and {tuple(target.shape)}"
         )
-    mse = torch.mean((_as_unit_float(prediction) - _as_unit_float(target)) ** 2).item()
+    mse = torch.mean((as_unit(prediction) - as_unit(target)) ** 2).item()
     return float("inf") if mse == 0 else -10.0 * torch.log10(torch.tensor(mse)).item()
 
 
@@ -30,8 +28,8 @@ def ssim(prediction: Tensor, target: Tensor, window_sigma: float = 1.5) -> float
         )
     if min(prediction.shape[-2:]) < 11:
         raise ValueError(f"ssim needs images of at least 11×11 pixels, got {tuple(prediction.shape[-2:])}")
-    x = _as_unit_float(prediction).reshape(-1, 1, *prediction.shape[-2:])
-    y = _as_unit_float(target).reshape(-1, 1, *target.shape[-2:])
+    x = as_unit(prediction).reshape(-1, 1, *prediction.shape[-2:])
+    y = as_unit(target).reshape(-1, 1, *target.shape[-2:])
     radius = 5
     offsets = torch.arange(-radius, radius + 1, dtype=torch.float32)
     kernel_1d = torch.exp(-(offsets**2) / (2 * window_sigma**2))

@@ -27,6 +27,9 @@ class DomainShiftNet(nn.Module):
     Args:
         width: channels of the first conv layer (the paper: 64; the second layer has twice as many).
 
+    References:
+        G. Hegde et al., "A Simple Domain Shifting Network for Generating Low Quality Images", arXiv, June 2020.
+
     Shape:
         - Input: ``(N, 3, H, W)``, float in ``[0, 1]``.
         - Output: ``(N, 3, H, W)``, float in ``(0, 1)``.

@@ -112,20 +112,30 @@ class CameraProfile(nn.Module):
 
     def with_effects(self, *effects: Effect) -> CameraProfile:
         """A copy of this profile with ``effects`` added, each inserted after the last stage of its kind or earlier."""
-        chain = list(copy.deepcopy(list(self.effects)))
+        chain = list(self.effects)
         for effect in effects:
             rank = STAGES.index(effect.stage)
             position = sum(1 for existing in chain if STAGES.index(existing.stage) <= rank)
             chain.insert(position, effect)
+        return self.with_chain(chain)
+
+    def with_chain(self, effects: Sequence[Effect]) -> CameraProfile:
+        """A copy of this profile (network and metadata) with the effect chain ``effects`` (copied) instead."""
         return CameraProfile(
             copy.deepcopy(self.network),
-            chain,
+            copy.deepcopy(list(effects)),
             name=self.name,
             description=self.description,
             fitted=self.fitted,
             quality=self.quality,
             package_version=self.package_version,
         )
+
+    def without_randomness(self) -> CameraProfile:
+        """The deterministic part: every stage replaced by its :meth:`~Effect.without_randomness` centre, stages
+        that only add noise left out (the conditional mean a capture scatters around). Metadata is kept."""
+        centres = [effect.without_randomness() for effect in self.effects]
+        return self.with_chain([centre for centre in centres if centre is not None])
 
     def metadata(self) -> dict[str, Any]:
         """Everything but the tensors. Stored as canonical JSON under the one safetensors metadata key
@@ -223,6 +233,15 @@ def load_profile(name_or_path: str | os.PathLike[str], device: torch.device | st
         ) from error
     _load_state_strictly(profile, tensors, path)
     return profile if device is None else profile.to(device)
+
+
+def as_profile(profile: CameraProfile | str | os.PathLike[str]) -> CameraProfile:
+    """``profile`` itself, or the profile a built-in name or a file path refers to (:func:`load_profile`)."""
+    if isinstance(profile, CameraProfile):
+        return profile
+    if isinstance(profile, (str, os.PathLike)):
+        return load_profile(profile)
+    raise TypeError(f"profile must be a CameraProfile, a profile name or a path, got {type(profile).__name__}")
 
 
 def _refuse_non_safetensors(path: Path) -> None:

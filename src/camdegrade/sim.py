@@ -6,7 +6,6 @@ and for validating a training pipeline before real captures exist.
 
 from __future__ import annotations
 
-import hashlib
 import json
 import os
 from collections.abc import Mapping, Sequence
@@ -19,7 +18,10 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from camdegrade._files import atomic_path
+from camdegrade._pixels import as_unit, bytes_to_unit, unit_to_bytes
+from camdegrade._seeds import derived_generator
 from camdegrade.effects import EFFECTS, STAGES, Effect
+from camdegrade.effects.chain import apply_effects
 from camdegrade.errors import UnknownPresetError
 from camdegrade.io import is_image_path, iter_images, read_image, write_image
 
@@ -158,19 +160,18 @@ class VirtualCamera(nn.Module):
         if image.ndim not in (3, 4) or image.shape[-3] != 3:
             raise ValueError(f"image must have shape (3, H, W) or (N, 3, H, W), got shape {tuple(image.shape)}")
         batch = image[None] if image.ndim == 3 else image
-        x = batch.float() / 255.0 if batch.dtype == torch.uint8 else batch
+        x = as_unit(batch)
         params = self.make_params(x.shape, generator) if params is None else params
         if len(params) != len(self.effects):
             raise ValueError(f"params must hold one entry per effect ({len(self.effects)}), got {len(params)}")
         height, width = x.shape[-2:]
-        for index, (effect, effect_params) in enumerate(zip(self.effects, params)):
-            if index == self._sensor_index:
-                x = self._resample(x, self.sensor_size(height, width))
-            x = effect(x, {key: value.to(x.device) for key, value in effect_params.items()})
-        if self._sensor_index == len(self.effects):
-            x = self._resample(x, self.sensor_size(height, width))
+        sensor = self._sensor_index
+        # The profile's chain runner, on both sides of the sensor's sampling (sRGB decoded once per run of stages).
+        x = apply_effects(self.effects[:sensor], params[:sensor], x)
+        x = self._resample(x, self.sensor_size(height, width))
+        x = apply_effects(self.effects[sensor:], params[sensor:], x, overwrite=True)
         x = self._resample(x, (height, width))
-        out = x.mul(255).round().clamp(0, 255).to(torch.uint8) if batch.dtype == torch.uint8 else x.to(batch.dtype)
+        out = unit_to_bytes(x, overwrite=True) if batch.dtype == torch.uint8 else x.to(batch.dtype)
         return out[0] if image.ndim == 3 else out
 
     @staticmethod
@@ -201,13 +202,6 @@ class VirtualCamera(nn.Module):
         return f"name={self.name!r}, scale={self.scale}"
 
 
-def _image_seed(seed: int, relative: Path) -> int:
-    """A per-image seed from the run seed and the image's relative path, independent of which other images
-    are in the folder or in which order they are processed."""
-    digest = hashlib.sha256(f"{seed}:{relative.as_posix()}".encode()).digest()
-    return int.from_bytes(digest[:8], "little") & ((1 << 63) - 1)
-
-
 def _inputs(input: Path) -> list[tuple[Path, Path]]:
     if input.is_file():
         if not is_image_path(input):
@@ -227,8 +221,8 @@ def _shrink(image: Tensor, max_side: int | None) -> Tensor:
         return image
     factor = max_side / max(height, width)
     size = (max(1, round(height * factor)), max(1, round(width * factor)))
-    shrunk = F.interpolate(image[None].float(), size=size, mode="bilinear", antialias=True, align_corners=False)
-    return shrunk[0].round().clamp(0, 255).to(torch.uint8)
+    shrunk = F.interpolate(bytes_to_unit(image)[None], size=size, mode="bilinear", antialias=True, align_corners=False)
+    return unit_to_bytes(shrunk[0], overwrite=True)
 
 
 def simulate_pairs(
@@ -273,8 +267,8 @@ def simulate_pairs(
     written = []
     for name, path in names.items():
         clean = _shrink(read_image(path), max_side)
-        generator = torch.Generator().manual_seed(_image_seed(seed, name))
-        captured = camera(clean, generator=generator)
+        # Seeded by the relative path: the same bytes whatever else is in the folder and in whichever order.
+        captured = camera(clean, generator=derived_generator(seed, "simulate", name.as_posix()))
         write_image(clean, root / "clean" / name)
         write_image(captured, root / "captured" / name)
         written.append(root / "captured" / name)

@@ -2,10 +2,8 @@
 
 from __future__ import annotations
 
-import copy
 import math
 import os
-import threading
 from typing import Any
 
 import PIL.Image
@@ -17,13 +15,13 @@ from torchvision import tv_tensors
 from torchvision.transforms.v2 import Transform
 from torchvision.transforms.v2 import functional as TF
 
-from camdegrade._fingerprint import module_tensors, tensors_fingerprint
-from camdegrade._pixels import bytes_to_unit, unit_to_bytes
+from camdegrade._checks import check_probability, check_seed
+from camdegrade._seeds import derive_seed
+from camdegrade.engine import DeviceCopies, check_image_tensor, degrade_frames, params_on, select_params
 from camdegrade.inference import Precision, resolve_precision
-from camdegrade.profile import CameraProfile, EffectParams, load_profile
+from camdegrade.profile import CameraProfile, EffectParams, as_profile
 
 _MAIN_PROCESS = -1
-_FLOAT_DTYPES = (torch.float16, torch.bfloat16, torch.float32, torch.float64)
 
 
 def _is_plain_tensor(inpt: Any) -> bool:
@@ -71,12 +69,9 @@ class CameraDegrade(Transform):
         precision: Precision = "auto",
     ) -> None:
         super().__init__()
-        if isinstance(profile, (str, os.PathLike)):
-            profile = load_profile(profile)
-        if not isinstance(profile, CameraProfile):
-            raise TypeError(f"profile must be a CameraProfile, a profile name or a path, got {type(profile).__name__}")
-        if seed is not None and (isinstance(seed, bool) or not isinstance(seed, int)):
-            raise TypeError(f"seed must be an int or None, got seed={seed!r}")
+        profile = as_profile(profile)
+        if seed is not None:
+            check_seed(seed)
         self.profile = profile.eval()
         self.p = check_probability(p)
         self.seed = seed
@@ -84,18 +79,7 @@ class CameraDegrade(Transform):
         self.precision = precision
         self._generator = None if seed is None else torch.Generator().manual_seed(seed)
         self._generator_worker = _MAIN_PROCESS
-        self._device_profiles: dict[torch.device, tuple[tuple[int, ...], CameraProfile]] = {}
-        self._lock = threading.Lock()
-
-    def __getstate__(self) -> dict[str, Any]:
-        state = super().__getstate__()
-        state["_device_profiles"] = {}
-        state.pop("_lock", None)
-        return state
-
-    def __setstate__(self, state: dict[str, Any]) -> None:
-        super().__setstate__(state)
-        self._lock = threading.Lock()
+        self._device_copies = DeviceCopies()
 
     def make_params(self, flat_inputs: list[Any]) -> dict[str, Any]:
         """Draw this call's randomness from the transform's own generator (see :meth:`draw_params`)."""
@@ -181,11 +165,11 @@ class CameraDegrade(Transform):
     def _degrade_frames(self, batch: Tensor, apply: Tensor, effect_params: EffectParams) -> Tensor:
         profile = self.profile_on(batch.device)
         if bool(apply.all()):
-            return degrade_frames(profile, batch, _params_on(effect_params, batch.device), self.precision)
+            return degrade_frames(profile, batch, params_on(effect_params, batch.device), self.precision)
         selected = apply.nonzero().squeeze(1)
-        subset_params = [{key: value[selected] for key, value in stage.items()} for stage in effect_params]
+        subset_params = select_params(effect_params, selected)
         selected = selected.to(batch.device)
-        result = degrade_frames(profile, batch[selected], _params_on(subset_params, batch.device), self.precision)
+        result = degrade_frames(profile, batch[selected], params_on(subset_params, batch.device), self.precision)
         out = batch.clone()
         out[selected] = result
         return out
@@ -195,55 +179,10 @@ class CameraDegrade(Transform):
 
         A copy is rebuilt whenever the profile's tensors change (``load_state_dict``, ``.to()``, in-place edits).
         """
-        if _is_float32_on(self.profile, device):
-            return self.profile
-        fingerprint = tensors_fingerprint(module_tensors(self.profile))
-        with self._lock:
-            cached = self._device_profiles.get(device)
-            if cached is None or cached[0] != fingerprint:
-                cached = (fingerprint, copy.deepcopy(self.profile).to(device=device, dtype=torch.float32))
-                self._device_profiles[device] = cached
-            return cached[1]
+        return self._device_copies.on(self.profile, device)
 
     def extra_repr(self) -> str:
         return f"profile={self.profile.name!r}, p={self.p}, seed={self.seed}, precision={self.precision!r}"
-
-
-#: On the CPU, frames are degraded in chunks of about this many pixels: a chunk's working tensors then stay in
-#: the CPU's L2 cache, where the memory-bound elementwise stages run several times faster than on a whole batch.
-CHUNK_PIXELS = 1 << 17
-
-
-def degrade_frames(profile: CameraProfile, frames: Tensor, params: EffectParams, precision: Precision) -> Tensor:
-    """``profile`` applied without autograd to ``frames`` ``(N, 3, H, W)`` (uint8 or float in [0, 1]), returned
-    in their dtype; on the CPU in chunks of :data:`CHUNK_PIXELS` (each param is sliced along its batch dim)."""
-    count, _, height, width = frames.shape
-    step = count if frames.device.type != "cpu" else max(1, CHUNK_PIXELS // max(1, height * width))
-    if step >= count:
-        return _degrade_chunk(profile, frames, params, precision)
-    out = torch.empty_like(frames)
-    for start in range(0, count, step):
-        chunk = slice(start, min(start + step, count))
-        chunk_params = [{key: value[chunk] for key, value in stage.items()} for stage in params]
-        out[chunk] = _degrade_chunk(profile, frames[chunk], chunk_params, precision)
-    return out
-
-
-def _degrade_chunk(profile: CameraProfile, frames: Tensor, params: EffectParams, precision: Precision) -> Tensor:
-    with torch.no_grad():
-        unit = frames if frames.dtype == torch.uint8 else to_unit_float(frames)  # the profile reads uint8 itself
-        degraded = profile(unit, params, precision=precision)
-        return from_unit_float(degraded, frames.dtype, overwrite=True)  # the profile returns a new tensor
-
-
-def _params_on(params: EffectParams, device: torch.device) -> EffectParams:
-    return [{key: value.to(device) for key, value in stage.items()} for stage in params]
-
-
-def check_probability(p: Any) -> float:
-    if isinstance(p, bool) or not isinstance(p, (int, float)) or not 0.0 <= p <= 1.0:
-        raise ValueError(f"p must be a probability from 0 to 1, got p={p!r}")
-    return float(p)
 
 
 def _frames_shape(inpt: Any) -> tuple[int, int, int, int]:
@@ -266,36 +205,5 @@ def _decision_count(inpt: Any) -> int:
     return math.prod(leading)
 
 
-def check_image_tensor(image: Tensor) -> None:
-    if image.ndim < 3 or image.shape[-3] != 3:
-        raise ValueError(
-            f"CameraDegrade() expects RGB images shaped [..., 3, H, W], got shape {tuple(image.shape)}; "
-            "convert grayscale or RGBA images to 3-channel RGB first"
-        )
-    if image.dtype != torch.uint8 and image.dtype not in _FLOAT_DTYPES:
-        raise TypeError(f"CameraDegrade() supports uint8 and floating-point images, got dtype={image.dtype}")
-    if image.dtype != torch.uint8 and image.numel() and not bool(torch.isfinite(image).all()):
-        raise ValueError("CameraDegrade() got an image containing NaN or infinite values")
-
-
-def to_unit_float(image: Tensor) -> Tensor:
-    if image.dtype == torch.uint8:
-        return bytes_to_unit(image)
-    return image.float().clamp(0.0, 1.0)
-
-
-def from_unit_float(image: Tensor, dtype: torch.dtype, *, overwrite: bool = False) -> Tensor:
-    """``image`` in [0, 1] as ``dtype`` (uint8: scaled and rounded); ``overwrite`` lets it reuse ``image``."""
-    if dtype == torch.uint8:
-        return unit_to_bytes(image, overwrite=overwrite)
-    return image.to(dtype)
-
-
-def _is_float32_on(module: torch.nn.Module, device: torch.device) -> bool:
-    return all(
-        t.device == device and (t.dtype == torch.float32 or not t.is_floating_point()) for t in module_tensors(module)
-    )
-
-
 def _worker_seed(seed: int, worker_id: int) -> int:
-    return (seed * 1_000_003 + worker_id + 1) % (2**63)
+    return derive_seed(seed, "dataloader-worker", worker_id)

@@ -1,7 +1,7 @@
 """Training on clean and camera-degraded images together (Hegde et al.'s recipe), reproducibly.
 
 - :class:`DegradedDataset` / :class:`DegradedIterableDataset` wrap a dataset and degrade the items a mixing
-  policy picks (:class:`Union`, :class:`Pair`, :class:`Bernoulli`, :class:`Alternate`, :class:`Ratio`,
+  policy picks (:class:`Union`, :class:`PairedViews`, :class:`Bernoulli`, :class:`Alternate`, :class:`Ratio`,
   :class:`Schedule`), identically for any number of workers or ranks.
 - :class:`BatchDegrade` degrades a collated batch on its device with the same decisions and values.
 
@@ -11,7 +11,17 @@ See ``docs/data.md``.
 from camdegrade.data._keys import item_generator, item_uniform, stable_key
 from camdegrade.data.batch import BatchDegrade
 from camdegrade.data.datasets import DegradedDataset, DegradedIterableDataset, IndexedDataset, as_camera_degrade
-from camdegrade.data.policies import Alternate, Bernoulli, MixPolicy, Pair, Ratio, Schedule, Union, resolve_policy
+from camdegrade.data.policies import (
+    Alternate,
+    Bernoulli,
+    MixPolicy,
+    Pair,
+    PairedViews,
+    Ratio,
+    Schedule,
+    Union,
+    resolve_policy,
+)
 
 __all__ = [
     "Alternate",
@@ -22,6 +32,7 @@ __all__ = [
     "IndexedDataset",
     "MixPolicy",
     "Pair",
+    "PairedViews",
     "Ratio",
     "Schedule",
     "Union",

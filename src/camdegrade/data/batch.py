@@ -7,11 +7,12 @@ from collections.abc import Sequence
 import torch
 from torch import Tensor, nn
 
-from camdegrade.data._keys import SharedEpoch, check_int, item_generator
+from camdegrade._checks import check_int
+from camdegrade.data._keys import SharedEpoch, item_generator
 from camdegrade.data.datasets import DegradeLike, as_camera_degrade, resolve_seed
 from camdegrade.data.policies import Bernoulli, MixPolicy
+from camdegrade.engine import check_image_tensor, degrade_frames
 from camdegrade.profile import EffectParams
-from camdegrade.transform import check_image_tensor, degrade_frames
 
 
 class BatchDegrade(nn.Module):

@@ -10,7 +10,9 @@ from typing import Any
 import torch
 from torch.utils.data import Dataset, IterableDataset, get_worker_info
 
-from camdegrade.data._keys import SharedEpoch, check_int, item_generator
+from camdegrade._checks import check_seed
+from camdegrade._distributed import rank_and_world_size
+from camdegrade.data._keys import SharedEpoch, item_generator
 from camdegrade.data.policies import Decision, MixPolicy, resolve_policy
 from camdegrade.profile import CameraProfile
 from camdegrade.transform import CameraDegrade
@@ -35,7 +37,7 @@ def resolve_seed(seed: int | None) -> int:
     """``seed`` itself, or (for ``None``) one drawn once from torch's global RNG, so ``torch.manual_seed`` fixes it."""
     if seed is None:
         return int(torch.randint(0, 2**62, ()).item())
-    return check_int("seed", seed)
+    return check_seed(seed)
 
 
 class _Mixer:
@@ -200,7 +202,7 @@ class DegradedIterableDataset(_Mixer, IterableDataset):
     def __iter__(self) -> Iterator[Any]:
         info = get_worker_info()
         workers, worker_id = (1, 0) if info is None else (info.num_workers, info.id)
-        rank, world = _rank_and_world_size()
+        rank, world = rank_and_world_size()
         epoch = self.epoch
         for position, sample in enumerate(self.dataset):
             if self.index_of is None:
@@ -217,12 +219,6 @@ class DegradedIterableDataset(_Mixer, IterableDataset):
 
     def __repr__(self) -> str:
         return self._describe(self.dataset)
-
-
-def _rank_and_world_size() -> tuple[int, int]:
-    if torch.distributed.is_available() and torch.distributed.is_initialized():
-        return torch.distributed.get_rank(), torch.distributed.get_world_size()
-    return 0, 1
 
 
 class IndexedDataset(Dataset):

@@ -7,11 +7,12 @@ every rank. A policy may repeat each source item (``copies``): :class:`Union` re
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Callable, Sequence
 from typing import ClassVar
 
-from camdegrade.data._keys import check_int, item_uniform
-from camdegrade.transform import check_probability
+from camdegrade._checks import check_int, check_probability
+from camdegrade.data._keys import item_uniform
 
 #: What :meth:`MixPolicy.decide` returns: one flag (return that view), or a tuple of flags (return a tuple of views).
 Decision = bool | tuple[bool, ...]
@@ -54,11 +55,23 @@ class Union(MixPolicy):
         return copy == 1
 
 
-class Pair(MixPolicy):
+class PairedViews(MixPolicy):
     """Both views of one item, as a tuple ``(clean, degraded)``, for consistency losses. Length unchanged."""
 
     def decide(self, index: int, copy: int, epoch: int, seed: int) -> Decision:
         return (False, True)
+
+
+class Pair(PairedViews):
+    """Deprecated name of :class:`PairedViews` (it clashed with ``camdegrade.fitting.Pair``, a file pair)."""
+
+    def __init__(self) -> None:
+        warnings.warn(
+            "camdegrade.data.Pair is deprecated and will be removed; use camdegrade.data.PairedViews "
+            "(or policy='pair')",
+            DeprecationWarning,
+            stacklevel=2,
+        )
 
 
 class Bernoulli(MixPolicy):
@@ -146,7 +159,7 @@ class Schedule(Bernoulli):
         return self.p_of_epoch[min(epoch, len(self.p_of_epoch) - 1)]
 
 
-_NAMED: dict[str, Callable[[], MixPolicy]] = {"union": Union, "pair": Pair, "alternate": Alternate}
+_NAMED: dict[str, Callable[[], MixPolicy]] = {"union": Union, "pair": PairedViews, "alternate": Alternate}
 
 
 def resolve_policy(policy: MixPolicy | str) -> MixPolicy:
@@ -156,6 +169,6 @@ def resolve_policy(policy: MixPolicy | str) -> MixPolicy:
     if isinstance(policy, str) and policy.lower() in _NAMED:
         return _NAMED[policy.lower()]()
     raise ValueError(
-        f"policy must be a MixPolicy (Union(), Pair(), Bernoulli(p), Alternate(), Ratio(k, m), Schedule(...)) or "
-        f"one of {sorted(_NAMED)}, got policy={policy!r}"
+        "policy must be a MixPolicy (Union(), PairedViews(), Bernoulli(p), Alternate(), Ratio(k, m), "
+        f"Schedule(...)) or one of {sorted(_NAMED)}, got policy={policy!r}"
     )

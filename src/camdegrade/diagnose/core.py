@@ -6,24 +6,18 @@ import math
 import os
 from collections.abc import Callable, Iterable
 
-from camdegrade.diagnose.attribute import (
-    PairsInput,
-    attribute,
-    effect_params,
-    load_image_pairs,
-    resolve_profile,
-    split_pairs,
-)
+from camdegrade.diagnose.attribute import Attribution, Candidate, attribute, effect_params
 from camdegrade.diagnose.report import DiagnosisReport, example_crops
 from camdegrade.diagnose.where import findings
-from camdegrade.profile import CameraProfile
+from camdegrade.fitting.pairset import PairSet, PairsSource
+from camdegrade.profile import CameraProfile, as_profile
 
 
 def diagnose(
     profile: CameraProfile | str | os.PathLike[str],
-    pairs: PairsInput,
+    pairs: PairsSource,
     *,
-    held_out: PairsInput | None = None,
+    held_out: PairsSource | None = None,
     calibration_fraction: float = 0.5,
     candidates: Iterable[str] | None = None,
     max_added: int = 3,
@@ -38,7 +32,7 @@ def diagnose(
     Args:
         profile: a :class:`CameraProfile`, a built-in profile name or a ``.safetensors`` path.
         pairs: REAL (clean, captured) pairs: a folder, CSV manifest or suffix-rule folder (as ``camdegrade fit``
-            takes), a :class:`~camdegrade.pairs.PairReport`, a list of ``Pair`` or of ``(clean, captured)``
+            takes), a :class:`~camdegrade.fitting.PairReport`, a list of ``Pair`` or of ``(clean, captured)``
             tensors. They are split by scene into a calibration part (candidate effects are fitted on it) and a
             held-out part (every reported gap is measured on it).
         held_out: give the held-out pairs explicitly; then ``pairs`` is the calibration part as a whole.
@@ -52,27 +46,79 @@ def diagnose(
     Returns:
         A :class:`DiagnosisReport`; ``report.profile`` is the profile with the chosen effects added.
     """
-    base = resolve_profile(profile)
-    items, scenes = load_image_pairs(
-        pairs, clean_suffix=clean_suffix, captured_suffix=captured_suffix, max_pairs=max_pairs
-    )
-    if held_out is None:
-        calibration_index, held_index = split_pairs(scenes, calibration_fraction, seed)
-        calibration = [items[i] for i in calibration_index]
-        held = [items[i] for i in held_index]
-        split = f"split by scene (seed {seed}): {len(calibration)} calibration, {len(held)} held-out pairs"
-    else:
-        calibration = items
-        held, _ = load_image_pairs(held_out, clean_suffix=clean_suffix, captured_suffix=captured_suffix)
-        split = f"given: {len(calibration)} calibration, {len(held)} held-out pairs"
     say = log or (lambda message: None)
+    base = as_profile(profile)
+    suffixes = {"clean_suffix": clean_suffix, "captured_suffix": captured_suffix}
+    pair_set = PairSet.load(pairs, max_pairs=max_pairs, log=say, **suffixes)
+    given = None if held_out is None else PairSet.load(held_out, log=say, **suffixes)
+    calibration, held, split = _split(pair_set, given, calibration_fraction, seed)
     say(split)
-    result = attribute(base, calibration, held, candidates=candidates, max_added=max_added, seed=seed, log=log)
-    chosen = result.chosen
-    best_single = next((c for c in result.singles if c.profile is not None), None)
-    gap_after = chosen.gap_after if chosen else result.gap_before
-    ranked = [c for c in result.singles if c.error is None] + [c for c in result.singles if c.error is not None]
-    effects = [
+    result = attribute(
+        base,
+        calibration.unit_pairs(),
+        held.unit_pairs(),
+        candidates=candidates,
+        max_added=max_added,
+        seed=seed,
+        log=log,
+    )
+    verdict = _verdict(result, findings_of(result))
+    say(verdict)
+    return _report(base, result, calibration, held, split, verdict)
+
+
+def _split(
+    pair_set: PairSet, held_out: PairSet | None, calibration_fraction: float, seed: int
+) -> tuple[PairSet, PairSet, str]:
+    """``(calibration, held-out, description)``: split by scene, or the two sets as given."""
+    if held_out is not None:
+        return pair_set, held_out, f"given: {len(pair_set)} calibration, {len(held_out)} held-out pairs"
+    if not 0.0 < calibration_fraction < 1.0:
+        raise ValueError(f"calibration_fraction must be in (0, 1), got calibration_fraction={calibration_fraction!r}")
+    if len(set(pair_set.scenes)) < 2:
+        raise ValueError(
+            f"diagnosis needs pairs from at least 2 scenes (calibration and held-out), got {len(set(pair_set.scenes))}"
+        )
+    calibration, held = pair_set.split(1.0 - calibration_fraction, seed)
+    return (
+        calibration,
+        held,
+        f"split by scene (seed {seed}): {len(calibration)} calibration, {len(held)} held-out pairs",
+    )
+
+
+def findings_of(result: Attribution) -> list[dict]:
+    return findings(result.held_real, result.base_stats, result.base_families, result.base_null_families)
+
+
+def _fraction_closed(result: Attribution) -> float:
+    gap_after = result.chosen.gap_after if result.chosen else result.gap_before
+    excess = result.gap_before - result.noise_floor
+    return (result.gap_before - gap_after) / excess if excess > 0 else 0.0
+
+
+def _verdict(result: Attribution, where: list[dict]) -> str:
+    added = list(result.chosen.names) if result.chosen else []
+    if not result.significant_gap:
+        return (
+            f"No significant gap: the held-out gap {result.gap_before:.2f} is within the noise of the measurement "
+            f"(profile against itself {result.base_null:.2f}, bootstrap SE {result.gap_before_se:.2f})."
+        )
+    if not added:
+        return (
+            f"Unexplained gap: {result.gap_before:.2f} (noise floor {result.noise_floor:.2f}), mostly in "
+            f"{where[0]['axis']}; no candidate effect closes a significant part of it."
+        )
+    gap_after = result.chosen.gap_after if result.chosen else result.gap_before
+    return (
+        f"The profile is missing {' + '.join(added)}: adding it closes {_fraction_closed(result):.0%} of the held-out "
+        f"gap ({result.gap_before:.2f} → {gap_after:.2f}; noise floor {result.noise_floor:.2f})."
+    )
+
+
+def _effect_rows(singles: list[Candidate]) -> list[dict]:
+    ranked = [c for c in singles if c.error is None] + [c for c in singles if c.error is not None]
+    return [
         {
             "name": c.names[-1],
             "gap_after": round(c.gap_after, 4),
@@ -84,7 +130,10 @@ def diagnose(
         }
         for c in ranked
     ]
-    combinations = [
+
+
+def _combination_rows(combinations: list[Candidate]) -> list[dict]:
+    return [
         {
             "names": c.names,
             "gap_after": round(c.gap_after, 4),
@@ -92,45 +141,33 @@ def diagnose(
             "reduction_se": _finite(c.reduction_se),
             "significant": c.significant,
         }
-        for c in result.combinations
+        for c in combinations
     ]
+
+
+def _report(
+    base: CameraProfile, result: Attribution, calibration: PairSet, held: PairSet, split: str, verdict: str
+) -> DiagnosisReport:
+    chosen = result.chosen
     added = list(chosen.names) if chosen else []
-    fitted = {effect.name: effect_params(effect) for effect in chosen.effects} if chosen else {}
     final = result.final_profile
     if added:
         final.fitted = {**final.fitted, "diagnosis": {"added": added, "gap_before": result.gap_before}}
-    excess = result.gap_before - result.noise_floor
-    fraction = (result.gap_before - gap_after) / excess if excess > 0 else 0.0
-    where = findings(result.held_real, result.base_stats, result.base_families, result.base_null_families)
-    if not result.significant_gap:
-        verdict = (
-            f"No significant gap: the held-out gap {result.gap_before:.2f} is within the noise of the measurement "
-            f"(profile against itself {result.base_null:.2f}, bootstrap SE {result.gap_before_se:.2f})."
-        )
-    elif not added:
-        verdict = (
-            f"Unexplained gap: {result.gap_before:.2f} (noise floor {result.noise_floor:.2f}), mostly in "
-            f"{where[0]['axis']}; no candidate effect closes a significant part of it."
-        )
-    else:
-        verdict = (
-            f"The profile is missing {' + '.join(added)}: adding it closes {fraction:.0%} of the held-out gap "
-            f"({result.gap_before:.2f} → {gap_after:.2f}; noise floor {result.noise_floor:.2f})."
-        )
-    say(verdict)
+    best_single = next((c for c in result.singles if c.profile is not None), None)
+    held_pairs = held.unit_pairs()
     return DiagnosisReport(
         gap_before=result.gap_before,
-        gap_after=gap_after,
+        gap_after=chosen.gap_after if chosen else result.gap_before,
         noise_floor=result.noise_floor,
-        where=where,
-        effects=effects,
+        where=findings_of(result),
+        effects=_effect_rows(result.singles),
         added=added,
         verdict=verdict,
-        fraction_closed=fraction,
+        fraction_closed=_fraction_closed(result),
         gap_before_se=result.gap_before_se,
         gap_after_best_single=best_single.gap_after if best_single else result.gap_before,
-        combinations=combinations,
-        fitted_params=fitted,
+        combinations=_combination_rows(result.combinations),
+        fitted_params={effect.name: effect_params(effect) for effect in chosen.effects} if chosen else {},
         split=split,
         calibration_pairs=len(calibration),
         held_out_pairs=len(held),
@@ -142,7 +179,7 @@ def diagnose(
             "after": result.final_stats.values(),
         },
         crops=example_crops(
-            [clean for clean, _ in held], [real for _, real in held], result.base_sims, result.final_sims
+            [clean for clean, _ in held_pairs], [real for _, real in held_pairs], result.base_sims, result.final_sims
         ),
         profile=final,
         profile_name=base.name,

@@ -22,6 +22,7 @@ from PIL import Image
 from torch import Tensor
 
 from camdegrade._files import atomic_path
+from camdegrade._pixels import unit_to_bytes
 from camdegrade.diagnose.stats import BANDS, FAMILIES, INTENSITY_BINS, NOISE_BINS, TILES
 from camdegrade.profile import CameraProfile
 
@@ -133,7 +134,7 @@ def example_crops(
 
 
 def _png(image: Tensor, scale: int = 2) -> str:
-    array = image.clamp(0, 1).mul(255).round().to(torch.uint8).permute(1, 2, 0).numpy()
+    array = unit_to_bytes(image).permute(1, 2, 0).numpy()
     picture = Image.fromarray(array)
     if scale > 1:
         picture = picture.resize((picture.width * scale, picture.height * scale), Image.NEAREST)
@@ -247,7 +248,20 @@ _STYLE = (
 
 def render_html(report: DiagnosisReport) -> str:
     """One self-contained page: verdict, numbers, where, ranking, evidence plots and example crops."""
-    numbers = _table(
+    title = f"camdegrade diagnosis: {html.escape(report.profile_name or 'profile')}"
+    return (
+        f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>{title}</title><style>{_STYLE}</style></head>"
+        f"<body><h1>{title}</h1><p class='verdict'>{html.escape(report.verdict)}</p>{_numbers(report)}"
+        f"<p class='muted'>{html.escape(report.split)}. Candidates are fitted on the calibration pairs; every gap "
+        "is measured on the held-out pairs. Gap = Σ over statistic families of RMS((real − sim)/τ).</p>"
+        f"<h2>Where the gap lies (before)</h2>{_where(report)}<h2>Which effect: candidates ranked</h2>"
+        f"{_candidates(report)}{_combinations(report)}<h2>Evidence</h2>{_evidence(report)}{_crops(report)}"
+        "</body></html>\n"
+    )
+
+
+def _numbers(report: DiagnosisReport) -> str:
+    return _table(
         [
             ("gap before (profile as is)", f"{report.gap_before:.2f} ± {report.gap_before_se:.2f}"),
             ("gap after (added: " + (", ".join(report.added) or "nothing") + ")", f"{report.gap_after:.2f}"),
@@ -256,65 +270,64 @@ def render_html(report: DiagnosisReport) -> str:
         ],
         ("quantity", "value"),
     )
-    where = _table(
-        [
-            (
-                w["axis"],
-                f"{w['score']:.2f}",
-                f"{w.get('null', 0.0):.2f}",
-                "yes" if w.get("significant") else "no",
-                w["finding"],
-            )
-            for w in report.where
-        ],
-        ("axis", "score", "null", "significant", "finding"),
-    )
-    effects = _table(
-        [
-            (
-                e["name"],
-                f"{e['gap_after']:.2f}",
-                _pm(e["reduction"], e.get("reduction_se")),
-                "yes" if e.get("significant") else "no",
-                e.get("error") or json.dumps(e["params"]),
-            )
-            for e in report.effects
-        ],
-        ("candidate", "held-out gap", "reduction", "significant", "fitted parameters"),
-    )
-    combos = (
-        "<h3>Combinations (fitted on top of the best so far)</h3>"
-        + _table(
-            [(" + ".join(c["names"]), f"{c['gap_after']:.2f}", f"{c['reduction']:+.2f}") for c in report.combinations],
-            ("effects", "held-out gap", "marginal reduction"),
+
+
+def _where(report: DiagnosisReport) -> str:
+    rows = [
+        (
+            w["axis"],
+            f"{w['score']:.2f}",
+            f"{w.get('null', 0.0):.2f}",
+            "yes" if w.get("significant") else "no",
+            w["finding"],
         )
-        if report.combinations
-        else ""
+        for w in report.where
+    ]
+    return _table(rows, ("axis", "score", "null", "significant", "finding"))
+
+
+def _candidates(report: DiagnosisReport) -> str:
+    rows = [
+        (
+            e["name"],
+            f"{e['gap_after']:.2f}",
+            _pm(e["reduction"], e.get("reduction_se")),
+            "yes" if e.get("significant") else "no",
+            e.get("error") or json.dumps(e["params"]),
+        )
+        for e in report.effects
+    ]
+    return _table(rows, ("candidate", "held-out gap", "reduction", "significant", "fitted parameters"))
+
+
+def _combinations(report: DiagnosisReport) -> str:
+    if not report.combinations:
+        return ""
+    rows = [(" + ".join(c["names"]), f"{c['gap_after']:.2f}", f"{c['reduction']:+.2f}") for c in report.combinations]
+    return "<h3>Combinations (fitted on top of the best so far)</h3>" + _table(
+        rows, ("effects", "held-out gap", "marginal reduction")
     )
-    plots = _plots(report)
-    evidence = "".join(
+
+
+def _evidence(report: DiagnosisReport) -> str:
+    figures = "".join(
         f"<figure><img src='{url}' alt='{html.escape(caption)}'><figcaption>{html.escape(caption)}</figcaption>"
         "</figure>"
-        for caption, url in plots
-    ) or _fallback_tables(report)
-    crops = ""
-    if report.crops:
-        crops = (
-            "<h2>Examples (clean | real | sim before | sim after)</h2><div class='crops'>"
-            + "".join(
-                f"<div>{html.escape(label)}<br>"
-                + "".join(f"<img src='{_png(image)}' alt=''>" for image in images)
-                + "</div>"
-                for label, images in report.crops
-            )
-            + "</div>"
-        )
-    title = f"camdegrade diagnosis: {html.escape(report.profile_name or 'profile')}"
+        for caption, url in _plots(report)
+    )
+    return figures or _fallback_tables(report)
+
+
+def _crops(report: DiagnosisReport) -> str:
+    if not report.crops:
+        return ""
     return (
-        f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>{title}</title><style>{_STYLE}</style></head>"
-        f"<body><h1>{title}</h1><p class='verdict'>{html.escape(report.verdict)}</p>{numbers}"
-        f"<p class='muted'>{html.escape(report.split)}. Candidates are fitted on the calibration pairs; every gap "
-        "is measured on the held-out pairs. Gap = Σ over statistic families of RMS((real − sim)/τ).</p>"
-        f"<h2>Where the gap lies (before)</h2>{where}<h2>Which effect: candidates ranked</h2>{effects}{combos}"
-        f"<h2>Evidence</h2>{evidence}{crops}</body></html>\n"
+        "<h2>Examples (clean | real | sim before | sim after)</h2><div class='crops'>"
+        + "".join(
+            f"<div>{html.escape(label)}<br>"
+            + "".join(f"<img src='{_png(image)}' alt=''>" for image in images)
+            + "</div>"
+            for label, images in report.crops
+        )
+        + "</div>"
     )

@@ -32,6 +32,10 @@ The gap between two sets is ``Σ_families RMS_k((value_k(real) − value_k(sim))
 contributes the root-mean-square of its components' differences in units of ``tau`` (noise levels differenced
 as log std, :attr:`Family.compare`), so one family off by one ``tau`` everywhere adds 1. Components without
 enough data (an empty intensity bin) are left out.
+
+References:
+    B. D. Lucas, T. Kanade, "An iterative image registration technique with an application to stereo vision",
+    IJCAI 1981 (the per-tile displacement of the ``alignment`` family).
 """
 
 from __future__ import annotations
@@ -45,8 +49,8 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from camdegrade.functional import srgb_to_linear
+from camdegrade.functional.analysis import box_mean, hann2d, high_pass, luma, relative_flat_mask
 
-_LUMA = (0.299, 0.587, 0.114)
 TILES = 8
 SHIFT_TILES = 4
 INTENSITY_BINS = 16
@@ -148,20 +152,6 @@ FAMILIES: dict[str, Family] = {
 }
 
 
-def _luma(image: Tensor) -> Tensor:
-    weights = torch.tensor(_LUMA, dtype=image.dtype, device=image.device)
-    return (image * weights[:, None, None]).sum(-3)
-
-
-def _box(image: Tensor, size: int) -> Tensor:
-    """Local mean over a ``size × size`` window (``[..., H, W]``), edges averaged over the valid part."""
-    flat = image.reshape(-1, 1, *image.shape[-2:])
-    half = size // 2  # separable: the mean over the valid rectangle is the mean of the row means
-    out = F.avg_pool2d(flat, (1, size), stride=1, padding=(0, half), count_include_pad=False)
-    out = F.avg_pool2d(out, (size, 1), stride=1, padding=(half, 0), count_include_pad=False)
-    return out.reshape(image.shape)
-
-
 def _spatial(x: Tensor, c: Tensor) -> tuple[Tensor, Tensor]:
     tiles = min(TILES, *c.shape[-2:])
     num = F.adaptive_avg_pool2d((x - c)[None], tiles)[0]
@@ -187,20 +177,8 @@ def _intensity(x: Tensor, c: Tensor) -> tuple[Tensor, Tensor]:
     return num.float(), den.float()
 
 
-def flat_mask(clean: Tensor, quantile: float = 0.5) -> Tensor:
-    """``(H, W)`` pixels whose local gradient energy (5×5 mean) is in the flattest ``quantile`` of the image."""
-    luma = _luma(clean)
-    gx = F.pad(luma[:, 1:] - luma[:, :-1], (0, 1))
-    gy = F.pad(luma[1:, :] - luma[:-1, :], (0, 0, 0, 1))
-    energy = _box(gx.pow(2) + gy.pow(2), 5)
-    threshold = torch.quantile(energy.flatten()[:: max(1, energy.numel() // 50_000)], quantile)
-    return energy <= threshold
-
-
-def high_pass(residual: Tensor, size: int = 9) -> Tensor:
-    """``residual`` minus its ``size × size`` local mean: removes smooth (deterministic) differences and keeps
-    the per-pixel variance of noise."""
-    return residual - _box(residual, size)
+#: The calm pixels the noise family is measured on.
+flat_mask = relative_flat_mask
 
 
 def noise_sums(x: Tensor, c: Tensor, mask: Tensor) -> tuple[Tensor, Tensor]:
@@ -228,14 +206,10 @@ def _band_index(height: int, width: int) -> Tensor:
     return torch.where(radius < 1.0 / max(height, width), torch.full_like(band, -1), band)
 
 
-def _hann(height: int, width: int) -> Tensor:
-    return torch.hann_window(height, periodic=False)[:, None] * torch.hann_window(width, periodic=False)[None, :]
-
-
 def _frequency(x: Tensor, c: Tensor) -> tuple[Tensor, Tensor]:
     height, width = c.shape[-2:]
-    window = _hann(height, width)
-    lx, lc = _luma(x), _luma(c)
+    window = hann2d(height, width)
+    lx, lc = luma(x), luma(c)
     spectrum_x = torch.fft.rfft2((lx - lx.mean()) * window)
     spectrum_c = torch.fft.rfft2((lc - lc.mean()) * window)
     cross = (spectrum_x * spectrum_c.conj()).real
@@ -249,9 +223,9 @@ def _frequency(x: Tensor, c: Tensor) -> tuple[Tensor, Tensor]:
 
 
 def _blocks(x: Tensor, c: Tensor) -> tuple[Tensor, Tensor]:
-    luma = _luma(x)
-    gx = (luma[:, 1:] - luma[:, :-1]).abs()
-    gy = (luma[1:, :] - luma[:-1, :]).abs()
+    gray = luma(x)
+    gx = (gray[:, 1:] - gray[:, :-1]).abs()
+    gy = (gray[1:, :] - gray[:-1, :]).abs()
     out = []
     for grad, axis in ((gx, 1), (gy, 0)):
         length = grad.shape[axis] // 8 * 8
@@ -280,7 +254,7 @@ def _alignment(x: Tensor, c: Tensor) -> tuple[Tensor, Tensor]:
     if factor > 1:
         smooth_x, smooth_c = F.avg_pool2d(x[None], factor)[0], F.avg_pool2d(c[None], factor)[0]
     else:
-        smooth_x, smooth_c = _box(x, 3), _box(c, 3)
+        smooth_x, smooth_c = box_mean(x, 3), box_mean(c, 3)
     gx = (F.pad(smooth_c[..., :, 2:] - smooth_c[..., :, :-2], (1, 1), mode="replicate")) / (2 * factor)
     gy = (F.pad(smooth_c[..., 2:, :] - smooth_c[..., :-2, :], (0, 0, 1, 1), mode="replicate")) / (2 * factor)
     error = smooth_x - smooth_c

@@ -16,12 +16,14 @@ from pathlib import Path
 import torch
 from torch import Tensor
 
-from camdegrade.diagnose.attribute import resolve_profile, simulate
+from camdegrade._pixels import as_unit
 from camdegrade.diagnose.report import DiagnosisReport
-from camdegrade.diagnose.stats import BANDS, _band_index, _blocks, _hann, _luma, flat_mask, high_pass
+from camdegrade.diagnose.stats import BANDS, _band_index, _blocks
+from camdegrade.fitting.pairset import simulate
 from camdegrade.functional import relative_radius
+from camdegrade.functional.analysis import hann2d, high_pass, luma, relative_flat_mask
 from camdegrade.io import iter_images, read_image
-from camdegrade.profile import CameraProfile
+from camdegrade.profile import CameraProfile, as_profile
 
 _FAMILIES = ("radial", "color", "tone", "spectrum", "blocks", "noise")
 _TAU = {"radial": 0.01, "color": 0.01, "tone": 0.01, "spectrum": 0.05, "blocks": 0.01, "noise": 0.002}
@@ -29,24 +31,24 @@ _TAU = {"radial": 0.01, "color": 0.01, "tone": 0.01, "spectrum": 0.05, "blocks":
 
 def image_statistics(image: Tensor) -> dict[str, Tensor]:
     """The no-reference statistics of one ``(3, H, W)`` float image."""
-    luma = _luma(image)
-    height, width = luma.shape
-    radius = relative_radius(height, width, torch.float32, luma.device)
+    gray = luma(image)
+    height, width = gray.shape
+    radius = relative_radius(height, width, torch.float32, gray.device)
     rings = (radius * 8).long().clamp(max=7)
-    ring_mean = torch.bincount(rings.flatten(), weights=luma.flatten(), minlength=8) / torch.bincount(
+    ring_mean = torch.bincount(rings.flatten(), weights=gray.flatten(), minlength=8) / torch.bincount(
         rings.flatten(), minlength=8
     ).clamp_min(1)
     means = image.mean((1, 2)).clamp_min(1e-4)
-    spectrum = torch.fft.rfft2((luma - luma.mean()) * _hann(height, width)).abs().pow(2)
+    spectrum = torch.fft.rfft2((gray - gray.mean()) * hann2d(height, width)).abs().pow(2)
     band = _band_index(height, width)
     valid = band >= 0
     power = torch.bincount(band[valid], weights=spectrum[valid], minlength=BANDS) / torch.bincount(
         band[valid], minlength=BANDS
     ).clamp_min(1)
     num, den = _blocks(image, image)
-    mask = flat_mask(image, 0.3)
-    residual = high_pass(luma)[mask]
-    level = luma[mask]
+    mask = relative_flat_mask(image, 0.3)
+    residual = high_pass(gray)[mask]
+    level = gray[mask]
     noise = torch.zeros(4)
     for index in range(4):
         chosen = residual[(level * 4).long().clamp(max=3) == index]
@@ -54,7 +56,7 @@ def image_statistics(image: Tensor) -> dict[str, Tensor]:
     return {
         "radial": ring_mean / ring_mean[0].clamp_min(1e-4),
         "color": torch.stack([means[0] / means[1], means[2] / means[1]]),
-        "tone": torch.quantile(luma.flatten()[:: max(1, luma.numel() // 50_000)], torch.linspace(0.05, 0.95, 9)),
+        "tone": torch.quantile(gray.flatten()[:: max(1, gray.numel() // 50_000)], torch.linspace(0.05, 0.95, 9)),
         "spectrum": power.clamp_min(1e-12).log10(),
         "blocks": num / den.clamp_min(1e-12),
         "noise": noise,
@@ -84,7 +86,7 @@ def _load(folder: Path, max_images: int | None) -> list[Tensor]:
     paths = sorted(iter_images(folder)) if folder.is_dir() else []
     if not paths:
         raise ValueError(f"{str(folder)!r} must be a folder holding images")
-    return [read_image(path).float() / 255.0 for path in paths[:max_images]]
+    return [as_unit(read_image(path)) for path in paths[:max_images]]
 
 
 def diagnose_unpaired(
@@ -96,7 +98,7 @@ def diagnose_unpaired(
     max_images: int | None = None,
 ) -> DiagnosisReport:
     """Compare the profile's simulations of the ``clean`` folder with the captures in ``real`` (other scenes)."""
-    base = resolve_profile(profile)
+    base = as_profile(profile)
     cleans, reals = _load(Path(clean), max_images), _load(Path(real), max_images)
     if len(cleans) < 4 or len(reals) < 4:
         raise ValueError(f"unpaired mode needs at least 4 clean and 4 real images, got {len(cleans)} and {len(reals)}")

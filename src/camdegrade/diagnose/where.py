@@ -2,24 +2,23 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 import torch
 from torch import Tensor
 
 from camdegrade.diagnose.stats import BANDS, FAMILIES, INTENSITY_BINS, NOISE_BINS, SHIFT_TILES, TILES, StatisticSet
+from camdegrade.effects import EFFECTS
 
 _CHANNELS = ("R", "G", "B")
-#: The effects whose signature each axis carries (a hint; the ranking decides).
-SUSPECTS = {
-    "spatial": "vignetting, tone, colour",
-    "intensity": "tone, colour",
-    "noise": "noise",
-    "frequency": "blur, jpeg, misalignment",
-    "blocks": "jpeg",
-    "color": "colour, tone",
-    "alignment": "misalignment, distortion, chromatic_aberration",
-}
+
+
+def suspects(axis: str) -> str:
+    """The registered effects whose signature ``axis`` carries (:attr:`Effect.explains`; a hint, the ranking
+    decides), or ``"the network"`` when no effect explains it."""
+    names = [name for name, effect in EFFECTS.items() if axis in effect.explains]
+    return ", ".join(names) or "the network"
 
 
 def _tile_radius(tiles: int) -> Tensor:
@@ -104,6 +103,18 @@ def _alignment(diff: Tensor) -> str:
     )
 
 
+#: axis → how its real and simulated values read to a person.
+_DESCRIBE: dict[str, Callable[[Tensor, Tensor], str]] = {
+    "spatial": lambda r, s: _spatial(r - s),
+    "intensity": lambda r, s: _intensity(r - s),
+    "noise": _noise,
+    "frequency": _frequency,
+    "blocks": _blocks,
+    "color": lambda r, s: _color(r - s),
+    "alignment": lambda r, s: _alignment(r - s),
+}
+
+
 def findings(
     real: StatisticSet, sim: StatisticSet, scores: dict[str, float], nulls: dict[str, float]
 ) -> list[dict[str, Any]]:
@@ -112,27 +123,13 @@ def findings(
     out = []
     for name in FAMILIES:
         r, s = real_values[name], sim_values[name]
-        diff = r - s
-        if name == "spatial":
-            text = _spatial(diff)
-        elif name == "intensity":
-            text = _intensity(diff)
-        elif name == "noise":
-            text = _noise(r, s)
-        elif name == "frequency":
-            text = _frequency(r, s)
-        elif name == "blocks":
-            text = _blocks(r, s)
-        elif name == "color":
-            text = _color(diff)
-        else:
-            text = _alignment(diff)
+        text = _DESCRIBE[name](r, s)
         score = scores[name]
         null = nulls.get(name, 0.0)
         out.append(
             {
                 "axis": name,
-                "finding": f"{text} [suspects: {SUSPECTS[name]}]",
+                "finding": f"{text} [suspects: {suspects(name)}]",
                 "score": round(score, 4),
                 "null": round(null, 4),
                 "significant": score > max(3 * null, 1.0),

@@ -6,7 +6,7 @@ codec): ``misalignment``, ``distortion``, ``chromatic_aberration``, ``vignetting
 classmethod that estimates it from aligned pairs.
 """
 
-from camdegrade.effects.base import EFFECTS, STAGES, Effect, Pairs, build_effect, register_effect
+from camdegrade.effects.base import EFFECTS, SIGNATURES, STAGES, Effect, Pairs, build_effect, register_effect
 from camdegrade.effects.blur import Blur
 from camdegrade.effects.codec import JPEG
 from camdegrade.effects.color import Color, Tone
@@ -16,6 +16,7 @@ from camdegrade.effects.noise import Noise, NoiseLevels, noise_level_function
 __all__ = [
     "EFFECTS",
     "JPEG",
+    "SIGNATURES",
     "STAGES",
     "Blur",
     "ChromaticAberration",

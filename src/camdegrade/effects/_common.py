@@ -37,9 +37,3 @@ def resolve_params(effect: Effect, image: Tensor, params: Mapping[str, Tensor] |
     """``params`` moved to ``image``'s device; ``None`` draws fresh ones from torch's global RNG."""
     drawn = effect.make_params(image.shape) if params is None else params
     return {key: value.to(image.device) for key, value in drawn.items()}
-
-
-def check_non_negative(value: float, name: str) -> float:
-    if not value >= 0:
-        raise ValueError(f"{name} must be a non-negative number, got {name}={value!r}")
-    return float(value)

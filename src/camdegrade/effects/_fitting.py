@@ -9,7 +9,9 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
+from camdegrade._pixels import as_unit
 from camdegrade.effects.base import Pairs
+from camdegrade.functional.analysis import gradient_energy
 
 PairList = list[tuple[Tensor, Tensor]]
 
@@ -30,11 +32,9 @@ def _as_float(image: Tensor, name: str) -> Tensor:
     if not isinstance(image, Tensor) or image.ndim != 3 or image.shape[0] != 3:
         shape = tuple(image.shape) if isinstance(image, Tensor) else type(image).__name__
         raise ValueError(f"{name} must hold (3, H, W) images, got {shape}")
-    if image.dtype == torch.uint8:
-        return image.detach().cpu().float() / 255.0
-    if not image.is_floating_point():
+    if image.dtype != torch.uint8 and not image.is_floating_point():
         raise TypeError(f"{name} must be uint8 or float images, got dtype {image.dtype}")
-    return image.detach().cpu().float()
+    return as_unit(image.detach().cpu())
 
 
 def as_pairs(source: Pairs, target: Pairs) -> PairList:
@@ -61,7 +61,13 @@ def as_pairs(source: Pairs, target: Pairs) -> PairList:
 
 def huber_weights(residual: Tensor) -> Tensor:
     """Iteratively-reweighted-least-squares weights of Huber's loss: 1 inside 1.345 robust σ (σ from the median
-    absolute residual), falling as 1/|r| outside."""
+    absolute residual), falling as 1/|r| outside.
+
+    References:
+        P. J. Huber, "Robust Estimation of a Location Parameter", Annals of Mathematical Statistics 35(1), 1964;
+        P. W. Holland, R. E. Welsch, "Robust regression using iteratively reweighted least-squares",
+        Communications in Statistics 6(9), 1977.
+    """
     scale = 1.4826 * residual.median().clamp_min(1e-12)
     return (1.345 * scale / residual.clamp_min(1e-15)).clamp(max=1.0)
 
@@ -103,13 +109,6 @@ def affine_residual(predicted: Tensor, target: Tensor, groups: int = 1) -> Tenso
     t_centered = t - t.mean(-1, keepdim=True)
     gain = (p_centered * t_centered).mean(-1, keepdim=True) / p_centered.pow(2).mean(-1, keepdim=True).clamp_min(1e-12)
     return gain * p_centered - t_centered
-
-
-def gradient_energy(image: Tensor) -> Tensor:
-    """``(..., H, W)`` squared finite-difference gradient, summed over channels (zero on the last row/column)."""
-    dx = F.pad(image[..., :, 1:] - image[..., :, :-1], (0, 1, 0, 0))
-    dy = F.pad(image[..., 1:, :] - image[..., :-1, :], (0, 0, 0, 1))
-    return (dx.pow(2) + dy.pow(2)).sum(-3)
 
 
 def textured_crops(pairs: PairList, size: int, per_image: int, margin: int = 0) -> tuple[Tensor, Tensor, int]:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Mapping, Sequence
 from typing import Any, ClassVar, Literal, TypeAlias
 
@@ -20,6 +21,8 @@ Pairs: TypeAlias = "Tensor | Sequence[Tensor]"
 
 #: name → Effect subclass. Filled by :func:`register_effect`; the names are the diagnosis vocabulary.
 EFFECTS: dict[str, type[Effect]] = {}
+#: The gap signatures (axes of :mod:`camdegrade.diagnose.stats`) an effect can name in :attr:`Effect.explains`.
+SIGNATURES: tuple[str, ...] = ("spatial", "intensity", "noise", "frequency", "blocks", "color", "alignment")
 
 
 class Effect(nn.Module):
@@ -37,10 +40,51 @@ class Effect(nn.Module):
       modifies its input. Pure kernels live in :mod:`camdegrade.functional`.
     - Optionally, :meth:`encodings` and :meth:`forward_encoded` run the same stage in linear light and in place, so
       that a profile decodes sRGB once for a run of such stages (see :mod:`camdegrade.effects.chain`).
+
+    Everything the rest of the package needs to know about an effect is asked of its class, never looked up by
+    name elsewhere: :meth:`neutral` (the identity), :meth:`without_randomness` (its deterministic centre, or
+    ``None`` for pure noise), :meth:`scaled` (its strength), :attr:`fit_budget` and :meth:`fit_options` (what its
+    fitter affords), :attr:`explains` (the gap signatures it can cause) and :attr:`position_dependent`. The
+    registry-wide tests in ``tests/test_effects.py`` hold every registered effect to this contract.
     """
 
     name: ClassVar[str] = ""
     stage: ClassVar[Stage] = "isp"
+    #: The gap signatures (from :data:`SIGNATURES`) this effect leaves when a profile lacks it or has it wrong.
+    explains: ClassVar[tuple[str, ...]] = ()
+    #: At most this many pairs go to :meth:`fit` when the diagnosis fits it as a candidate (``None``: all).
+    fit_budget: ClassVar[int | None] = None
+    #: Whether it varies over the frame, which a translation-equivariant network cannot learn: ``fit_profile``
+    #: keeps such a stage only where it lowers the validation error.
+    position_dependent: ClassVar[bool] = False
+
+    @classmethod
+    def neutral(cls) -> Effect:
+        """An instance that leaves every image unchanged (default: the constructor's defaults)."""
+        return cls()
+
+    def without_randomness(self) -> Effect | None:
+        """This stage's deterministic centre: the profile's conditional mean keeps it, candidate effects are fitted
+        against it. A copy without per-sample jitter, or ``None`` for a stage that only adds zero-mean noise.
+        Default: the stage itself (it draws nothing)."""
+        return self
+
+    def scaled(self, strength: float) -> Effect:
+        """A copy whose fitted values are moved from :meth:`neutral`'s by ``strength`` times their change
+        (0: neutral, 1: as fitted)."""
+        neutral = type(self).neutral().state_dict()
+        state = {
+            key: neutral[key] + strength * (value - neutral[key]) if key in neutral else value
+            for key, value in self.state_dict().items()
+        }
+        out = copy.deepcopy(self)
+        out.load_state_dict(state)
+        return out
+
+    @classmethod
+    def fit_options(cls, images: Sequence[Tensor]) -> dict[str, Any]:
+        """Options for :meth:`fit` on these (possibly few or small) source images; default none."""
+        return {}
 
     def make_params(
         self, shape: torch.Size | tuple[int, ...], generator: torch.Generator | None = None
@@ -96,6 +140,9 @@ def register_effect(cls: type[Effect]) -> type[Effect]:
         raise ValueError(f"{cls.__qualname__} must set a non-empty class attribute 'name'")
     if cls.stage not in STAGES:
         raise ValueError(f"{cls.__qualname__}.stage must be one of {STAGES}, got {cls.stage!r}")
+    unknown = [signature for signature in cls.explains if signature not in SIGNATURES]
+    if unknown:
+        raise ValueError(f"{cls.__qualname__}.explains must hold names from {SIGNATURES}, got {unknown}")
     if cls.name in EFFECTS and EFFECTS[cls.name] is not cls:
         raise ValueError(f"an effect named {cls.name!r} is already registered ({EFFECTS[cls.name].__qualname__})")
     EFFECTS[cls.name] = cls

@@ -2,16 +2,18 @@
 
 from __future__ import annotations
 
+import copy
 import math
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 import torch
 from torch import Tensor
 
+from camdegrade._checks import check_non_negative
 from camdegrade._fingerprint import module_tensors, tensors_fingerprint
-from camdegrade.effects._common import batch_shape, check_non_negative, resolve_params, scalar
-from camdegrade.effects._fitting import affine_residual, as_pairs, grid_search, minimize, textured_crops
+from camdegrade.effects._common import batch_shape, resolve_params, scalar
+from camdegrade.effects._fitting import PairList, affine_residual, as_pairs, grid_search, minimize, textured_crops
 from camdegrade.effects.base import Effect, Encoding, Pairs, register_effect
 from camdegrade.functional import blur_image, convolve_separable, separable_taps
 
@@ -31,6 +33,8 @@ class Blur(Effect):
 
     name = "blur"
     stage = "optics"
+    explains = ("frequency",)
+    fit_budget = 24
     sigma_x: Tensor
     sigma_y: Tensor
     angle: Tensor
@@ -68,6 +72,18 @@ class Blur(Effect):
 
     def config(self) -> dict[str, Any]:
         return {"linear": self.linear, "sigma_jitter": self.sigma_jitter}
+
+    def without_randomness(self) -> Blur:
+        centre = copy.deepcopy(self)
+        centre.sigma_jitter = 0.0
+        return centre
+
+    @classmethod
+    def fit_options(cls, images: Sequence[Tensor]) -> dict[str, Any]:
+        """Sigmas up to 4 px, on crops as large as the smallest image allows (16 to 64 px) rather than failing."""
+        max_sigma = 4.0
+        side = min(min(image.shape[-2:]) for image in images)
+        return {"max_sigma": max_sigma, "crop": max(16, min(64, side - 2 * fit_margin(max_sigma)))}
 
     def make_params(
         self, shape: torch.Size | tuple[int, ...], generator: torch.Generator | None = None
@@ -140,17 +156,8 @@ class Blur(Effect):
         (``anisotropic``) and linear motion (``motion``). Recovery on synthetic pairs: sigma within 10 %
         for sigma from 0.8 to 3.5 pixels.
         """
-        pairs = as_pairs(source, target)
-        margin = math.ceil(4 * max_sigma) + (math.ceil(max_motion / 2) + 2 if motion else 1)
-        src, tgt, groups = textured_crops(pairs, crop, crops_per_image, margin)
-        src, tgt = src.double(), tgt[..., margin:-margin, margin:-margin].double()
-
-        def loss_of(sx: Tensor, sy: Tensor, angle: Tensor, length: Tensor, direction: Tensor) -> Tensor:
-            blurred = blur_image(src, sx, sy, angle, length, direction, linear=linear)
-            blurred = blurred[..., margin:-margin, margin:-margin]
-            residual = affine_residual(blurred, tgt, groups=groups) if align else blurred - tgt
-            return residual.pow(2).mean()
-
+        margin = fit_margin(max_sigma, max_motion if motion else None)
+        loss_of = _psf_loss(as_pairs(source, target), crop, crops_per_image, margin, linear=linear, align=align)
         zero = torch.zeros((), dtype=torch.float64)
 
         def isotropic(sigma: float) -> float:
@@ -190,6 +197,29 @@ class Blur(Effect):
             length = float(log_length.exp().clamp(max=max_motion)) if motion else 0.0
             motion_angle = float(direction) * 45.0 % 180.0 if motion else 0.0
             return cls(sx, sy, orientation % 180.0, length, motion_angle, linear=linear)
+
+
+def _psf_loss(
+    pairs: PairList, crop: int, crops_per_image: int, margin: int, *, linear: bool, align: bool
+) -> Callable[..., Tensor]:
+    """Mean squared error of ``blur(source)`` against ``target`` on the most textured crops, as a function of the
+    PSF ``(sigma_x, sigma_y, angle, motion_length, motion_angle)``; with ``align``, a per-pair affine colour map
+    is projected out."""
+    src, tgt, groups = textured_crops(pairs, crop, crops_per_image, margin)
+    src, tgt = src.double(), tgt[..., margin:-margin, margin:-margin].double()
+
+    def loss_of(sx: Tensor, sy: Tensor, angle: Tensor, length: Tensor, direction: Tensor) -> Tensor:
+        blurred = blur_image(src, sx, sy, angle, length, direction, linear=linear)
+        blurred = blurred[..., margin:-margin, margin:-margin]
+        residual = affine_residual(blurred, tgt, groups=groups) if align else blurred - tgt
+        return residual.pow(2).mean()
+
+    return loss_of
+
+
+def fit_margin(max_sigma: float, max_motion: float | None = None) -> int:
+    """Pixels :meth:`Blur.fit` adds around each crop so that the largest PSF it tries sees real content."""
+    return math.ceil(4 * max_sigma) + (math.ceil(max_motion / 2) + 2 if max_motion is not None else 1)
 
 
 def _initialise_angles(

@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Mapping
 from typing import Any
 
 import torch
 from torch import Tensor
 
+from camdegrade._pixels import unit_to_bytes
 from camdegrade.effects._common import batch_shape, resolve_params, scalar
 from camdegrade.effects._fitting import as_pairs
 from camdegrade.effects.base import Effect, Pairs, register_effect
@@ -30,6 +32,8 @@ class JPEG(Effect):
 
     name = "jpeg"
     stage = "codec"
+    explains = ("frequency", "blocks")
+    fit_budget = 16
     quality: Tensor
 
     def __init__(self, quality: int = 90, *, quality_jitter: int = 0, probability: float = 1.0) -> None:
@@ -46,6 +50,24 @@ class JPEG(Effect):
     def config(self) -> dict[str, Any]:
         return {"quality_jitter": self.quality_jitter, "probability": self.probability}
 
+    @classmethod
+    def neutral(cls) -> JPEG:
+        """Never compressed, and at quality 100 (the codec's least change) for :meth:`scaled`."""
+        return cls(100, probability=0.0)
+
+    def without_randomness(self) -> JPEG:
+        """The fitted quality, no jitter, and compression on or off, whichever ``probability`` makes likelier."""
+        centre = copy.deepcopy(self)
+        centre.quality_jitter = 0
+        centre.probability = 1.0 if self.probability >= 0.5 else 0.0
+        return centre
+
+    def scaled(self, strength: float) -> JPEG:
+        """Quality moved from 100 by ``strength`` times its distance, rounded to an integer from 1 to 100."""
+        out = super().scaled(strength)
+        out.quality.copy_(out.quality.round().clamp(1, 100))
+        return out
+
     def make_params(
         self, shape: torch.Size | tuple[int, ...], generator: torch.Generator | None = None
     ) -> dict[str, Tensor]:
@@ -54,11 +76,13 @@ class JPEG(Effect):
         if self.quality_jitter > 0:
             span = 2 * self.quality_jitter + 1
             params["quality_offset"] = torch.randint(0, span, (n,), generator=generator) - self.quality_jitter
-        if self.probability < 1.0:
+        if 0.0 < self.probability < 1.0:
             params["apply"] = torch.rand(n, generator=generator) < self.probability
         return params
 
     def forward(self, image: Tensor, params: Mapping[str, Tensor] | None = None) -> Tensor:
+        if self.probability == 0.0:
+            return image.clone()
         drawn = resolve_params(self, image, params)
         quality = self.quality.to(image.device).expand(image.shape[0])
         if "quality_offset" in drawn:
@@ -82,7 +106,7 @@ class JPEG(Effect):
         pairs = []
         for src, tgt in as_pairs(source, target):
             src, tgt = _block_crop(src, tgt, max_side)
-            pairs.append((src.mul(255).round().clamp(0, 255).to(torch.uint8), tgt.mul(255)))
+            pairs.append((unit_to_bytes(src), tgt.mul(255)))
 
         def error(quality: int) -> float:
             return sum(float((jpeg_image(src, quality).float() - tgt).pow(2).mean()) for src, tgt in pairs)

@@ -2,13 +2,15 @@
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Mapping
 from typing import Any
 
 import torch
 from torch import Tensor
 
-from camdegrade.effects._common import batch_shape, check_non_negative, resolve_params, scalar
+from camdegrade._checks import check_non_negative
+from camdegrade.effects._common import batch_shape, resolve_params, scalar
 from camdegrade.effects._fitting import as_pairs, downscale, huber_weights, minimize, robust_lstsq
 from camdegrade.effects.base import Effect, Encoding, Pairs, register_effect
 from camdegrade.functional import color_matrix_image, srgb_to_linear, tone_curve_image
@@ -29,6 +31,7 @@ class Color(Effect):
 
     name = "color"
     stage = "isp"
+    explains = ("spatial", "intensity", "color")
     matrix: Tensor
 
     def __init__(self, matrix: Tensor | None = None, *, gain_jitter: float = 0.0, linear: bool = True) -> None:
@@ -42,6 +45,11 @@ class Color(Effect):
 
     def config(self) -> dict[str, Any]:
         return {"gain_jitter": self.gain_jitter, "linear": self.linear}
+
+    def without_randomness(self) -> Color:
+        centre = copy.deepcopy(self)
+        centre.gain_jitter = 0.0
+        return centre
 
     def make_params(
         self, shape: torch.Size | tuple[int, ...], generator: torch.Generator | None = None
@@ -128,6 +136,7 @@ class Tone(Effect):
 
     name = "tone"
     stage = "isp"
+    explains = ("spatial", "intensity", "color")
     gamma: Tensor
     black: Tensor
     white: Tensor
@@ -153,6 +162,11 @@ class Tone(Effect):
 
     def config(self) -> dict[str, Any]:
         return {"exposure_jitter": self.exposure_jitter}
+
+    def without_randomness(self) -> Tone:
+        centre = copy.deepcopy(self)
+        centre.exposure_jitter = 0.0
+        return centre
 
     def make_params(
         self, shape: torch.Size | tuple[int, ...], generator: torch.Generator | None = None

@@ -3,13 +3,15 @@ misalignment. A translation-equivariant network cannot learn these, so they are 
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Mapping
 from typing import Any
 
 import torch
 from torch import Tensor
 
-from camdegrade.effects._common import batch_shape, check_non_negative, resolve_params, scalar
+from camdegrade._checks import check_non_negative
+from camdegrade.effects._common import batch_shape, resolve_params, scalar
 from camdegrade.effects._fitting import as_pairs, downscale, robust_lstsq
 from camdegrade.effects._warp import fit_warp
 from camdegrade.effects.base import Effect, Encoding, Pairs, register_effect
@@ -32,6 +34,8 @@ class Vignetting(Effect):
 
     name = "vignetting"
     stage = "optics"
+    explains = ("spatial",)
+    position_dependent = True
     k1: Tensor
     k2: Tensor
 
@@ -92,6 +96,9 @@ class Distortion(Effect):
 
     name = "distortion"
     stage = "optics"
+    explains = ("alignment",)
+    fit_budget = 16
+    position_dependent = True
     k1: Tensor
     k2: Tensor
 
@@ -129,6 +136,9 @@ class ChromaticAberration(Effect):
 
     name = "chromatic_aberration"
     stage = "optics"
+    explains = ("alignment",)
+    fit_budget = 16
+    position_dependent = True
     red: Tensor
     blue: Tensor
 
@@ -175,6 +185,8 @@ class Misalignment(Effect):
 
     name = "misalignment"
     stage = "optics"
+    explains = ("frequency", "alignment")
+    fit_budget = 12
     dx: Tensor
     dy: Tensor
     angle: Tensor
@@ -196,6 +208,11 @@ class Misalignment(Effect):
 
     def config(self) -> dict[str, Any]:
         return {"shift_std": self.shift_std, "angle_std": self.angle_std}
+
+    def without_randomness(self) -> Misalignment:
+        centre = copy.deepcopy(self)
+        centre.shift_std = centre.angle_std = 0.0
+        return centre
 
     def make_params(
         self, shape: torch.Size | tuple[int, ...], generator: torch.Generator | None = None

@@ -3,18 +3,20 @@
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
 import torch
 from torch import Tensor
 
+from camdegrade._checks import check_non_negative
 from camdegrade._random import standard_normal
-from camdegrade.effects._common import batch_shape, check_non_negative, resolve_params, vector
-from camdegrade.effects._fitting import PairList, as_pairs, gradient_energy
+from camdegrade.effects._common import batch_shape, resolve_params, vector
+from camdegrade.effects._fitting import PairList, as_pairs
 from camdegrade.effects.base import Effect, Encoding, Pairs, register_effect
 from camdegrade.functional import poisson_gaussian_noise_image, srgb_to_linear
+from camdegrade.functional.analysis import gradient_energy
 from camdegrade.functional.noise import add_poisson_gaussian_noise_
 
 
@@ -32,10 +34,15 @@ class Noise(Effect):
 
     ``make_params`` draws every standard normal the forward pass uses, so a seeded generator replays a capture
     byte for byte.
+
+    References:
+        A. Foi, M. Trimeche, V. Katkovnik, K. Egiazarian, "Practical Poissonian-Gaussian noise modeling and fitting
+        for single-image raw-data", IEEE Transactions on Image Processing 17(10), 2008.
     """
 
     name = "noise"
     stage = "sensor"
+    explains = ("noise",)
     a: Tensor
     b: Tensor
     row_sigma: Tensor
@@ -60,6 +67,15 @@ class Noise(Effect):
 
     def config(self) -> dict[str, Any]:
         return {"linear": self.linear, "gain_jitter": self.gain_jitter}
+
+    def without_randomness(self) -> None:
+        """None: the stage only adds zero-mean noise, so the conditional mean leaves it out."""
+        return None
+
+    @classmethod
+    def fit_options(cls, images: Sequence[Tensor]) -> dict[str, Any]:
+        """Few or small pairs: intensity bins with at least 50 pixels count."""
+        return {"min_count": 50}
 
     def make_params(
         self, shape: torch.Size | tuple[int, ...], generator: torch.Generator | None = None
@@ -160,11 +176,6 @@ class NoiseLevels:
                 fitted = slope * x + offset
             a[channel], b[channel] = float(slope), float(offset)
         return a, b
-
-    def std_at(self, intensity: float) -> Tensor:
-        """Per-channel fitted noise standard deviation at one intensity (same space as ``intensity``)."""
-        a, b = self.fit_line()
-        return (a * intensity + b).sqrt()
 
 
 def _nonnegative_line(x: Tensor, y: Tensor, w: Tensor) -> tuple[Tensor, Tensor]:

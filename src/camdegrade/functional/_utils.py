@@ -7,6 +7,8 @@ from collections.abc import Callable, Sequence
 import torch
 from torch import Tensor
 
+from camdegrade._pixels import bytes_to_unit, unit_to_bytes
+
 ParamLike = Tensor | float | int | Sequence[float]
 
 _FLOAT_DTYPES = (torch.float16, torch.bfloat16, torch.float32, torch.float64)
@@ -30,16 +32,12 @@ def compute_dtype(image: Tensor) -> torch.dtype:
 def to_float(image: Tensor) -> Tensor:
     """``image`` as a float tensor in [0, 1] (a new tensor unless it already is float32/float64)."""
     check_image(image)
-    if image.dtype == torch.uint8:
-        return image.to(torch.float32) / 255.0
-    return image.to(compute_dtype(image))
+    return bytes_to_unit(image) if image.dtype == torch.uint8 else image.to(compute_dtype(image))
 
 
 def restore(result: Tensor, like: Tensor) -> Tensor:
     """Cast a float result back to ``like``'s dtype (uint8: scaled, rounded and clamped)."""
-    if like.dtype == torch.uint8:
-        return result.mul(255.0).round_().clamp_(0, 255).to(torch.uint8)
-    return result.to(like.dtype)
+    return unit_to_bytes(result) if like.dtype == torch.uint8 else result.to(like.dtype)
 
 
 def apply_float(image: Tensor, fn: Callable[[Tensor], Tensor]) -> Tensor:

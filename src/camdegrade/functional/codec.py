@@ -9,6 +9,7 @@ import torch
 from PIL import Image
 from torch import Tensor
 
+from camdegrade._pixels import bytes_to_unit, unit_to_bytes
 from camdegrade.functional._utils import ParamLike, check_image, compute_dtype, flat_param, restore, to_float
 
 
@@ -46,8 +47,8 @@ def jpeg_image(image: Tensor, quality: ParamLike) -> Tensor:
     check_quality(qualities)
     if image.numel() == 0:
         return image.clone()
-    as_bytes = image if image.dtype == torch.uint8 else restore(to_float(image), torch.empty(0, dtype=torch.uint8))
+    as_bytes = image if image.dtype == torch.uint8 else unit_to_bytes(to_float(image))
     planes = as_bytes.detach().cpu().reshape(-1, *image.shape[-3:]).permute(0, 2, 3, 1).numpy()
     decoded = [_round_trip(np.ascontiguousarray(plane), int(q)) for plane, q in zip(planes, qualities.tolist())]
     result = torch.from_numpy(np.stack(decoded)).permute(0, 3, 1, 2).reshape(image.shape).to(image.device)
-    return result if image.dtype == torch.uint8 else restore(result.to(compute_dtype(image)) / 255.0, image)
+    return result if image.dtype == torch.uint8 else restore(bytes_to_unit(result).to(compute_dtype(image)), image)

@@ -1,4 +1,9 @@
-"""Colour kernels: the sRGB transfer function and colour matrices applied in linear light."""
+"""Colour kernels: the sRGB transfer function and colour matrices applied in linear light.
+
+References:
+    IEC 61966-2-1:1999, Multimedia systems and equipment — Colour measurement and management — Part 2-1: Colour
+    management — Default RGB colour space — sRGB (the transfer function and its knees).
+"""
 
 from __future__ import annotations
 

@@ -1,0 +1,100 @@
+"""Frames through a profile: input checks, 8-bit handling, CPU chunking and per-device float32 copies.
+
+The engine knows tensors ``(N, 3, H, W)`` and profiles, nothing of PIL, tv_tensors or sample structures (that is
+:mod:`camdegrade.transform`), so the dataset and batch modules use it without importing torchvision.
+"""
+
+from __future__ import annotations
+
+import copy
+import threading
+
+import torch
+from torch import Tensor
+
+from camdegrade._fingerprint import module_tensors, tensors_fingerprint
+from camdegrade._pixels import as_unit, unit_to_bytes
+from camdegrade.inference import Precision
+from camdegrade.profile import CameraProfile, EffectParams
+
+#: On the CPU, frames are degraded in chunks of about this many pixels: a chunk's working tensors then stay in
+#: the CPU's L2 cache, where the memory-bound elementwise stages run several times faster than on a whole batch.
+CHUNK_PIXELS = 1 << 17
+FLOAT_DTYPES = (torch.float16, torch.bfloat16, torch.float32, torch.float64)
+
+
+def check_image_tensor(image: Tensor, who: str = "CameraDegrade()") -> None:
+    """Raise a clear error unless ``image`` is a finite ``[..., 3, H, W]`` uint8 or floating-point tensor."""
+    if image.ndim < 3 or image.shape[-3] != 3:
+        raise ValueError(
+            f"{who} expects RGB images shaped [..., 3, H, W], got shape {tuple(image.shape)}; "
+            "convert grayscale or RGBA images to 3-channel RGB first"
+        )
+    if image.dtype != torch.uint8 and image.dtype not in FLOAT_DTYPES:
+        raise TypeError(f"{who} supports uint8 and floating-point images, got dtype={image.dtype}")
+    if image.dtype != torch.uint8 and image.numel() and not bool(torch.isfinite(image).all()):
+        raise ValueError(f"{who} got an image containing NaN or infinite values")
+
+
+def degrade_frames(profile: CameraProfile, frames: Tensor, params: EffectParams, precision: Precision) -> Tensor:
+    """``profile`` applied without autograd to ``frames`` ``(N, 3, H, W)`` (uint8 or float in [0, 1]), returned
+    in their dtype; on the CPU in chunks of :data:`CHUNK_PIXELS` (each param is sliced along its batch dim)."""
+    count, _, height, width = frames.shape
+    step = count if frames.device.type != "cpu" else max(1, CHUNK_PIXELS // max(1, height * width))
+    if step >= count:
+        return _degrade_chunk(profile, frames, params, precision)
+    out = torch.empty_like(frames)
+    for start in range(0, count, step):
+        chunk = slice(start, min(start + step, count))
+        out[chunk] = _degrade_chunk(profile, frames[chunk], select_params(params, chunk), precision)
+    return out
+
+
+def _degrade_chunk(profile: CameraProfile, frames: Tensor, params: EffectParams, precision: Precision) -> Tensor:
+    with torch.no_grad():
+        unit = frames if frames.dtype == torch.uint8 else as_unit(frames, clamp=True)  # the profile reads uint8
+        degraded = profile(unit, params, precision=precision)
+        # The profile returns a new tensor, so the conversion may overwrite it.
+        return unit_to_bytes(degraded, overwrite=True) if frames.dtype == torch.uint8 else degraded.to(frames.dtype)
+
+
+def select_params(params: EffectParams, index: slice | Tensor) -> EffectParams:
+    """The params of the frames ``index`` selects (every param is indexed along its batch dimension)."""
+    return [{key: value[index] for key, value in stage.items()} for stage in params]
+
+
+def params_on(params: EffectParams, device: torch.device) -> EffectParams:
+    return [{key: value.to(device) for key, value in stage.items()} for stage in params]
+
+
+class DeviceCopies:
+    """A profile as float32 on any device: the profile itself where it already is, else a copy made once per
+    device and rebuilt whenever the profile's tensors change (``load_state_dict``, ``.to()``, in-place edits).
+    Safe to share between threads; not pickled (copies are rebuilt on first use)."""
+
+    def __init__(self) -> None:
+        self._copies: dict[torch.device, tuple[tuple[int, ...], CameraProfile]] = {}
+        self._lock = threading.Lock()
+
+    def __getstate__(self) -> dict:
+        return {}
+
+    def __setstate__(self, state: dict) -> None:
+        self.__init__()
+
+    def on(self, profile: CameraProfile, device: torch.device) -> CameraProfile:
+        if _is_float32_on(profile, device):
+            return profile
+        fingerprint = tensors_fingerprint(module_tensors(profile))
+        with self._lock:
+            cached = self._copies.get(device)
+            if cached is None or cached[0] != fingerprint:
+                cached = (fingerprint, copy.deepcopy(profile).to(device=device, dtype=torch.float32))
+                self._copies[device] = cached
+            return cached[1]
+
+
+def _is_float32_on(module: torch.nn.Module, device: torch.device) -> bool:
+    return all(
+        t.device == device and (t.dtype == torch.float32 or not t.is_floating_point()) for t in module_tensors(module)
+    )

@@ -1,0 +1,30 @@
+"""Fitting a camera profile from real (clean, captured) pairs: pair discovery, the pair set, registration, the
+network's training and checkpoints, and :func:`fit_profile` that runs them in order (``docs/fitting.md``)."""
+
+from camdegrade.fitting.align import AlignmentResult, align_pair, apply_shift, estimate_shift, register
+from camdegrade.fitting.fit import DEFAULT_EFFECTS, fit_profile
+from camdegrade.fitting.pairs import Pair, PairReport, discover_pairs, filter_pairs, load_pair, split_by_scene
+from camdegrade.fitting.pairset import PairSet, simulate
+from camdegrade.fitting.training import EpochResult, FitConfig, FitInterrupted, fit_network
+
+__all__ = [
+    "DEFAULT_EFFECTS",
+    "AlignmentResult",
+    "EpochResult",
+    "FitConfig",
+    "FitInterrupted",
+    "Pair",
+    "PairReport",
+    "PairSet",
+    "align_pair",
+    "apply_shift",
+    "discover_pairs",
+    "estimate_shift",
+    "filter_pairs",
+    "fit_network",
+    "fit_profile",
+    "load_pair",
+    "register",
+    "simulate",
+    "split_by_scene",
+]

@@ -1,0 +1,104 @@
+"""Training checkpoints as safetensors: network, optimizer, schedule, RNG and history, written atomically."""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import torch
+from safetensors import SafetensorError, safe_open
+from safetensors.torch import save_file
+from torch import Tensor
+
+from camdegrade._files import atomic_path
+from camdegrade.errors import CamdegradeError
+
+CHECKPOINT_KEY = "camdegrade_checkpoint"
+
+
+@dataclass
+class TrainingState:
+    """Everything needed to continue a fit exactly where it stopped (at an epoch boundary)."""
+
+    network: dict[str, Tensor]
+    optimizer: dict[str, Any]
+    scheduler: dict[str, Any]
+    generator: Tensor
+    epoch: int
+    best_score: float
+    best_network: dict[str, Tensor] | None
+    history: list[dict[str, Any]] = field(default_factory=list)
+    config: dict[str, Any] = field(default_factory=dict)
+
+
+def save_checkpoint(state: TrainingState, path: str | os.PathLike[str]) -> Path:
+    """Write ``state`` to ``path`` (temp file + rename: an interrupted write never replaces a good checkpoint)."""
+    tensors = {f"network.{k}": v for k, v in state.network.items()}
+    if state.best_network is not None:
+        tensors.update({f"best.{k}": v for k, v in state.best_network.items()})
+    tensors["generator"] = state.generator
+    for index, slots in state.optimizer["state"].items():
+        tensors.update({f"optimizer.{index}.{name}": value for name, value in slots.items()})
+    tensors = {k: v.detach().cpu().contiguous().clone() for k, v in tensors.items()}
+    metadata = {
+        "epoch": state.epoch,
+        "best_score": state.best_score,
+        "history": state.history,
+        "config": state.config,
+        "param_groups": state.optimizer["param_groups"],
+        "scheduler": state.scheduler,
+    }
+    with atomic_path(path) as temporary:
+        save_file(tensors, str(temporary), metadata={CHECKPOINT_KEY: json.dumps(metadata, sort_keys=True)})
+    return Path(path)
+
+
+def load_checkpoint(path: str | os.PathLike[str]) -> TrainingState:
+    """Read a checkpoint written by :func:`save_checkpoint` (safetensors only; never unpickles)."""
+    try:
+        with safe_open(str(path), framework="pt", device="cpu") as handle:
+            raw = handle.metadata() or {}
+            tensors = {key: handle.get_tensor(key) for key in handle.keys()}  # noqa: SIM118
+    except (SafetensorError, OSError) as error:
+        raise CamdegradeError(f"cannot read checkpoint {str(path)!r}: {error}") from error
+    if CHECKPOINT_KEY not in raw:
+        raise CamdegradeError(f"{str(path)!r} is not a camdegrade training checkpoint")
+    metadata = json.loads(raw[CHECKPOINT_KEY])
+    optimizer_state: dict[int, dict[str, Tensor]] = {}
+    for key, value in tensors.items():
+        if key.startswith("optimizer."):
+            _, index, name = key.split(".", 2)
+            optimizer_state.setdefault(int(index), {})[name] = value
+    best = {k[len("best.") :]: v for k, v in tensors.items() if k.startswith("best.")}
+    return TrainingState(
+        network={k[len("network.") :]: v for k, v in tensors.items() if k.startswith("network.")},
+        optimizer={"state": optimizer_state, "param_groups": metadata["param_groups"]},
+        scheduler=metadata["scheduler"],
+        generator=tensors["generator"],
+        epoch=metadata["epoch"],
+        best_score=metadata["best_score"],
+        best_network=best or None,
+        history=metadata["history"],
+        config=metadata["config"],
+    )
+
+
+def capture_state(
+    network: torch.nn.Module,
+    optimizer: torch.optim.Optimizer,
+    scheduler: torch.optim.lr_scheduler.LRScheduler,
+    generator: torch.Generator,
+    **fields: Any,
+) -> TrainingState:
+    """Snapshot live training objects into a :class:`TrainingState`."""
+    optimizer_state = optimizer.state_dict()
+    return TrainingState(
+        network={k: v.detach().clone() for k, v in network.state_dict().items()},
+        optimizer={"state": optimizer_state["state"], "param_groups": optimizer_state["param_groups"]},
+        scheduler=scheduler.state_dict(),
+        generator=generator.get_state(),
+        **fields,
+    )

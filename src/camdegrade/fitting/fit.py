@@ -1,0 +1,254 @@
+"""``fit_profile``: from a folder (or CSV, or suffix rule) of (clean, captured) pairs to a camera profile.
+
+Steps: load the pair set (discover → load, EXIF honoured, unusable files reported) → split by scene into train and
+validation → optionally register each pair → train the network (:mod:`camdegrade.fitting.training`) → fit the
+effect stages the network cannot represent → a :class:`CameraProfile` whose metadata records how it was made.
+
+References:
+    Hegde et al., "A Simple Domain Shifting Network for Generating Low Quality Images" (the network and recipe).
+"""
+
+from __future__ import annotations
+
+import os
+import platform
+import time
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import fields
+from typing import Any, Literal
+
+import torch
+import torch.distributed as dist
+
+from camdegrade._distributed import is_main_process
+from camdegrade._threads import torch_threads
+from camdegrade._version import __version__
+from camdegrade.effects import EFFECTS, STAGES, Effect
+from camdegrade.fitting.pairset import PairSet, PairsSource, simulate
+from camdegrade.fitting.training import EpochResult, FitConfig, ImagePair, fit_network
+from camdegrade.metrics import psnr
+from camdegrade.profile import CameraProfile
+
+__all__ = ["DEFAULT_EFFECTS", "fit_profile", "init_distributed_from_env", "is_main_process", "torch_threads"]
+
+#: Effects fitted after the network by default. ``noise`` is always useful (an L2 network predicts the mean and
+#: never the noise); position-dependent stages are kept only where they lower the validation error.
+DEFAULT_EFFECTS: tuple[str, ...] = ("noise", "vignetting")
+_MIN_RELATIVE_GAIN = 0.01
+Log = Callable[[str], None]
+
+
+def fit_profile(
+    pairs: PairsSource,
+    *,
+    epochs: int | None = None,
+    crop: int | None = None,
+    batch_size: int | None = None,
+    lr: float | None = None,
+    lr_halving_epochs: int | None = None,
+    crops_per_pair: int | None = None,
+    seed: int = 0,
+    val_fraction: float = 0.15,
+    align: bool = False,
+    clean_suffix: str | None = None,
+    captured_suffix: str | None = None,
+    strict: bool = False,
+    size_mismatch: Literal["skip", "crop"] = "skip",
+    effects: Iterable[str] = DEFAULT_EFFECTS,
+    device: torch.device | str = "cpu",
+    threads: int | None = None,
+    checkpoint: str | os.PathLike[str] | None = None,
+    resume: bool = False,
+    callback: Callable[[EpochResult], None] | None = None,
+    progress: bool = False,
+    name: str = "",
+    description: str = "",
+    log: Log | None = None,
+) -> CameraProfile:
+    """Fit a camera profile from (clean, captured) pairs with the paper's recipe (see :class:`FitConfig`).
+
+    Args:
+        pairs: a folder with ``clean/`` and ``captured/``, a folder plus ``clean_suffix``/``captured_suffix``, a
+            CSV manifest, a list of :class:`~camdegrade.fitting.Pair`, a :class:`~camdegrade.fitting.PairReport`,
+            or a list of ``(clean, captured)`` tensors.
+        epochs, crop, batch_size, lr, lr_halving_epochs, crops_per_pair: the recipe; ``None`` keeps
+            :class:`FitConfig`'s default (the paper's).
+        seed: initialisation, crops and the validation split.
+        val_fraction: share of *scenes* held out for choosing the best epoch and checking the effect stages.
+        align: register every pair (sub-pixel translation) before training; the shifts are logged.
+        size_mismatch: pairs whose images differ in size are skipped, or with ``"crop"`` centre-cropped.
+        effects: effect stages to fit after the network (names from ``EFFECTS``).
+        checkpoint: training state written after every epoch; with ``resume=True`` the fit continues from it.
+        callback: called with an :class:`EpochResult` after every epoch (notebooks, Lightning loggers).
+        log: called with human-readable progress lines (pairs found, shifts, effect fits).
+
+    Returns:
+        The fitted profile; its metadata records the pairs used, the recipe, validation PSNR and the machine.
+    """
+    say = log or (lambda message: None)
+    config = _recipe(
+        epochs=epochs,
+        crop=crop,
+        batch_size=batch_size,
+        lr=lr,
+        lr_halving_epochs=lr_halving_epochs,
+        crops_per_pair=crops_per_pair,
+        seed=seed,
+    )
+    effect_names = _check_effect_names(effects)
+    with torch_threads(threads):
+        pair_set = PairSet.load(
+            pairs,
+            clean_suffix=clean_suffix,
+            captured_suffix=captured_suffix,
+            strict=strict,
+            size_mismatch=size_mismatch,
+            log=say,
+        )
+        train, val = _split(pair_set, val_fraction, seed, align, say)
+        started = time.perf_counter()
+        network, history = fit_network(
+            train.images,
+            val.images,
+            config,
+            device=device,
+            callback=callback,
+            checkpoint=checkpoint,
+            resume=resume,
+            progress=progress,
+        )
+        minutes = (time.perf_counter() - started) / 60
+        profile = CameraProfile(network, name=name, description=description)
+        profile, effect_notes = _fit_effects(profile, [*val.unit_pairs(), *train.unit_pairs()], effect_names, say)
+        profile.fitted = _record(pair_set, train, val, config, history, align, minutes, effect_notes)
+        profile.quality = _quality(profile, val) if len(val) else {}
+        return profile
+
+
+def _recipe(**values: Any) -> FitConfig:
+    """A :class:`FitConfig` from the given values; ``None`` keeps the config's own default (the one place the
+    recipe's defaults are written)."""
+    known = {field.name for field in fields(FitConfig)}
+    return FitConfig(**{key: value for key, value in values.items() if key in known and value is not None})
+
+
+def _check_effect_names(effects: Iterable[str]) -> list[str]:
+    names = list(effects)
+    unknown = [name for name in names if name not in EFFECTS]
+    if unknown:
+        raise ValueError(f"effects must be names from {sorted(EFFECTS)}, got unknown {unknown}")
+    return names
+
+
+def _split(pair_set: PairSet, val_fraction: float, seed: int, align: bool, say: Log) -> tuple[PairSet, PairSet]:
+    """``(train, validation)`` split by scene (everything trains with one scene or ``val_fraction`` 0)."""
+    if not 0.0 <= val_fraction < 1.0:
+        raise ValueError(f"val_fraction must be in [0, 1), got val_fraction={val_fraction!r}")
+    if val_fraction == 0 or len(set(pair_set.scenes)) < 2:
+        train, val = pair_set, pair_set.subset([])
+    else:
+        train, val = pair_set.split(val_fraction, seed)
+    if align:
+        train, val = train.aligned(say), val.aligned(say)
+    say(f"training on {len(train)} pairs, validating on {len(val)} ({len(set(val.scenes))} scenes)")
+    return train, val
+
+
+def _fit_effects(
+    profile: CameraProfile, pairs: Sequence[ImagePair], names: Sequence[str], say: Log
+) -> tuple[CameraProfile, dict[str, Any]]:
+    """Fit each requested effect on (the profile's deterministic output, capture) over all pairs (noise needs many
+    pixels; the network's residuals on its training crops are close to its validation residuals at 109k
+    parameters), in the order light meets them; keep position-dependent stages only where they lower the error."""
+    notes: dict[str, Any] = {}
+    cleans = [clean for clean, _ in pairs]
+    captured = [target for _, target in pairs]
+    for name in sorted(names, key=lambda n: STAGES.index(EFFECTS[n].stage)):
+        simulated = simulate(profile, cleans, seed=0, deterministic=True)
+        try:
+            effect: Effect = EFFECTS[name].fit(simulated, captured)
+        except ValueError as error:  # e.g. too few pixels to estimate it
+            notes[name] = {"kept": False, "reason": str(error)}
+            say(f"effect {name}: not fitted ({error})")
+            continue
+        if effect.position_dependent:
+            before = _mean_squared_error(simulated, captured)
+            with torch.no_grad():
+                after = _mean_squared_error([effect(s[None])[0] for s in simulated], captured)
+            gain = 1 - after / before if before > 0 else 0.0
+            notes[name] = {"kept": gain >= _MIN_RELATIVE_GAIN, "relative_mse_gain": round(gain, 4)}
+            say(f"effect {name}: relative MSE gain {gain:.2%} -> {'kept' if notes[name]['kept'] else 'dropped'}")
+            if not notes[name]["kept"]:
+                continue
+        else:
+            notes[name] = {"kept": True}
+            say(f"effect {name}: fitted ({effect.extra_repr()})")
+        profile = profile.with_effects(effect)
+    return profile, notes
+
+
+def _record(
+    pair_set: PairSet,
+    train: PairSet,
+    val: PairSet,
+    config: FitConfig,
+    history: Sequence[EpochResult],
+    align: bool,
+    minutes: float,
+    effect_notes: dict[str, Any],
+) -> dict[str, Any]:
+    """The ``fitted`` metadata: the data used, the recipe, the best epoch and the machine."""
+    best = max(history, key=lambda r: r.val_psnr if len(val) else -r.train_loss)
+    return {
+        "pairs": len(pair_set),
+        "skipped": len(pair_set.report.skipped) if pair_set.report is not None else 0,
+        "train_pairs": len(train),
+        "validation_pairs": len(val),
+        "validation_scenes": sorted(set(val.scenes)),
+        "aligned": align,
+        "recipe": config.as_dict(),
+        "best_epoch": best.epoch,
+        "fit_minutes": round(minutes, 2),
+        "effects": effect_notes,
+        "machine": f"{platform.machine()}, {torch.get_num_threads()} threads, torch {torch.__version__}",
+        "camdegrade": __version__,
+    }
+
+
+def _mean_squared_error(predictions: Sequence[torch.Tensor], targets: Sequence[torch.Tensor]) -> float:
+    total = sum(float(((p - t) ** 2).sum()) for p, t in zip(predictions, targets))
+    return total / sum(t.numel() for t in targets)
+
+
+def _quality(profile: CameraProfile, val: PairSet) -> dict[str, float]:
+    """Validation PSNR of identity, network mean and the full (stochastic, seeded) profile against the captures."""
+    identity, network, full = [], [], []
+    sampled = simulate(profile, val.cleans(), seed=0, stream="quality")
+    with torch.no_grad():
+        for (clean, captured), sim in zip(val.unit_pairs(), sampled, strict=True):
+            identity.append(psnr(clean, captured))
+            network.append(psnr(profile.network(clean[None])[0], captured))
+            full.append(psnr(sim, captured))
+    return {
+        "validation_pairs": len(val),
+        "identity_psnr_db": round(sum(identity) / len(identity), 3),
+        "network_psnr_db": round(sum(network) / len(network), 3),
+        "profile_psnr_db": round(sum(full) / len(full), 3),
+    }
+
+
+def init_distributed_from_env(device: torch.device | str = "cpu") -> torch.device:
+    """Join the process group ``torchrun`` describes in the environment (gloo on CPU, NCCL on CUDA).
+
+    Returns the device this process should train on: with CUDA, each process takes the GPU of its
+    ``LOCAL_RANK``. Outside ``torchrun`` (no ``WORLD_SIZE`` > 1) nothing is joined and ``device`` is returned.
+    """
+    device = torch.device(device)
+    if int(os.environ.get("WORLD_SIZE", "1")) <= 1 or not dist.is_available():
+        return device
+    if device.type == "cuda":
+        device = torch.device("cuda", int(os.environ.get("LOCAL_RANK", "0")))
+        torch.cuda.set_device(device)
+    if not dist.is_initialized():
+        dist.init_process_group(backend="nccl" if device.type == "cuda" else "gloo")
+    return device

@@ -1,0 +1,63 @@
+"""Measurement helpers on images: luma, a 2-D Hann window, local means, gradient energy and flat-pixel masks.
+
+Shared by the fitters (effects), registration (fitting) and the gap statistics (diagnose), so each exists once.
+"""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+
+#: Rec. 601 luma weights of R, G, B.
+LUMA_WEIGHTS = (0.299, 0.587, 0.114)
+
+
+def luma(image: Tensor) -> Tensor:
+    """``[..., 3, H, W]`` → ``[..., H, W]``: the Rec. 601 weighted sum of the channels, in the input's dtype."""
+    weights = torch.tensor(LUMA_WEIGHTS, dtype=image.dtype, device=image.device)
+    return (image * weights[:, None, None]).sum(-3)
+
+
+def hann2d(height: int, width: int, dtype: torch.dtype = torch.float32, device: torch.device | None = None) -> Tensor:
+    """``(H, W)`` outer product of two symmetric Hann windows (zero at the borders): tapers an image before an FFT."""
+    rows = torch.hann_window(height, periodic=False, dtype=dtype, device=device)
+    cols = torch.hann_window(width, periodic=False, dtype=dtype, device=device)
+    return rows[:, None] * cols[None, :]
+
+
+def box_mean(image: Tensor, size: int) -> Tensor:
+    """Local mean over a ``size × size`` window (``[..., H, W]``, odd ``size``), edges averaged over the valid part."""
+    flat = image.reshape(-1, 1, *image.shape[-2:])
+    half = size // 2  # separable: the mean over the valid rectangle is the mean of the row means
+    out = F.avg_pool2d(flat, (1, size), stride=1, padding=(0, half), count_include_pad=False)
+    out = F.avg_pool2d(out, (size, 1), stride=1, padding=(half, 0), count_include_pad=False)
+    return out.reshape(image.shape)
+
+
+def high_pass(image: Tensor, size: int = 9) -> Tensor:
+    """``image`` minus its ``size × size`` local mean: removes smooth content and keeps per-pixel fluctuations."""
+    return image - box_mean(image, size)
+
+
+def gradient_energy(image: Tensor) -> Tensor:
+    """``(..., H, W)`` squared finite-difference gradient, summed over channels (zero on the last row/column)."""
+    dx = F.pad(image[..., :, 1:] - image[..., :, :-1], (0, 1, 0, 0))
+    dy = F.pad(image[..., 1:, :] - image[..., :-1, :], (0, 0, 0, 1))
+    return (dx.pow(2) + dy.pow(2)).sum(-3)
+
+
+def relative_flat_mask(clean: Tensor, quantile: float = 0.5) -> Tensor:
+    """``(H, W)`` pixels whose local luma gradient energy (5×5 mean) is in the flattest ``quantile`` of the image.
+
+    Relative to the image: in a detailed scene the flattest half still holds texture. Measure noise with
+    :func:`flat_mask` instead; this mask suits statistics that only need the calmer part of a frame.
+    """
+    gray = luma(clean)
+    gx = F.pad(gray[:, 1:] - gray[:, :-1], (0, 1))
+    gy = F.pad(gray[1:, :] - gray[:-1, :], (0, 0, 0, 1))
+    energy = box_mean(gx.pow(2) + gy.pow(2), 5)
+    if quantile >= 1:
+        return torch.ones_like(energy, dtype=torch.bool)
+    threshold = torch.quantile(energy.flatten()[:: max(1, energy.numel() // 50_000)], quantile)
+    return energy <= threshold

@@ -1,0 +1,93 @@
+"""The pair set both workflows start from: loading (bad files reported, not fatal), scene split, seeded simulation."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+import torch
+
+from camdegrade import CameraProfile
+from camdegrade.effects import Noise, Tone
+from camdegrade.errors import PairsError
+from camdegrade.fitting.pairset import PairSet, simulate
+from camdegrade.io import write_image
+
+
+def _image(seed: int, size: int = 24) -> torch.Tensor:
+    return torch.randint(0, 256, (3, size, size), dtype=torch.uint8, generator=torch.Generator().manual_seed(seed))
+
+
+def _folder(root: Path, count: int) -> Path:
+    for index in range(count):
+        write_image(_image(index), root / "clean" / f"s{index // 2}_{index}.png")
+        write_image(_image(100 + index), root / "captured" / f"s{index // 2}_{index}.png")
+    return root
+
+
+def _truncate(path: Path) -> None:
+    """Keep the PNG header (the size still reads) but cut the image data short."""
+    data = path.read_bytes()
+    path.write_bytes(data[: len(data) // 2])
+
+
+def test_loads_a_folder_and_reports_a_file_that_does_not_decode(tmp_path: Path) -> None:
+    root = _folder(tmp_path, 6)
+    _truncate(root / "captured" / "s1_3.png")
+    lines: list[str] = []
+    pair_set = PairSet.load(root, log=lines.append)
+    assert len(pair_set) == 5 and "s1_3" not in pair_set.names
+    assert pair_set.report is not None and len(pair_set.report.pairs) == 5
+    assert any("s1_3.png" in str(path) and reason.startswith("unreadable") for path, reason in pair_set.report.skipped)
+    assert "unreadable" in lines[-1]
+    assert all(clean.dtype == torch.uint8 for clean, _ in pair_set.images)
+    assert all(clean.dtype == torch.float32 and float(clean.max()) <= 1 for clean, _ in pair_set.unit_pairs())
+
+
+def test_no_loadable_pair_is_an_error_that_lists_the_files(tmp_path: Path) -> None:
+    root = _folder(tmp_path, 1)
+    _truncate(root / "clean" / "s0_0.png")
+    with pytest.raises(PairsError, match="no pair could be loaded"):
+        PairSet.load(root)
+
+
+def test_tensor_pairs_and_their_errors() -> None:
+    image = torch.rand(3, 8, 8)
+    pair_set = PairSet.load([(image, image), (image, image)], max_pairs=1)
+    assert len(pair_set) == 1 and pair_set.scenes == ["0"]
+    with pytest.raises(ValueError, match=r"pair 0: clean and captured must be \(3, H, W\) of the same size"):
+        PairSet.load([(image, image[:, :4])])
+    with pytest.raises(TypeError, match="pairs must be a folder or CSV path"):
+        PairSet.load(["a", "b"])
+    with pytest.raises(ValueError, match="max_pairs must be a positive integer or None, got max_pairs=0"):
+        PairSet.load([(image, image)], max_pairs=0)
+
+
+def test_split_keeps_every_scene_on_one_side(tmp_path: Path) -> None:
+    root = _folder(tmp_path, 8)
+    rows = [f"clean/s{i // 2}_{i}.png,captured/s{i // 2}_{i}.png,s{i // 2}" for i in range(8)]
+    (root / "pairs.csv").write_text("clean,captured,scene\n" + "\n".join(rows) + "\n")
+    pair_set = PairSet.load(root / "pairs.csv")
+    assert sorted(set(pair_set.scenes)) == ["s0", "s1", "s2", "s3"]
+    rest, held = pair_set.split(0.5, seed=3)
+    assert sorted(rest.names + held.names) == sorted(pair_set.names)
+    assert not set(rest.scenes) & set(held.scenes) and len(set(held.scenes)) == 2
+    assert pair_set.split(0.5, seed=3)[1].names == held.names
+
+
+def test_simulation_is_seeded_per_image_and_stream() -> None:
+    profile = CameraProfile(None, [Noise(a=0.01, b=1e-4), Tone(gamma=1.2)])
+    cleans = [torch.rand(3, 16, 16, generator=torch.Generator().manual_seed(i)) for i in range(3)]
+    first = simulate(profile, cleans, seed=1)
+    assert all(torch.equal(a, b) for a, b in zip(first, simulate(profile, cleans, seed=1), strict=True))
+    assert torch.equal(simulate(profile, cleans[:1], seed=1)[0], first[0])  # an image's draw ignores the others
+    assert not torch.equal(simulate(profile, cleans, seed=1, stream="other")[0], first[0])
+    assert not torch.equal(simulate(profile, cleans, seed=2)[0], first[0])
+    mean = simulate(profile, cleans, seed=1, deterministic=True)
+    assert torch.allclose(mean[0], Tone(gamma=1.2)(cleans[0][None])[0], atol=1e-6)
+
+
+def test_deterministic_part_keeps_the_metadata() -> None:
+    profile = CameraProfile(None, [Noise(a=0.01), Tone(gamma=1.2)], fitted={"pairs": 3}, quality={"psnr": 30.0})
+    centre = profile.without_randomness()
+    assert centre.effect_names == ["tone"] and centre.fitted == {"pairs": 3} and centre.quality == {"psnr": 30.0}
