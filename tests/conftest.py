@@ -9,6 +9,10 @@ import pytest
 
 _REAL_PAIRS_ENV = "CAMDEGRADE_REAL_PAIRS"
 
+# albumentations asks PyPI for a newer version when first imported (and warns when offline); tests download nothing.
+# Set here, before collection, because the doctests under src/ import camdegrade.integrations.albumentations too.
+os.environ.setdefault("NO_ALBUMENTATIONS_UPDATE", "1")
+
 
 @pytest.fixture(scope="session")
 def real_pairs_dir() -> Path:
