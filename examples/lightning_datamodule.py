@@ -3,7 +3,7 @@
 Two pieces carry over to any Lightning project (``pip install 'camdegrade[lightning]'``):
 
 1. ``DegradedDataModule`` wraps your training set in ``DegradedDataset`` (default policy ``Union()``: every image
-   once clean, once degraded) and, optionally, your validation set in a ``Pair()`` view (each image clean and
+   once clean, once degraded) and, optionally, your validation set in a ``PairedViews()`` view (each image clean and
    degraded, to report accuracy on both).
 2. ``SetEpoch``, a callback, calls ``set_epoch(trainer.current_epoch)`` on the training set at every epoch start,
    so each epoch draws fresh noise, exactly as ``DistributedSampler.set_epoch`` reshuffles.
@@ -30,7 +30,7 @@ from torch.utils.data import DataLoader, Dataset
 from torchvision.transforms import v2
 
 from camdegrade import CameraProfile, DomainShiftNet, load_profile
-from camdegrade.data import DegradedDataset, DegradedIterableDataset, MixPolicy, Pair
+from camdegrade.data import DegradedDataset, DegradedIterableDataset, MixPolicy, PairedViews
 from camdegrade.data.datasets import DegradeLike
 from camdegrade.errors import ProfileError
 
@@ -69,7 +69,7 @@ class DegradedDataModule(L.LightningDataModule):
         self.val_set = None
         if val_source is not None:
             self.val_set = DegradedDataset(
-                val_source, self.train_set.degrade, Pair(), seed=seed + 1, transform=transform
+                val_source, self.train_set.degrade, PairedViews(), seed=seed + 1, transform=transform
             )
             # Only a module with a validation set offers val_dataloader (as LightningDataModule.from_datasets does),
             # so that without one Lightning skips validation instead of warning about an empty loader.
@@ -173,7 +173,7 @@ class Classifier(L.LightningModule):
         return loss
 
     def validation_step(self, batch: tuple[Any, Any], batch_idx: int) -> None:
-        for name, (images, labels) in zip(("clean", "camera"), batch):  # Pair(): (clean view, degraded view)
+        for name, (images, labels) in zip(("clean", "camera"), batch):  # PairedViews(): (clean view, degraded view)
             accuracy = (self(images).argmax(1) == labels).float().mean()
             self.log(f"val_accuracy_{name}", accuracy, batch_size=len(labels), sync_dist=True)
 

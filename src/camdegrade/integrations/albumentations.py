@@ -19,9 +19,10 @@ except ModuleNotFoundError as error:  # pragma: no cover - only without the extr
         "camdegrade.integrations.albumentations needs albumentations>=2: pip install 'camdegrade[albumentations]'"
     ) from error
 
+from camdegrade._checks import check_probability
 from camdegrade.inference import Precision
 from camdegrade.profile import CameraProfile
-from camdegrade.transform import CameraDegrade, check_probability
+from camdegrade.transform import CameraDegrade
 
 #: Seeds for the torch generator are drawn from ``[0, 2**63)``, a range ``torch.Generator.manual_seed`` accepts.
 _SEED_BOUND = 2**63
