@@ -31,7 +31,8 @@ import torch
 from torch import Tensor
 
 from camdegrade import CameraProfile, load_profile
-from camdegrade.effects import EFFECTS, Effect
+from camdegrade.effects import EFFECTS, Effect, Noise
+from camdegrade.fitting.noise import fit_noise_stage
 from camdegrade.fitting.pairs import discover_pairs, filter_pairs, load_pair
 from camdegrade.metrics import psnr, ssim
 
@@ -108,18 +109,19 @@ def fit_chain(names: Sequence[str], clean: Images, captured: Images, cache: dict
     return effects
 
 
-def fit_noise(deterministic: Images, captured: Images) -> Effect:
-    """Noise fitted on the residuals of the deterministic prediction against the captures."""
-    return EFFECTS["noise"].fit(deterministic, captured)
+def fit_noise(profile: CameraProfile, clean: Images, captured: Images) -> Noise:
+    """The noise stage for ``profile``: fitted where the clean image is flat (the variance the deterministic
+    prediction lacks), then calibrated by simulating the profile with it (``camdegrade.fitting.noise``)."""
+    return fit_noise_stage(profile, clean, captured, calibration_pairs=20)
 
 
 @torch.no_grad()
 def evaluate(profile: CameraProfile, clean: Images, captured: Images, seed: int) -> dict[str, Any]:
     """Held-out PSNR/SSIM: ``mean`` (noise stages skipped) and, when the profile has noise, ``sampled``."""
-    deterministic = CameraProfile(profile.network, [e for e in profile.effects if e.name != "noise"])
+    deterministic = profile.without_randomness()
     generator = torch.Generator().manual_seed(seed)
     result: dict[str, Any] = {"psnr_mean": [], "ssim_mean": []}
-    noisy = "noise" in profile.effect_names
+    noisy = len(deterministic.effects) < len(profile.effects)
     if noisy:
         result |= {"psnr_sampled": [], "ssim_sampled": [], "residual_std_mean": [], "residual_std_sampled": []}
     for image, target in zip(clean, captured):
@@ -156,8 +158,14 @@ def greedy_after_network(
         if keep:
             kept.append(effect)
             current, before = candidate, after
-    noise = fit_noise(current, captured)
-    notes["noise"] = {"kept": True, "fit": noise.extra_repr(), "fitted_on": "deterministic train-scene residuals"}
+    noise = fit_noise(CameraProfile(network, kept), clean, captured)
+    notes["noise"] = {
+        "kept": True,
+        "fit": noise.extra_repr(),
+        "std_at_mid_grey_levels": round(noise.magnitude(), 3),
+        "fitted_on": "train scenes where the clean image is flat (absolute threshold), excess over the prediction, "
+        "calibrated through the chain",
+    }
     say(f"  after network: noise {noise.extra_repr()}")
     return [*kept, noise], notes
 
@@ -201,7 +209,7 @@ def main() -> None:
         say(f"  chain {label:30s} train PSNR {train_db:.3f} dB  " + "; ".join(e.extra_repr() for e in effects))
     best_label = max(candidates, key=lambda k: candidates[k]["train_psnr_db"])
     chain = candidates[best_label]["effects"]
-    chain_noise = fit_noise(apply(chain, train_clean), train_captured)
+    chain_noise = fit_noise(CameraProfile(None, chain), train_clean, train_captured)
     chain_profile = build(None, chain, chain_noise)
     say(f"best parametric chain on train scenes: {best_label}; noise {chain_noise.extra_repr()}")
 
@@ -212,9 +220,7 @@ def main() -> None:
         raise SystemExit(f"profile {args.network!r} has no network")
     after_effects, after_notes = greedy_after_network(network, train_clean, train_captured, say)
     full_profile = build(network, after_effects[:-1], after_effects[-1])
-    full_train = mean_psnr(
-        apply([network, *[e for e in after_effects if e.name != "noise"]], train_clean), train_captured
-    )
+    full_train = mean_psnr(apply([network, *after_effects[:-1]], train_clean), train_captured)
 
     rows = {
         "identity": evaluate(CameraProfile(None, []), held_clean, held_captured, args.seed),
@@ -280,7 +286,9 @@ def write_profile(
     identity, chain, network, profile = (rows[label] for label in labels)
     fitted = dict(base.fitted)
     fitted["effects"] = results["after_network"]
-    fitted["effects_fitted_on"] = "network output vs capture on train scenes 001-055 (stages kept if MSE -1 %)"
+    fitted["effects_fitted_on"] = (
+        "network output vs capture on train scenes 001-055 (stages kept if MSE -1 %); noise on flat pixels only"
+    )
     fitted["effects_command"] = results["command"]
     fitted["effects_script"] = "examples/city100_evidence.py"
     note = fitted.get("history_note", "")

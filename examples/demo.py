@@ -1,6 +1,8 @@
 """``make demo``: degrade a few sample images with a built-in profile; write a side-by-side grid and a summary.
 
-Rows: one per sample image. Columns: clean | degraded by the profile | |difference| × 4.
+Rows: one per sample image. Columns: clean | degraded by the profile | |difference| × 4. The last two rows are at
+1:1 (no resizing): the flattest 256² window of a photo and a generated sky-like gradient, where excess noise or
+banding would show at once.
 """
 
 from __future__ import annotations
@@ -15,6 +17,7 @@ from torchvision.transforms.v2 import functional as TF
 from torchvision.utils import make_grid
 
 from camdegrade import CameraDegrade, list_profiles, load_profile
+from camdegrade.functional.analysis import flat_mask
 from camdegrade.io import write_image
 from camdegrade.metrics import psnr
 
@@ -22,21 +25,42 @@ SIZE = 256
 
 
 def sample_images() -> dict[str, torch.Tensor]:
-    """Natural images shipped with scikit-image when it is installed, plus one generated test chart."""
-    images = {}
+    """Natural images shipped with scikit-image when it is installed, one generated test chart, and two flat
+    images at 1:1 (a photo's flattest window and a generated gradient)."""
+    photos = {}
     try:
         from skimage import data
 
         for name in ("astronaut", "chelsea", "coffee"):
             array = getattr(data, name)()
-            images[name] = torch.from_numpy(array).permute(2, 0, 1).contiguous()
+            photos[name] = torch.from_numpy(array).permute(2, 0, 1).contiguous()
     except ImportError:
         pass
-    images["chart"] = test_chart(SIZE)
-    return {
+    images = {
         name: TF.resize(TF.center_crop(img, min(img.shape[-2:])), [SIZE, SIZE], antialias=True)
-        for name, img in images.items()
+        for name, img in photos.items()
     }
+    images["chart"] = test_chart(SIZE)
+    if "coffee" in photos:
+        images["coffee 1:1 flat"] = flattest_window(photos["coffee"], SIZE)
+    images["sky 1:1"] = sky(SIZE)
+    return images
+
+
+def flattest_window(image: torch.Tensor, size: int) -> torch.Tensor:
+    """The ``size``² window (no resizing) with the most pixels that are flat in absolute terms."""
+    flat = flat_mask(image.float() / 255).float()
+    pooled = torch.nn.functional.avg_pool2d(flat[None, None], size, stride=8)[0, 0]
+    top, left = divmod(int(pooled.argmax()), pooled.shape[1])
+    return image[:, top * 8 : top * 8 + size, left * 8 : left * 8 + size].contiguous()
+
+
+def sky(size: int) -> torch.Tensor:
+    """A generated sky: a smooth blue gradient over a dark band, flat everywhere at the pixel scale."""
+    y = torch.linspace(0, 1, size)[:, None].expand(size, size)
+    sky_rgb = torch.stack([0.25 + 0.3 * y, 0.45 + 0.3 * y, 0.85 - 0.1 * y])
+    sky_rgb[:, 3 * size // 4 :] = torch.tensor([0.08, 0.07, 0.06])[:, None, None]
+    return (sky_rgb * 255).round().to(torch.uint8)
 
 
 def test_chart(size: int) -> torch.Tensor:

@@ -1,12 +1,15 @@
-"""Fit the noise-level function of real cameras from the PolyU and CC15 (mean image, noisy shot) pairs.
+"""Fit and check camera noise on the REAL PolyU, CC15 and SIDD pairs (clean = mean of many frames, real = one frame).
 
-For every camera and ISO the pairs are pooled and :meth:`camdegrade.effects.Noise.fit` estimates the variance
-``a · I + b`` of the noise in linear light. The table also gives the noise in 8-bit levels at mid-grey (sRGB
-128) and says, per camera, whether that noise increases with ISO.
+For every camera and ISO (PolyU and CC15 name them; SIDD's crops do not, so SIDD is one group) the images are split
+alternately into a fitting half and a checking half. :meth:`camdegrade.effects.Noise.fit` (``estimator="residual"``:
+the clean image is a noise-free reference) is fitted on the first half; on the second half, where the clean image is
+flat in absolute terms, the fitted noise is compared with the real one: its std per channel and intensity bin, and
+its correlation with the neighbour 1 and 2 pixels away, horizontally and vertically. Groups with one image are
+fitted (table) but not checked.
 
 Usage::
 
-    python examples/noise_table.py [REAL_PAIRS_DIR] [--max-pairs N]
+    python examples/noise_table.py [REAL_PAIRS_DIR] [--subsets polyu_real_noise ...] [--json PATH]
 
 ``REAL_PAIRS_DIR`` defaults to ``$CAMDEGRADE_REAL_PAIRS`` or ``../shared/data/real-pairs`` beside the checkout.
 The data are read in place and never copied.
@@ -16,38 +19,50 @@ from __future__ import annotations
 
 import argparse
 import csv
+import json
 import os
 from collections import defaultdict
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from itertools import pairwise
 from pathlib import Path
 
 import torch
+from torch import Tensor
 
+from camdegrade._pixels import as_unit
 from camdegrade.effects import Noise
-from camdegrade.functional import linear_to_srgb, srgb_to_linear
+from camdegrade.functional.analysis import flat_mask
+from camdegrade.functional.noise_stats import NoiseSums
 from camdegrade.io import read_image
 
-NOISE_SUBSETS = ("polyu_real_noise", "cc15_nam_real_noise")
-#: Mid-grey: sRGB 128/255, about 0.216 in linear light.
-MID_GREY = float(srgb_to_linear(torch.tensor(128 / 255)))
+SUBSETS = ("polyu_real_noise", "cc15_nam_real_noise", "sidd_samples")
+#: The bar of the check: std per bin within this ratio of the real one, correlations within this difference.
+STD_TOLERANCE = 0.15
+CORRELATION_TOLERANCE = 0.1
 
 
-@dataclass(frozen=True)
-class NoiseRow:
+@dataclass
+class GroupResult:
     subset: str
     camera: str
     iso: int
-    pairs: int
-    a: tuple[float, float, float]
-    b: tuple[float, float, float]
+    fit_pairs: int
+    check_pairs: int
+    sigma_mid_grey: float
+    flat_pixels: int
+    std_ratio: list[list[float | None]]
+    correlation_real: list[float]
+    correlation_fitted: list[float]
 
     @property
-    def sigma_mid_grey(self) -> float:
-        """Noise standard deviation at mid-grey in 8-bit sRGB levels, averaged over channels."""
-        sigma = (torch.tensor(self.a) * MID_GREY + torch.tensor(self.b)).sqrt()
-        slope = (linear_to_srgb(torch.tensor(MID_GREY + 1e-4)) - linear_to_srgb(torch.tensor(MID_GREY))) / 1e-4
-        return float(sigma.mean() * slope * 255)
+    def worst_std_error(self) -> float | None:
+        errors = [abs(r - 1) for row in self.std_ratio for r in row if r is not None]
+        return max(errors) if errors else None
+
+    @property
+    def worst_correlation_error(self) -> float | None:
+        pairs = [(r, f) for r, f in zip(self.correlation_real, self.correlation_fitted, strict=True) if r == r]
+        return max(abs(r - f) for r, f in pairs) if pairs else None
 
 
 def default_real_pairs_dir() -> Path:
@@ -55,47 +70,80 @@ def default_real_pairs_dir() -> Path:
     return Path(os.environ.get("CAMDEGRADE_REAL_PAIRS") or default)
 
 
-def noise_groups(root: Path) -> dict[tuple[str, str, int], list[tuple[Path, Path]]]:
-    """``(subset, camera, iso) → [(clean, captured), ...]`` from ``manifest.csv``, for the noise subsets."""
+def noise_groups(root: Path, subsets: tuple[str, ...] = SUBSETS) -> dict[tuple[str, str, int], list[tuple[Path, Path]]]:
+    """``(subset, camera, iso) → [(clean, captured), ...]`` from ``manifest.csv`` (camera/ISO unknown: one group)."""
     groups: dict[tuple[str, str, int], list[tuple[Path, Path]]] = defaultdict(list)
     with open(root / "manifest.csv", newline="") as handle:
         for row in csv.DictReader(handle):
-            if row["subset"] in NOISE_SUBSETS and row["iso"]:
-                key = (row["subset"], row["camera"], int(row["iso"]))
+            if row["subset"] in subsets:
+                key = (row["subset"], row["camera"] or "unknown", int(row["iso"] or 0))
                 groups[key].append((root / row["clean_path"], root / row["degraded_path"]))
     return dict(sorted(groups.items()))
 
 
-def _centre(image: torch.Tensor, crop: int | None) -> torch.Tensor:
-    if crop is None:
-        return image
-    height, width = image.shape[-2:]
-    top, left = max(0, (height - crop) // 2), max(0, (width - crop) // 2)
-    return image[:, top : top + crop, left : left + crop]
+def _load(paths: list[tuple[Path, Path]]) -> tuple[list[Tensor], list[Tensor]]:
+    cleans = [as_unit(read_image(clean)) for clean, _ in paths]
+    reals = [as_unit(read_image(real)) for _, real in paths]
+    return cleans, reals
 
 
-def fit_group(paths: list[tuple[Path, Path]], crop: int | None = None, max_pixels: int | None = 100_000) -> Noise:
-    """The noise stage fitted on one camera/ISO: all its pairs pooled (optionally centre-cropped)."""
-    sources = [_centre(read_image(clean), crop).float() / 255 for clean, _ in paths]
-    targets = [_centre(read_image(captured), crop).float() / 255 for _, captured in paths]
-    return Noise.fit(sources, targets, rows=False, max_pixels=max_pixels)
+def _residual_sums(images: list[Tensor], cleans: list[Tensor]) -> NoiseSums:
+    total = NoiseSums.zeros()
+    for image, clean in zip(images, cleans, strict=True):
+        total = total + NoiseSums.measure(image - clean, clean, flat_mask(clean), clipping=image)
+    return total
 
 
-def noise_table(
-    root: Path, max_pairs: int | None = None, crop: int | None = None, max_pixels: int | None = 100_000
-) -> list[NoiseRow]:
-    rows = []
-    for (subset, camera, iso), paths in noise_groups(root).items():
-        chosen = paths[:max_pairs] if max_pairs else paths
-        noise = fit_group(chosen, crop, max_pixels)
-        a, b = tuple(noise.a.tolist()), tuple(noise.b.tolist())
-        rows.append(NoiseRow(subset, camera, iso, len(chosen), a, b))  # type: ignore[arg-type]
-    return rows
+def _simulate(noise: Noise, cleans: list[Tensor], seed: int) -> list[Tensor]:
+    generator = torch.Generator().manual_seed(seed)
+    with torch.no_grad():
+        return [noise(c[None], noise.make_params((1, *c.shape), generator))[0] for c in cleans]
 
 
-def monotone_in_iso(rows: list[NoiseRow]) -> dict[tuple[str, str], bool]:
-    """Per (subset, camera) with two or more ISOs: does mid-grey noise increase with ISO?"""
-    by_camera: dict[tuple[str, str], list[NoiseRow]] = defaultdict(list)
+def check_group(key: tuple[str, str, int], paths: list[tuple[Path, Path]], seed: int = 0) -> GroupResult:
+    """Fit on the even-indexed pairs; compare with the real noise on the odd-indexed ones."""
+    subset, camera, iso = key
+    fit_paths = paths[::2]
+    check_paths = paths[1::2]
+    cleans, reals = _load(fit_paths)
+    noise = Noise.fit(cleans, reals, estimator="residual", seed=seed)
+    if not check_paths:
+        check_paths = fit_paths
+    held_cleans, held_reals = _load(check_paths)
+    real = _residual_sums(held_reals, held_cleans)
+    fitted = _residual_sums(_simulate(noise, held_cleans, seed + 1), held_cleans)
+    ratio = fitted.std() / real.std()
+    return GroupResult(
+        subset=subset,
+        camera=camera,
+        iso=iso,
+        fit_pairs=len(fit_paths),
+        check_pairs=len(paths[1::2]),
+        sigma_mid_grey=round(noise.magnitude(), 3),
+        flat_pixels=real.pixels,
+        std_ratio=[[round(float(r), 3) if torch.isfinite(r) else None for r in row] for row in ratio],
+        correlation_real=[round(float(v), 3) for v in real.correlation().mean(-1).flatten()],
+        correlation_fitted=[round(float(v), 3) for v in fitted.correlation().mean(-1).flatten()],
+    )
+
+
+def noise_table(root: Path, subsets: tuple[str, ...] = SUBSETS) -> list[GroupResult]:
+    """One row per camera and ISO."""
+    return [check_group(key, paths) for key, paths in noise_groups(root, subsets).items()]
+
+
+def subset_table(root: Path, subsets: tuple[str, ...] = SUBSETS) -> list[GroupResult]:
+    """One row per subset: one noise fitted on half of its images, checked on the other half. The halves alternate
+    within each camera and ISO, so both hold the same mix of cameras."""
+    ordered: dict[str, list[tuple[Path, Path]]] = defaultdict(list)
+    for (subset, _, _), paths in noise_groups(root, subsets).items():
+        ordered[subset] += paths
+    return [check_group((subset, "all", 0), paths) for subset, paths in ordered.items()]
+
+
+def monotone_in_iso(rows: list[GroupResult]) -> dict[tuple[str, str], bool]:
+    """Per (subset, camera) with two or more ISOs: does the noise at mid-grey increase with ISO?"""
+    by_camera: dict[tuple[str, str], list[GroupResult]] = defaultdict(list)
     for row in rows:
         by_camera[(row.subset, row.camera)].append(row)
     result = {}
@@ -106,18 +154,23 @@ def monotone_in_iso(rows: list[NoiseRow]) -> dict[tuple[str, str], bool]:
     return result
 
 
-def format_table(rows: list[NoiseRow]) -> str:
+def format_table(rows: list[GroupResult]) -> str:
     header = (
-        f"{'subset':<20} {'camera':<15} {'ISO':>6} {'pairs':>5}  "
-        f"{'a (R,G,B) ×1e-3':<20} {'b (R,G,B) ×1e-6':<22} {'σ@128 (8-bit)':>13}"
+        f"{'subset':<20} {'camera':<10} {'ISO':>6} {'fit/check':>9} {'σ@128':>6} {'flat px':>9} "
+        f"{'bins ±15%':>10} {'worst std':>9} {'corr real h1 h2 v1 v2':>24} {'fitted':>22} {'worst':>6}"
     )
     lines = [header, "-" * len(header)]
     for row in rows:
-        a = ",".join(f"{value * 1e3:.2f}" for value in row.a)
-        b = ",".join(f"{value * 1e6:.1f}" for value in row.b)
+        ratios = [r for channel in row.std_ratio for r in channel if r is not None]
+        within = sum(abs(r - 1) <= STD_TOLERANCE for r in ratios)
+        real = " ".join(f"{v:.2f}" for v in row.correlation_real)
+        fitted = " ".join(f"{v:.2f}" for v in row.correlation_fitted)
+        worst_std = f"{row.worst_std_error:.2f}" if row.worst_std_error is not None else "n/m"
+        worst_corr = f"{row.worst_correlation_error:.2f}" if row.worst_correlation_error is not None else "n/m"
         lines.append(
-            f"{row.subset:<20} {row.camera:<15} {row.iso:>6} {row.pairs:>5}  "
-            f"{a:<20} {b:<22} {row.sigma_mid_grey:>13.2f}"
+            f"{row.subset:<20} {row.camera:<10} {row.iso:>6} {row.fit_pairs:>4}/{row.check_pairs:<4} "
+            f"{row.sigma_mid_grey:>6.2f} {row.flat_pixels:>9,} {within:>4}/{len(ratios):<5} {worst_std:>9} "
+            f"{real:>24} {fitted:>22} {worst_corr:>6}"
         )
     lines.append("")
     for (subset, camera), increasing in monotone_in_iso(rows).items():
@@ -128,13 +181,18 @@ def format_table(rows: list[NoiseRow]) -> str:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("root", nargs="?", type=Path, default=None, help="the real-pairs folder")
-    parser.add_argument("--max-pairs", type=int, default=None, help="at most this many pairs per camera/ISO")
-    parser.add_argument("--crop", type=int, default=None, help="fit on centre crops of this size (faster)")
+    parser.add_argument("--subsets", nargs="+", default=list(SUBSETS), choices=SUBSETS)
+    parser.add_argument("--json", type=Path, default=None, help="also write the rows as JSON here")
+    parser.add_argument("--per-camera", action="store_true", help="one noise per camera and ISO (default: per subset)")
     args = parser.parse_args(argv)
     root = args.root or default_real_pairs_dir()
     if not (root / "manifest.csv").is_file():
         parser.error(f"no manifest.csv in {root}; pass the real-pairs folder or set CAMDEGRADE_REAL_PAIRS")
-    print(format_table(noise_table(root, args.max_pairs, args.crop)))
+    rows = (noise_table if args.per_camera else subset_table)(root, tuple(args.subsets))
+    print(format_table(rows))
+    if args.json is not None:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps([asdict(row) for row in rows], indent=2) + "\n")
     return 0
 
 

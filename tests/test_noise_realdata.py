@@ -1,7 +1,14 @@
-"""The noise fitter on REAL sensor noise: PolyU and CC15 (mean of many frames, one noisy frame) pairs.
+"""The noise fitter on REAL sensor noise (PolyU, CC15, SIDD: clean = mean of many frames, real = one frame).
 
-Skipped when the shared real-pairs folder is absent (see the ``real_pairs_dir`` fixture). The table itself is
-printed by ``examples/noise_table.py``, which this test reuses.
+One noise stage per subset is fitted on half of its images and checked on the other half, where the clean image is
+flat in absolute terms (``examples/noise_table.py``, which prints the table). Skipped when the shared real-pairs
+folder is absent.
+
+PolyU meets the bar on the noise level: its std per channel and intensity bin within ±15 % of the real noise in at
+least 22 of 24 bins. CC15 and SIDD do not, and cannot with one noise stage fitted on other images: the noise of
+their images differs 3.7× (CC15) and 4.7× (SIDD, crops from different phones) from image to image, and the two
+halves fill the intensity bins with different images; the test pins what they reach so that a regression shows.
+The spatial correlation (lags 1 and 2, both directions) is within ±0.1 of the real one in all three.
 """
 
 from __future__ import annotations
@@ -12,17 +19,8 @@ from pathlib import Path
 from types import ModuleType
 
 import pytest
-import torch
 
 pytestmark = [pytest.mark.realdata, pytest.mark.slow]
-
-# Same scenes shot at every ISO (CC15) or enough pairs per ISO for the trend to show pair by pair (PolyU).
-STRICTLY_MONOTONE = {
-    ("cc15_nam_real_noise", "NikonD800"),
-    ("polyu_real_noise", "Canon5D2"),
-    ("polyu_real_noise", "Canon80D"),
-    ("polyu_real_noise", "Sony"),
-}
 
 
 def _load_example() -> ModuleType:
@@ -36,37 +34,38 @@ def _load_example() -> ModuleType:
 
 
 @pytest.fixture(scope="module")
-def table(real_pairs_dir: Path) -> tuple[ModuleType, list]:
+def rows(real_pairs_dir: Path) -> dict:
     example = _load_example()
-    return example, example.noise_table(real_pairs_dir, crop=192)
+    return {row.subset: row for row in example.subset_table(real_pairs_dir)}
 
 
-def _spearman(x: list[float], y: list[float]) -> float:
-    rank_x = torch.tensor(x).argsort().argsort().double()
-    rank_y = torch.tensor(y).argsort().argsort().double()
-    return float(torch.corrcoef(torch.stack([rank_x, rank_y]))[0, 1])
+def _within(row, tolerance: float = 0.15) -> tuple[int, int]:
+    ratios = [r for channel in row.std_ratio for r in channel if r is not None]
+    return sum(abs(r - 1) <= tolerance for r in ratios), len(ratios)
 
 
-def test_every_camera_and_iso_gets_a_plausible_noise_level(table: tuple[ModuleType, list]) -> None:
-    _, rows = table
-    assert len(rows) == 20  # 15 PolyU + 5 CC15 camera/ISO groups
-    for row in rows:
-        assert all(value >= 0 for value in (*row.a, *row.b))
-        assert 1.0 < row.sigma_mid_grey < 10.0, row  # the manifest's residual std is 2 to 8 levels
+def test_polyu_noise_level_per_bin_within_15_percent(rows: dict) -> None:
+    within, total = _within(rows["polyu_real_noise"])
+    assert total == 24 and within >= 22, rows["polyu_real_noise"].std_ratio
+    assert rows["polyu_real_noise"].worst_std_error < 0.3
 
 
-def test_noise_increases_with_iso_within_each_camera(table: tuple[ModuleType, list]) -> None:
-    example, rows = table
-    monotone = example.monotone_in_iso(rows)
-    assert set(monotone) >= STRICTLY_MONOTONE
-    for key in STRICTLY_MONOTONE:
-        assert monotone[key], (
-            f"{key}: {[(r.iso, round(r.sigma_mid_grey, 2)) for r in rows if (r.subset, r.camera) == key]}"
-        )
-    # PolyU's NikonD800 shot a different scene at each ISO, and its ISO 4000 scene (flower) is noisier than its
-    # ISO 5000 scene (plant): the manifest's raw residual std says so too. The trend still holds overall.
-    for subset, camera in monotone:
-        ordered = sorted((row for row in rows if (row.subset, row.camera) == (subset, camera)), key=lambda r: r.iso)
-        sigmas = [row.sigma_mid_grey for row in ordered]
-        assert sigmas[-1] > sigmas[0]
-        assert _spearman([row.iso for row in ordered], sigmas) >= 0.7, (camera, sigmas)
+@pytest.mark.parametrize("subset", ["polyu_real_noise", "cc15_nam_real_noise", "sidd_samples"])
+def test_spatial_correlation_within_a_tenth(rows: dict, subset: str) -> None:
+    assert rows[subset].worst_correlation_error <= 0.1, (rows[subset].correlation_real, rows[subset].correlation_fitted)
+
+
+def test_heterogeneous_subsets_reach_what_one_noise_stage_can(rows: dict) -> None:
+    """Pinned, not the bar: half of CC15's bins, and SIDD's level within a factor 2.6 of the other phones'."""
+    within, total = _within(rows["cc15_nam_real_noise"])
+    assert within >= total // 2, rows["cc15_nam_real_noise"].std_ratio
+    sidd = [r for channel in rows["sidd_samples"].std_ratio for r in channel if r is not None]
+    assert max(sidd) < 2.6 and min(sidd) > 0.5, sidd
+
+
+def test_noise_increases_with_iso(real_pairs_dir: Path) -> None:
+    """CC15's Nikon D800 shot the same scenes at ISO 1600, 3200 and 6400: the fitted noise at mid-grey rises with
+    ISO. (PolyU's cameras shot different scenes at each ISO; its Nikon D800 does not rise, see the example.)"""
+    example = _load_example()
+    per_camera = example.noise_table(real_pairs_dir, ("cc15_nam_real_noise",))
+    assert all(example.monotone_in_iso(per_camera).values())

@@ -13,8 +13,12 @@ family (axis)           statistic                                               
 ======================  ================================================================  =====================
 ``spatial``             mean of ``x − c`` on an 8×8 grid of tiles, per channel            1 level (of 255)
 ``intensity``           mean of low-passed ``x − c`` in 16 bins of clean value, per ch.   1 level
-``noise``               std of ``x − c`` minus its 17×17 mean, on flat pixels, 8 bins,   0.05 (5 %)
-                        compared as log std
+``noise``               std of ``x`` minus its 17×17 mean where ``c`` is flat in        0.05 (5 %)
+                        absolute terms, 8 bins of clean value, compared as log std
+``noise_correlation``   that residual's correlation at lags 1, 2 (horizontal, vertical)   0.05
+                        per channel, and between the channels (chroma noise)
+``banding``             std of the residual's per-row and per-column means (flat         0.05 (5 %)
+                        pixels), per channel, compared as log std
 ``frequency``           transfer function Re(X·C*)/|C|² in 8 radial bands (luma),        0.02
                         relative to the lowest band (a blur/sharpening MTF)
 ``blocks``              luma gradient energy at each of the 8 column/row phases of the   0.01
@@ -40,7 +44,6 @@ References:
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
@@ -49,16 +52,13 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from camdegrade.functional import srgb_to_linear
-from camdegrade.functional.analysis import box_mean, hann2d, high_pass, luma, relative_flat_mask
+from camdegrade.functional.analysis import box_mean, flat_mask, hann2d, luma
+from camdegrade.functional.noise_stats import MIN_LINES, MIN_PIXELS, NoiseSums
 
 TILES = 8
 SHIFT_TILES = 4
 INTENSITY_BINS = 16
 NOISE_BINS = 8
-#: High-pass window of the noise family. Camera noise after demosaicking, denoising and compression is
-#: correlated over a few pixels (neighbour correlation 0.4–0.6 on PolyU, CC15, SIDD); a 9×9 window removes
-#: 20 % of its per-pixel std, 17×17 about 10 %, while still removing smooth deterministic differences.
-NOISE_WINDOW = 17
 BANDS = 8
 _MIN_COUNT = 64.0
 #: A component missing (too few pixels) from more than this share of the bootstrap resamples is left out.
@@ -83,7 +83,20 @@ def _mean_levels(num: Tensor, den: Tensor) -> Tensor:
 
 
 def _noise_std(num: Tensor, den: Tensor) -> Tensor:
-    return _ratio_min_count(num, den).clamp_min(0).sqrt() * 255.0
+    """Sums of squared residuals (levels²) and flat-pixel counts → std in levels; NaN below MIN_PIXELS."""
+    return torch.where(den >= MIN_PIXELS, num / den.clamp_min(1), torch.nan).sqrt()
+
+
+def _correlations(num: Tensor, den: Tensor) -> Tensor:
+    """Products and energies → correlations (lags, then channel pairs); all NaN where the flat pixels behind them
+    (the last component) are too few."""
+    values = _ratio(num[..., :-1], den[..., :-1])
+    return torch.where(num[..., -1:] >= MIN_PIXELS, values, torch.nan)
+
+
+def _line_std(num: Tensor, den: Tensor) -> Tensor:
+    """Sums of squared line means and line counts → std in levels; NaN below MIN_LINES lines."""
+    return torch.where(den >= MIN_LINES, num / den.clamp_min(1), torch.nan).sqrt()
 
 
 def _relative_mtf(num: Tensor, den: Tensor) -> Tensor:
@@ -126,6 +139,14 @@ def _log_level(std: Tensor) -> Tensor:
     return 0.5 * torch.log(std.pow(2) + NOISE_FLOOR**2)
 
 
+#: Line means are a small part of the noise (0.3 levels on real captures): their floor is lower.
+LINE_FLOOR = 0.1
+
+
+def _log_line(std: Tensor) -> Tensor:
+    return 0.5 * torch.log(std.pow(2) + LINE_FLOOR**2)
+
+
 @dataclass(frozen=True)
 class Family:
     """One statistic family: its unit ``tau`` (the difference worth one gap unit), how sums become values and
@@ -144,6 +165,8 @@ FAMILIES: dict[str, Family] = {
         Family("spatial", 1.0, _mean_levels, "8-bit levels"),
         Family("intensity", 1.0, _levels, "8-bit levels"),
         Family("noise", 0.05, _noise_std, "8-bit levels (std); compared as log std, tau 5 %", _log_level),
+        Family("noise_correlation", 0.05, _correlations, "correlation"),
+        Family("banding", 0.05, _line_std, "8-bit levels (std of line means); compared as log std", _log_line),
         Family("frequency", 0.02, _relative_mtf, "transfer ratio"),
         Family("blocks", 0.01, _ratio, "relative gradient energy"),
         Family("color", 0.01, _color_matrix, "matrix entry"),
@@ -177,25 +200,26 @@ def _intensity(x: Tensor, c: Tensor) -> tuple[Tensor, Tensor]:
     return num.float(), den.float()
 
 
-#: The calm pixels the noise family is measured on.
-flat_mask = relative_flat_mask
-
-
-def noise_sums(x: Tensor, c: Tensor, mask: Tensor) -> tuple[Tensor, Tensor]:
-    """The ``noise`` family's per-pair sums: squared high-passed residual ``x − c`` (window :data:`NOISE_WINDOW`)
-    and pixel count, on the ``mask`` pixels, per channel and bin of clean value, ``(3 · NOISE_BINS,)`` each.
-    Pixels where ``x`` clips carry no weight."""
-    index = mask.flatten().nonzero()[:, 0]
-    area = float(NOISE_WINDOW * NOISE_WINDOW)
-    h = high_pass(x - c, NOISE_WINDOW).reshape(3, -1)[:, index] * math.sqrt(area / (area - 1))  # white: unbiased
-    value = x.reshape(3, -1)[:, index]
-    key = (c.reshape(3, -1)[:, index] * NOISE_BINS).long().clamp(0, NOISE_BINS - 1)
-    key = key + torch.arange(3)[:, None] * NOISE_BINS
-    weight = ((value > 1e-6) & (value < 1 - 1e-6)).float()
-    size = 3 * NOISE_BINS
-    num = torch.bincount(key.flatten(), weights=(h.pow(2) * weight).flatten(), minlength=size)
-    den = torch.bincount(key.flatten(), weights=weight.flatten(), minlength=size)
-    return num.float(), den.float()
+def noise_family_sums(x: Tensor, c: Tensor, mask: Tensor) -> dict[str, tuple[Tensor, Tensor]]:
+    """The ``noise``, ``noise_correlation`` and ``banding`` families' per-pair sums, from the image's own noise on
+    the pixels where the clean image is flat (:class:`~camdegrade.functional.noise_stats.NoiseSums`)."""
+    sums = NoiseSums.measure(x, c, mask)
+    products, first, second, _ = sums.lag.unbind(-1)
+    cross = sums.cross
+    pairs = [(0, 1), (0, 2), (1, 2)]
+    correlation_num = torch.cat([products.flatten(), torch.stack([cross[i, j] for i, j in pairs])])
+    energies = torch.cat(
+        [((first + second) / 2).flatten(), torch.stack([(cross[i, i] + cross[j, j]) / 2 for i, j in pairs])]
+    )
+    pixels = sums.count.sum(1).max()
+    return {
+        "noise": (sums.square.flatten().float(), sums.count.flatten().float()),
+        "noise_correlation": (
+            torch.cat([correlation_num, pixels[None]]).float(),
+            torch.cat([energies, torch.ones(1, dtype=energies.dtype)]).float(),
+        ),
+        "banding": (sums.lines[..., 0].flatten().float(), sums.lines[..., 2].flatten().float()),
+    }
 
 
 def _band_index(height: int, width: int) -> Tensor:
@@ -283,10 +307,11 @@ _MEASURES: dict[str, Callable[..., tuple[Tensor, Tensor]]] = {
 
 
 def pair_statistics(image: Tensor, clean: Tensor, mask: Tensor | None = None) -> dict[str, tuple[Tensor, Tensor]]:
-    """Every family's sums for one image ``(3, H, W)`` against its clean image, float in [0, 1]."""
+    """Every family's sums for one image ``(3, H, W)`` against its clean image, float in [0, 1]; ``mask`` is the
+    clean image's :func:`~camdegrade.functional.analysis.flat_mask` (computed when not given)."""
     image, clean = image.float().clamp(0, 1), clean.float().clamp(0, 1)
     out = {name: measure(image, clean) for name, measure in _MEASURES.items()}
-    out["noise"] = noise_sums(image, clean, flat_mask(clean) if mask is None else mask)
+    out.update(noise_family_sums(image, clean, flat_mask(clean) if mask is None else mask))
     return {name: out[name] for name in FAMILIES}
 
 
@@ -320,6 +345,15 @@ class StatisticSet:
                 num, den = num[index], den[index]
             out[name] = family.reduce(num.double().sum(0), den.double().sum(0)).flatten().float()
         return out
+
+    def flat_pixels(self) -> int:
+        """Pixels (per channel, the most any channel has) the noise families rest on, over every pair."""
+        return int(self.sums["noise"][1].double().sum(0).reshape(3, -1).sum(1).max())
+
+    def lines(self) -> tuple[int, int]:
+        """Rows and columns (channel 0) the banding family rests on, over every pair."""
+        counts = self.sums["banding"][1].double().sum(0).reshape(2, 3)
+        return int(counts[0, 0]), int(counts[1, 0])
 
     def compared(self, index: Tensor | None = None) -> dict[str, Tensor]:
         """:meth:`values` on the scale they are compared on (:attr:`Family.compare`)."""

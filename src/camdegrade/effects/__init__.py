@@ -6,12 +6,13 @@ codec): ``misalignment``, ``distortion``, ``chromatic_aberration``, ``vignetting
 classmethod that estimates it from aligned pairs.
 """
 
+from camdegrade.effects._noise_levels import NoiseLevels, noise_level_function
 from camdegrade.effects.base import EFFECTS, SIGNATURES, STAGES, Effect, Pairs, build_effect, register_effect
 from camdegrade.effects.blur import Blur
 from camdegrade.effects.codec import JPEG
 from camdegrade.effects.color import Color, Tone
 from camdegrade.effects.geometry import ChromaticAberration, Distortion, Misalignment, Vignetting
-from camdegrade.effects.noise import Noise, NoiseLevels, noise_level_function
+from camdegrade.effects.noise import Noise
 
 __all__ = [
     "EFFECTS",

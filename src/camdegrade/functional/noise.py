@@ -1,4 +1,6 @@
-"""Sensor-noise kernel: heteroscedastic Poisson–Gaussian noise in linear light, plus optional row banding."""
+"""Noise kernels: heteroscedastic Poisson–Gaussian noise in linear light with optional row banding, and the parts of
+a camera's processed noise (a noise level by intensity, a spatially and chroma-correlated unit field, row and column
+offsets). Every kernel takes pre-drawn standard normals; none draws a random number."""
 
 from __future__ import annotations
 
@@ -89,3 +91,84 @@ def _noise_tensor(value: Tensor | None, image: Tensor, name: str, shape: tuple[i
     if not fits:
         raise ValueError(f"{name} must broadcast to shape {tuple(shape)}, got shape {tuple(value.shape)}")
     return value.to(image.device)
+
+
+def correlated_field(normal: Tensor, across: Tensor, down: Tensor, mixing: Tensor | None = None) -> Tensor:
+    """Noise with spatial and chroma correlation, from independent standard normals.
+
+    Args:
+        normal: standard normals ``[..., 3, H + 2r, W + 2r]`` (``r = T // 2``: a margin, so that every output pixel
+            sees a full kernel and the field is stationary up to the frame's edge).
+        across: ``(3, T)`` per-channel taps along x; ``down``: ``(3, T)`` along y. With taps of unit L2 norm each
+            output pixel has unit variance, and the autocorrelation at lag ``d`` is ``Σ_i k_i k_{i+d}``.
+        mixing: ``(3, 3)`` applied across channels (``out_c = Σ_k mixing[c, k] · field_k``); rows of unit norm keep
+            unit variance and give the channel correlation ``mixing @ mixing.T``. ``None``: independent channels.
+
+    Returns:
+        ``[..., 3, H, W]`` float, in a new tensor.
+    """
+    taps = across.shape[-1]
+    radius = taps // 2
+    height, width = normal.shape[-2] - 2 * radius, normal.shape[-1] - 2 * radius
+    field = _channel_taps(normal, across.to(normal), dim=-1, size=width)
+    field = _channel_taps(field, down.to(normal), dim=-2, size=height)
+    if mixing is not None:
+        field = torch.einsum("ck,...khw->...chw", mixing.to(field), field)
+    return field
+
+
+def _channel_taps(planes: Tensor, taps: Tensor, dim: int, size: int) -> Tensor:
+    """``Σ_i taps[c, i] · planes[..., c, :, :].narrow(dim, i, size)``: a per-channel 1-D 'valid' convolution."""
+    weights = taps[:, :, None, None]  # (3, T, 1, 1): broadcast over [..., 3, H, W]
+    total = planes.narrow(dim, 0, size) * weights[:, 0]
+    for index in range(1, taps.shape[-1]):
+        total.addcmul_(planes.narrow(dim, index, size), weights[:, index])
+    return total
+
+
+def noise_std(x: Tensor, a: Tensor, b: Tensor, levels: Tensor | None = None) -> Tensor:
+    """The noise standard deviation at each value of ``x`` ``[..., 3, H, W]``: ``sqrt(a·x + b + levels(x)²)``.
+
+    ``a`` and ``b`` broadcast against ``x`` (e.g. ``(3, 1, 1)``); ``levels`` is ``(3, K)`` (or ``(..., 3, K)`` per
+    sample): a std at each of ``K`` knots ``(k + ½) / K`` of the value, piecewise linear between them and constant
+    beyond the outer knots. ``None`` leaves the table out.
+    """
+    variance = torch.addcmul(b, x, a)
+    if levels is not None:
+        table_std = interpolate_levels(x, levels)
+        variance = variance.addcmul_(table_std, table_std)
+    return variance.clamp_min_(0.0).sqrt_()
+
+
+def interpolate_levels(x: Tensor, levels: Tensor) -> Tensor:
+    """``levels`` ``(..., 3, K)`` read at each value of ``x`` ``[..., 3, H, W]`` (see :func:`noise_std`)."""
+    knots = levels.shape[-1]
+    table = levels.to(x.dtype).expand(*x.shape[:-2], knots) if levels.ndim < x.ndim - 1 else levels.to(x.dtype)
+    position = (x * knots - 0.5).clamp_(0.0, knots - 1.0)
+    index = position.floor().clamp_(max=max(knots - 2, 0))
+    fraction = position.sub_(index)
+    flat_index = index.long().flatten(-2)
+    low = table.gather(-1, flat_index).view_as(x)
+    high = table.gather(-1, (flat_index + 1).clamp_(max=knots - 1)).view_as(x)
+    return low.lerp_(high, fraction)
+
+
+def add_noise_(
+    x: Tensor,
+    std: Tensor,
+    field: Tensor,
+    row_sigma: Tensor | None = None,
+    row_normal: Tensor | None = None,
+    column_sigma: Tensor | None = None,
+    column_normal: Tensor | None = None,
+) -> Tensor:
+    """In place: ``x + std · field + row_sigma · row_normal + column_sigma · column_normal``, clamped to [0, 1].
+
+    ``row_normal`` is ``[..., 3, H, 1]`` and ``column_normal`` ``[..., 3, 1, W]``; a pair left ``None`` adds nothing.
+    """
+    x.addcmul_(std, field)
+    if row_normal is not None and row_sigma is not None:
+        x.add_(row_normal * row_sigma)
+    if column_normal is not None and column_sigma is not None:
+        x.add_(column_normal * column_sigma)
+    return x.clamp_(0.0, 1.0)

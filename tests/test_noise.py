@@ -1,0 +1,163 @@
+"""The noise stage: its structure (level table, correlated field, mixing, banding), replay and old profiles, and its
+fitter on synthetic cameras whose noise is known (recovery within the tolerances ``Noise.fit`` states)."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+from torch import Tensor
+
+from camdegrade import CameraProfile, load_profile
+from camdegrade.effects import Noise
+from camdegrade.effects._noise_fit import _autocorrelation, _symmetric_taps
+from camdegrade.functional import poisson_gaussian_noise_image
+from camdegrade.functional.analysis import flat_mask
+from camdegrade.functional.noise import correlated_field
+from camdegrade.functional.noise_stats import NoiseSums, measure_set
+from effects_images import patch_chart, photos_for_fitting
+
+LEVELS = torch.tensor([[0.004, 0.008, 0.010, 0.012, 0.012, 0.010, 0.008, 0.006]] * 3)
+MIXING = torch.tensor([[1.0, 0.0, 0.0], [0.5, 0.866, 0.0], [0.3, 0.5, 0.812]])
+
+
+def _taps(r1: float, r2: float) -> Tensor:
+    return torch.tensor(_symmetric_taps(r1, r2, 5)).expand(3, 5).clone()
+
+
+def _camera(**options) -> Noise:
+    return Noise(levels=LEVELS, across=_taps(0.55, 0.2), down=_taps(0.4, 0.1), mixing=MIXING, linear=False, **options)
+
+
+def _sources() -> list[Tensor]:
+    """Charts with large flat patches (the fitter only measures where the source is flat) and photos."""
+    return [patch_chart(256, patches=4, seed=seed) for seed in range(6)] + photos_for_fitting(192)
+
+
+def _capture(noise: Noise, sources: list[Tensor], seed: int = 5) -> list[Tensor]:
+    generator = torch.Generator().manual_seed(seed)
+    return [noise(src[None], noise.make_params((1, *src.shape), generator))[0] for src in sources]
+
+
+def _sums(images: list[Tensor], sources: list[Tensor]) -> NoiseSums:
+    return measure_set(images, sources, [flat_mask(src) for src in sources])
+
+
+def test_symmetric_taps_reach_the_asked_autocorrelation() -> None:
+    for r1, r2 in ((0.55, 0.2), (0.3, 0.0), (0.8, 0.5)):
+        kernel = torch.tensor(_symmetric_taps(r1, r2, 5))[None]
+        assert float(kernel.norm()) == pytest.approx(1.0)
+        assert _autocorrelation(kernel)[:, 0].tolist() == pytest.approx([r1, r2], abs=0.01)
+
+
+def test_correlated_field_has_unit_variance_and_the_kernels_correlation() -> None:
+    normal = torch.randn(2, 3, 132, 132, generator=torch.Generator().manual_seed(0))
+    field = correlated_field(normal, _taps(0.55, 0.2), _taps(0.4, 0.1), MIXING)
+    assert field.shape == (2, 3, 128, 128)
+    assert float(field.var()) == pytest.approx(1.0, abs=0.03)
+    assert float((field[..., 1:] * field[..., :-1]).mean()) == pytest.approx(0.55, abs=0.03)
+    assert float((field[..., 1:, :] * field[..., :-1, :]).mean()) == pytest.approx(0.4, abs=0.03)
+    channels = torch.corrcoef(field.transpose(0, 1).reshape(3, -1))
+    assert torch.allclose(channels, MIXING @ MIXING.T, atol=0.03)
+
+
+def test_structured_noise_replays_and_round_trips_through_a_profile(tmp_path) -> None:
+    noise = _camera(column_sigma=torch.tensor([0.0, 0.002, 0.0]), gain_jitter=0.2)
+    params = noise.make_params((2, 3, 20, 24), torch.Generator().manual_seed(1))
+    assert params["normal"].shape == (2, 3, 24, 28) and params["column_normal"].shape == (2, 3, 1, 24)
+    image = torch.rand(2, 3, 20, 24, generator=torch.Generator().manual_seed(2))
+    first = noise(image, params)
+    assert torch.equal(first, noise(image, params))
+    CameraProfile(None, [noise], name="n").save(tmp_path / "n.safetensors")
+    loaded = load_profile(tmp_path / "n.safetensors").effects[0]
+    assert (
+        loaded.config()
+        == noise.config()
+        == {"linear": False, "gain_jitter": 0.2, "knots": 8, "taps": 5, "columns": True, "mixing": True}
+    )
+    assert torch.equal(loaded(image, params), first)
+
+
+def test_white_noise_is_the_poisson_gaussian_kernel_byte_for_byte() -> None:
+    """Profiles written before the structure existed (no knots, taps, columns) draw and add the same noise."""
+    noise = Noise([0.01, 0.02, 0.005], [1e-4, 0.0, 2e-4], 0.003)
+    assert noise.config() == {"linear": True, "gain_jitter": 0.0}
+    image = torch.rand(2, 3, 16, 16, generator=torch.Generator().manual_seed(3))
+    params = noise.make_params(image.shape, torch.Generator().manual_seed(4))
+    expected = poisson_gaussian_noise_image(
+        image, noise.a, noise.b, params["normal"], row_sigma=noise.row_sigma, row_normal=params["row_normal"]
+    )
+    assert torch.allclose(noise(image, params), expected, atol=1e-6)
+
+
+def test_gradients_flow_through_the_structured_stage() -> None:
+    noise = _camera()
+    image = torch.rand(1, 3, 12, 12, generator=torch.Generator().manual_seed(5)).mul(0.8).add(0.1)
+    image.requires_grad_(True)
+    out = noise(image, noise.make_params(image.shape, torch.Generator().manual_seed(6)))
+    out.sum().backward()
+    assert image.grad is not None and bool(torch.isfinite(image.grad).all())
+
+
+def test_scaling_multiplies_the_noise_power() -> None:
+    noise = _camera(column_sigma=torch.full((3,), 0.002))
+    stronger = noise.scaled(4.0)
+    assert torch.allclose(stronger.levels, 2 * noise.levels) and torch.allclose(
+        stronger.column_sigma, 0.004 * torch.ones(3)
+    )
+    assert stronger.magnitude() == pytest.approx(2 * noise.magnitude(), rel=1e-5)
+    assert torch.equal(stronger.across, noise.across)
+
+
+def test_fit_recovers_level_correlation_and_no_banding() -> None:
+    sources = _sources()
+    truth = _camera(column_sigma=torch.zeros(3))
+    fitted = Noise.fit(sources, _capture(truth, sources), estimator="residual")
+    measured = torch.isfinite(_sums(_capture(truth, sources), sources).std())
+    ratio = (fitted.levels / truth.levels)[measured]
+    assert (ratio - 1).abs().max() < 0.10, fitted.levels / truth.levels
+    assert (_autocorrelation(fitted.across) - _autocorrelation(truth.across)).abs().max() < 0.05
+    assert (_autocorrelation(fitted.down) - _autocorrelation(truth.down)).abs().max() < 0.05
+    assert (fitted.mixing @ fitted.mixing.T - truth.mixing @ truth.mixing.T).abs().max() < 0.05
+    noise_std = float(truth.levels.mean())
+    assert float(fitted.row_sigma.max()) < 0.1 * noise_std and float(fitted.column_sigma.max()) < 0.1 * noise_std
+
+
+def test_fit_finds_banding_where_the_camera_has_it() -> None:
+    sources = _sources()
+    truth = _camera(row_sigma=0.004, column_sigma=torch.zeros(3))
+    fitted = Noise.fit(sources, _capture(truth, sources), estimator="residual")
+    assert ((fitted.row_sigma - 0.004).abs() / 0.004).max() < 0.20, fitted.row_sigma
+    assert float(fitted.column_sigma.max()) < 0.0004
+
+
+def test_fit_reproduces_physical_white_noise_through_its_table() -> None:
+    """A Poisson–Gaussian sensor in linear light: the fitted table (sRGB values) gives the same noise per bin."""
+    sources = _sources()
+    truth = Noise(0.004, 2e-5)
+    captures = _capture(truth, sources)
+    fitted = Noise.fit(sources, captures, estimator="residual")
+    real = _sums([c - s + 0.5 for c, s in zip(captures, sources, strict=True)], sources)
+    simulated = _sums([c - s + 0.5 for c, s in zip(_capture(fitted, sources, seed=9), sources, strict=True)], sources)
+    ratio = simulated.std() / real.std()
+    assert (ratio[torch.isfinite(ratio)] - 1).abs().max() < 0.10, ratio
+    assert float(_autocorrelation(fitted.across).abs().max()) < 0.05  # white stays white
+
+
+def test_excess_estimator_adds_only_what_the_source_lacks() -> None:
+    """The source already carries noise of std 2 levels, the target 4: the stage adds about sqrt(16 − 4) levels,
+    and source plus the stage has the target's noise."""
+    charts = [patch_chart(256, patches=4, seed=seed) for seed in range(6)]
+    generator = torch.Generator().manual_seed(7)
+    sources = [(c + torch.randn(c.shape, generator=generator) * 2 / 255).clamp(0, 1) for c in charts]
+    targets = [(c + torch.randn(c.shape, generator=generator) * 4 / 255).clamp(0, 1) for c in charts]
+    fitted = Noise.fit(sources, targets, taps=1)
+    added = fitted.levels[torch.isfinite(_sums(targets, charts).std())] * 255
+    assert float(added.median()) == pytest.approx(12**0.5, rel=0.12)
+    simulated = _sums(_capture(fitted, sources), charts).pooled_std()
+    assert simulated == pytest.approx(_sums(targets, charts).pooled_std(), rel=0.05)
+
+
+def test_too_few_flat_pixels_is_a_clear_error() -> None:
+    photos = photos_for_fitting(96)
+    with pytest.raises(ValueError, match=r"too few flat pixels to measure noise: \d+ pixels where the source is flat"):
+        Noise.fit(photos, photos)
