@@ -38,6 +38,11 @@ def _snapshot(folder: Path) -> dict[str, bytes]:
 Case = Callable[[Path, Path], list]
 
 
+def _folder(folder: Path) -> Path:
+    _images(folder, 4)
+    return folder
+
+
 def _two_pairs(tmp: Path) -> Path:
     return make_pairs_folder(tmp / "two", count=2)
 
@@ -134,6 +139,11 @@ CASES: dict[str, tuple[Case, int, str]] = {
     ),
     "diagnose --max-pairs -2": (
         lambda tmp, p: ["diagnose", p, tmp, "--max-pairs", "-2"],
+        2,
+        r"--max-pairs: must be an integer >= 1, got -2",
+    ),
+    "diagnose --real --max-pairs -2": (
+        lambda tmp, p: ["diagnose", p, _folder(tmp / "c"), "--real", _folder(tmp / "r"), "--max-pairs", "-2"],
         2,
         r"--max-pairs: must be an integer >= 1, got -2",
     ),
