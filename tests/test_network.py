@@ -73,5 +73,5 @@ def test_bad_input_shape():
 
 
 def test_bad_width():
-    with pytest.raises(ValueError, match="width must be a positive integer, got width=0"):
+    with pytest.raises(ValueError, match="width must be an integer from 1 to 1024, got width=0"):
         DomainShiftNet(width=0)

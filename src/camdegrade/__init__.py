@@ -9,7 +9,7 @@ Public API::
 
 from camdegrade._version import __version__
 from camdegrade.data import BatchDegrade, DegradedDataset, DegradedIterableDataset, IndexedDataset
-from camdegrade.errors import CamdegradeError, PairsError, ProfileError, UnknownProfileError
+from camdegrade.errors import BatchError, CamdegradeError, ImageError, PairsError, ProfileError, UnknownProfileError
 from camdegrade.fitting import fit_profile
 from camdegrade.network import DomainShiftNet
 from camdegrade.profile import CameraProfile, list_profiles, load_profile
@@ -18,12 +18,14 @@ from camdegrade.transform import CameraDegrade
 
 __all__ = [
     "BatchDegrade",
+    "BatchError",
     "CamdegradeError",
     "CameraDegrade",
     "CameraProfile",
     "DegradedDataset",
     "DegradedIterableDataset",
     "DomainShiftNet",
+    "ImageError",
     "IndexedDataset",
     "PairsError",
     "ProfileError",

@@ -1,23 +1,93 @@
 """Command line: ``camdegrade list|info|apply|simulate|fit|diagnose ...`` (also ``python -m camdegrade``).
 
 The one CLI module: every subcommand's parser and runner is here. Heavy imports (torch, the package's layers) wait
-until a subcommand runs, so ``--help`` answers at once. User errors print one line on stderr, never a traceback.
+until a subcommand runs, so ``--help`` answers at once. User errors print one line on stderr, never a traceback:
+exit status 2 for a bad argument (checked while parsing, before any work), 1 for everything else. Batches (a folder
+for ``apply`` or ``simulate``) process every readable file and list the others at the end, with status 1.
 """
 
 from __future__ import annotations
 
 import argparse
 import contextlib
+import math
 import sys
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
+from typing import NoReturn
 
+from camdegrade._checks import check_seed
 from camdegrade._version import __version__
-from camdegrade.errors import CamdegradeError
+from camdegrade.errors import BatchError, CamdegradeError
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse with one-line usage errors (status 2), like every other user error of the CLI."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {message} (see '{self.prog} --help')\n")
+
+
+def _whole_number(text: str) -> int:
+    try:
+        return int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be an integer, got {text!r}") from None
+
+
+def _positive_int(text: str) -> int:
+    value = _whole_number(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be an integer >= 1, got {value}")
+    return value
+
+
+def _seed(text: str) -> int:
+    try:
+        return check_seed(_whole_number(text))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be an integer from -2**63 to 2**64 - 1, got {text}") from None
+
+
+def _number(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a number, got {text!r}") from None
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"must be a finite number, got {text}")
+    return value
+
+
+def _probability(text: str) -> float:
+    value = _number(text)
+    if not 0.0 <= value <= 1.0:
+        raise argparse.ArgumentTypeError(f"must be a probability from 0 to 1, got {text}")
+    return value
+
+
+def _positive_number(text: str) -> float:
+    value = _number(text)
+    if value <= 0:
+        raise argparse.ArgumentTypeError(f"must be a number > 0, got {text}")
+    return value
+
+
+def _share(low_inclusive: bool) -> Callable[[str], float]:
+    """A fraction in [0, 1) or (0, 1)."""
+
+    def share(text: str) -> float:
+        value = _number(text)
+        if not (0.0 <= value < 1.0 if low_inclusive else 0.0 < value < 1.0):
+            bounds = "from 0 (inclusive) to 1 (exclusive)" if low_inclusive else "between 0 and 1 (exclusive)"
+            raise argparse.ArgumentTypeError(f"must be a fraction {bounds}, got {text}")
+        return value
+
+    return share
 
 
 def main_parser(prog: str | None = None) -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog=prog,
         description="Make clean images look as if a specific camera had captured them.",
     )
@@ -34,7 +104,9 @@ def main_parser(prog: str | None = None) -> argparse.ArgumentParser:
 
 
 def _add_threads(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: torch's choice)")
+    parser.add_argument(
+        "--threads", type=_positive_int, default=None, help="torch CPU threads (default: torch's choice)"
+    )
 
 
 def _add_apply_parser(commands: argparse._SubParsersAction) -> None:
@@ -42,9 +114,15 @@ def _add_apply_parser(commands: argparse._SubParsersAction) -> None:
     apply.add_argument("profile", help="built-in profile name (see 'camdegrade list') or .safetensors path")
     apply.add_argument("input", type=Path, help="image file or folder")
     apply.add_argument("output", type=Path, help="output file (for a file input) or folder (for a folder input)")
-    apply.add_argument("--seed", type=int, default=0, help="seed of the random effects (default: 0)")
-    apply.add_argument("--p", type=float, default=1.0, help="probability of degrading each image (default: 1)")
+    apply.add_argument("--seed", type=_seed, default=0, help="seed of the random effects (default: 0)")
+    apply.add_argument("--p", type=_probability, default=1.0, help="probability of degrading each image (default: 1)")
     apply.add_argument("--device", default="cpu", help="torch device to run on (default: cpu)")
+    apply.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="allow an output folder inside the input folder (its images are then not read as inputs); no option "
+        "writes over an input image",
+    )
     _add_threads(apply)
 
 
@@ -59,16 +137,23 @@ def _add_fit_parser(commands: argparse._SubParsersAction) -> None:
     )
     fit.add_argument("pairs", type=Path, help="pairs folder or CSV manifest")
     fit.add_argument("-o", "--output", type=Path, required=True, help="profile to write (.safetensors)")
-    fit.add_argument("--epochs", type=int, default=None, help="training epochs (default: 100)")
-    fit.add_argument("--crop", type=int, default=None, help="training crop size, a multiple of 4 (default: 128)")
-    fit.add_argument("--batch-size", type=int, default=None, help="crops per step (default: 32)")
-    fit.add_argument("--lr", type=float, default=None, help="Adam learning rate (default: 0.01)")
+    fit.add_argument("--epochs", type=_positive_int, default=None, help="training epochs (default: 100)")
     fit.add_argument(
-        "--lr-halving-epochs", type=int, default=None, help="halve the learning rate every N epochs (default: 30)"
+        "--crop", type=_positive_int, default=None, help="training crop size, a multiple of 4 (default: 128)"
     )
-    fit.add_argument("--crops-per-pair", type=int, default=None, help="random crops per pair per epoch (default: 8)")
-    fit.add_argument("--seed", type=int, default=0)
-    fit.add_argument("--val-fraction", type=float, default=0.15, help="share of scenes for validation")
+    fit.add_argument("--batch-size", type=_positive_int, default=None, help="crops per step (default: 32)")
+    fit.add_argument("--lr", type=_positive_number, default=None, help="Adam learning rate (default: 0.01)")
+    fit.add_argument(
+        "--lr-halving-epochs",
+        type=_positive_int,
+        default=None,
+        help="halve the learning rate every N epochs (default: 30)",
+    )
+    fit.add_argument(
+        "--crops-per-pair", type=_positive_int, default=None, help="random crops per pair per epoch (default: 8)"
+    )
+    fit.add_argument("--seed", type=_seed, default=0)
+    fit.add_argument("--val-fraction", type=_share(True), default=0.15, help="share of scenes for validation")
     fit.add_argument("--device", default="cpu")
     _add_threads(fit)
     fit.add_argument("--clean-suffix", default=None, help="e.g. _mean (with --captured-suffix)")
@@ -97,8 +182,13 @@ def _add_simulate_parser(commands: argparse._SubParsersAction) -> None:
     simulate.add_argument("preset", help="virtual camera preset, e.g. lowcost-robot")
     simulate.add_argument("input", type=Path, help="clean image file or folder")
     simulate.add_argument("out_dir", type=Path, help="output folder; gets clean/ and captured/")
-    simulate.add_argument("--seed", type=int, default=0)
-    simulate.add_argument("--max-side", type=int, default=None, help="downsize clean images larger than this")
+    simulate.add_argument("--seed", type=_seed, default=0)
+    simulate.add_argument("--max-side", type=_positive_int, default=None, help="downsize clean images larger than this")
+    simulate.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="allow OUT_DIR inside the input folder (it is then not read as input); no option writes over an input",
+    )
     _add_threads(simulate)
 
 
@@ -117,10 +207,10 @@ def _add_diagnose_parser(commands: argparse._SubParsersAction) -> None:
     diagnose.add_argument("--json", type=Path, default=None, help="write the JSON report here")
     diagnose.add_argument("--html", type=Path, default=None, help="write the one-file HTML report here")
     diagnose.add_argument("--out-profile", type=Path, default=None, help="write the profile with the added effects")
-    diagnose.add_argument("--seed", type=int, default=0, help="seeds the split, simulations and bootstrap")
+    diagnose.add_argument("--seed", type=_seed, default=0, help="seeds the split, simulations and bootstrap")
     diagnose.add_argument("--real", type=Path, default=None, help="unpaired mode: a folder of real captures")
-    diagnose.add_argument("--calibration-fraction", type=float, default=0.5, help="share of scenes for fitting")
-    diagnose.add_argument("--max-pairs", type=int, default=None, help="use at most this many pairs")
+    diagnose.add_argument("--calibration-fraction", type=_share(False), default=0.5, help="share of scenes for fitting")
+    diagnose.add_argument("--max-pairs", type=_positive_int, default=None, help="use at most this many pairs")
     diagnose.add_argument("--candidates", nargs="+", default=None, help="effect names to try (default: all)")
     diagnose.add_argument("--clean-suffix", default=None)
     diagnose.add_argument("--captured-suffix", default=None)
@@ -129,27 +219,72 @@ def _add_diagnose_parser(commands: argparse._SubParsersAction) -> None:
 
 
 def _run_apply(args: argparse.Namespace) -> int:
-    from camdegrade.io import iter_images, read_image, write_image
+    from camdegrade._files import check_outputs_spare_inputs
+    from camdegrade.io import read_image, write_image
     from camdegrade.transform import CameraDegrade
 
     degrade = CameraDegrade(args.profile, p=args.p, seed=args.seed)
-    if args.input.is_dir():
-        if args.output.exists() and not args.output.is_dir():
-            raise ValueError(f"output must be a folder when input is a folder, got file {str(args.output)!r}")
-        jobs = [(path, args.output / path.relative_to(args.input)) for path in iter_images(args.input)]
-        if not jobs:
-            raise ValueError(f"input folder {str(args.input)!r} holds no images")
-    elif args.input.is_file():
-        target = args.output / args.input.name if args.output.is_dir() else args.output
-        jobs = [(args.input, target)]
-    else:
-        raise FileNotFoundError(f"input {str(args.input)!r} does not exist")
+    jobs = _apply_jobs(args.input, args.output, args.overwrite)
+    check_outputs_spare_inputs(jobs)
+    batch = args.input.is_dir()
+    failed: list[tuple[Path, str]] = []
     for source, target in jobs:
-        image = read_image(source).to(args.device)
-        write_image(degrade(image).cpu(), target)
+        try:
+            image = read_image(source)
+            write_image(degrade(image.to(args.device)).cpu(), target)
+        except OSError as error:  # unreadable, truncated, too large, animated, unwritable: listed at the end
+            if not batch:
+                raise
+            failed.append((source, str(error)))
+            continue
         print(f"{source} -> {target}")
-    print(f"degraded {len(jobs)} image(s) with profile {degrade.profile.name or args.profile!r}")
+    print(f"degraded {len(jobs) - len(failed)} image(s) with profile {degrade.profile.name or args.profile!r}")
+    if failed:
+        _list_failures(failed)
+        raise BatchError(f"{len(failed)} of {len(jobs)} image(s) could not be degraded (listed above)", failed, [])
     return 0
+
+
+def _apply_jobs(source: Path, output: Path, overwrite: bool) -> list[tuple[Path, Path]]:
+    """``(input image, output path)`` for ``apply``; refuses outputs that would replace or re-read inputs."""
+    from camdegrade._files import folder_relation
+    from camdegrade.io import iter_images
+
+    if source.is_file():
+        return [(source, output / source.name if output.is_dir() else output)]
+    if not source.is_dir():
+        if source.exists():
+            raise ValueError(f"input {str(source)!r} is not a regular file or folder (a device, FIFO or socket)")
+        raise FileNotFoundError(f"input {str(source)!r} does not exist")
+    if output.exists() and not output.is_dir():
+        raise ValueError(f"output must be a folder when input is a folder, got file {str(output)!r}")
+    relation = folder_relation(source, output)
+    if relation == "same":
+        raise ValueError(
+            f"output folder {str(output)!r} is the input folder: every output would replace the image it was read "
+            "from; choose another output folder"
+        )
+    if relation == "inside" and not overwrite:
+        raise ValueError(
+            f"output folder {str(output)!r} is inside the input folder {str(source)!r}: a rerun would degrade its "
+            "own outputs; choose a folder outside it, or pass --overwrite (its images are then not read as inputs)"
+        )
+    skipped = output.resolve() if relation == "inside" else None
+    jobs = [
+        (path, output / path.relative_to(source))
+        for path in iter_images(source)
+        if skipped is None or not path.resolve().is_relative_to(skipped)
+    ]
+    if not jobs:
+        raise ValueError(f"input folder {str(source)!r} holds no images")
+    return jobs
+
+
+def _list_failures(failed: Sequence[tuple[Path, str]]) -> None:
+    """The end-of-batch summary (stdout): every file that could not be processed, with the reason."""
+    print(f"{len(failed)} file(s) could not be read or written and were skipped:")
+    for path, reason in failed:
+        print(f"  {path}: {reason}")
 
 
 def _run_info(args: argparse.Namespace) -> int:
@@ -171,12 +306,25 @@ def _run_fit(args: argparse.Namespace) -> int:
     import torch.distributed
 
     from camdegrade._distributed import is_main_process
+    from camdegrade._files import check_writable
     from camdegrade.fitting.fit import DEFAULT_EFFECTS, fit_profile, init_distributed_from_env
     from camdegrade.fitting.training import FitInterrupted
 
     if args.output.suffix != ".safetensors":
         raise ValueError(f"--output must end in .safetensors, got {str(args.output)!r}")
     checkpoint = args.checkpoint or args.output.with_name(args.output.stem + ".ckpt.safetensors")
+    if checkpoint.resolve() == args.output.resolve():
+        raise ValueError(
+            f"--checkpoint must differ from --output, got {str(checkpoint)!r} for both: the checkpoint is deleted "
+            "after a successful fit, which would delete the profile"
+        )
+    for path in (args.output, checkpoint):  # before training, not after it
+        check_writable(path)
+    if args.resume and not checkpoint.is_file():
+        raise FileNotFoundError(
+            f"--resume: checkpoint {str(checkpoint)!r} does not exist; check --checkpoint, or start a new fit "
+            "without --resume"
+        )
     device = init_distributed_from_env(args.device)
     main_process = is_main_process()
     try:
@@ -215,23 +363,53 @@ def _run_fit(args: argparse.Namespace) -> int:
         checkpoint.unlink(missing_ok=True)
         print(profile.describe())
         print(f"wrote {args.output}")
+        _fail_on_unreadable(profile.fitted.get("unreadable", []), "the profile was fitted on the other pairs")
     return 0
+
+
+def _fail_on_unreadable(unreadable: Sequence[dict[str, str]], outcome: str) -> None:
+    """After a run over pairs: list the files that could not be read and end with status 1 (the outputs stand)."""
+    if unreadable:
+        failed = [(Path(entry["path"]), entry["reason"]) for entry in unreadable]
+        _list_failures(failed)
+        raise BatchError(
+            f"{len(failed)} file(s) could not be read and were skipped; {outcome} (listed above)", failed, []
+        )
 
 
 def _run_simulate(args: argparse.Namespace) -> int:
     from camdegrade.sim import simulate_pairs
 
-    written = simulate_pairs(args.preset, args.input, args.out_dir, seed=args.seed, max_side=args.max_side)
+    options = {"seed": args.seed, "max_side": args.max_side, "overwrite": args.overwrite}
+    try:
+        written = simulate_pairs(args.preset, args.input, args.out_dir, **options)
+    except BatchError as error:
+        print(f"wrote {len(error.done)} pair(s) to {args.out_dir} (clean/, captured/) with preset {args.preset!r}")
+        _list_failures(error.failed)
+        raise BatchError(
+            f"{len(error.failed)} of {len(error.failed) + len(error.done)} image(s) could not be simulated "
+            "(listed above)",
+            error.failed,
+            error.done,
+        ) from None
     print(f"wrote {len(written)} pair(s) to {args.out_dir} (clean/, captured/) with preset {args.preset!r}")
     return 0
 
 
 def _run_diagnose(args: argparse.Namespace) -> int:
+    from camdegrade._files import check_outputs_spare_inputs, check_writable
     from camdegrade.diagnose import diagnose
     from camdegrade.diagnose.unpaired import diagnose_unpaired
+    from camdegrade.fitting.pairs import UNREADABLE
+    from camdegrade.profile import resolve_profile_path
 
     if args.out_profile is not None and args.out_profile.suffix != ".safetensors":
         raise ValueError(f"--out-profile must end in .safetensors, got {str(args.out_profile)!r}")
+    if args.out_profile is not None:
+        check_outputs_spare_inputs([(resolve_profile_path(args.profile), args.out_profile)])
+    for path in (args.json, args.html, args.out_profile):  # before diagnosing, not after it
+        if path is not None:
+            check_writable(path)
     log = None if args.quiet else print
     if args.real is not None:
         if args.out_profile is not None:
@@ -251,6 +429,9 @@ def _run_diagnose(args: argparse.Namespace) -> int:
         )
     if args.quiet:
         print(report.verdict)
+        skipped = getattr(report, "skipped", [])
+        if skipped:  # a dropped pair is never silent, even with --quiet
+            print(f"{len(skipped)} file(s) skipped while loading the pairs (see the JSON report's 'skipped')")
     if args.json is not None:
         print(f"wrote {report.write_json(args.json)}")
     if args.html is not None:
@@ -261,6 +442,8 @@ def _run_diagnose(args: argparse.Namespace) -> int:
         else:
             report.profile.save(args.out_profile)
             print(f"wrote {args.out_profile} (added: {', '.join(report.added)})")
+    unreadable = [entry for entry in getattr(report, "skipped", []) if entry["reason"].startswith(UNREADABLE)]
+    _fail_on_unreadable(unreadable, "the diagnosis used the other pairs")
     return 0
 
 
@@ -283,6 +466,13 @@ def _check_device(parser: argparse.ArgumentParser, name: str) -> None:
         parser.error(f"--device must be a torch device such as 'cpu' or 'cuda:0', got {name!r}")
     if device.type == "cuda" and not torch.cuda.is_available():
         parser.error(f"--device {name!r} asks for CUDA, but no CUDA device is available here")
+    if device.type == "meta":
+        parser.error("--device 'meta' holds no data, so nothing can be computed on it; use 'cpu' or 'cuda'")
+    try:
+        torch.empty(1, device=device)
+    except (RuntimeError, AssertionError) as error:  # not built in, or no such device here
+        reason = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
+        parser.error(f"--device {name!r} cannot be used here ({reason})")
 
 
 @contextlib.contextmanager
@@ -309,6 +499,9 @@ def main(cli_args: Sequence[str] | None = None, prog: str | None = None) -> int:
     except (CamdegradeError, OSError, ValueError) as error:
         print(f"{parser.prog}: error: {error}", file=sys.stderr)
         return 1
+    except KeyboardInterrupt:  # Ctrl-C: what was written is whole (every write is atomic)
+        print(f"{parser.prog}: interrupted", file=sys.stderr)
+        return 130
 
 
 def entrypoint() -> None:

@@ -7,6 +7,7 @@ The engine knows tensors ``(N, 3, H, W)`` and profiles, nothing of PIL, tv_tenso
 from __future__ import annotations
 
 import copy
+import math
 import threading
 
 import torch
@@ -23,8 +24,18 @@ CHUNK_PIXELS = 1 << 17
 FLOAT_DTYPES = (torch.float16, torch.bfloat16, torch.float32, torch.float64)
 
 
-def check_image_tensor(image: Tensor, who: str = "CameraDegrade()") -> None:
-    """Raise a clear error unless ``image`` is a finite ``[..., 3, H, W]`` uint8 or floating-point tensor."""
+#: Float images may stray this far outside [0, 1] and are clamped: bicubic resizing of photos overshoots by about
+#: 0.04. Values further out mean another scale (0..255, [-1, 1], normalised) and are refused.
+UNIT_TOLERANCE = 0.1
+
+
+def check_image_shape(image: Tensor, who: str = "CameraDegrade()") -> None:
+    """Raise a clear error unless ``image`` is a dense ``[..., 3, H, W]`` uint8 or floating-point tensor holding
+    data (not on the meta device). Reads no values."""
+    if image.layout != torch.strided:
+        raise TypeError(f"{who} supports dense tensors, got layout={image.layout}; convert it with .to_dense()")
+    if image.is_meta:
+        raise TypeError(f"{who} got a tensor on the 'meta' device, which holds no values; use a device such as 'cpu'")
     if image.ndim < 3 or image.shape[-3] != 3:
         raise ValueError(
             f"{who} expects RGB images shaped [..., 3, H, W], got shape {tuple(image.shape)}; "
@@ -32,14 +43,31 @@ def check_image_tensor(image: Tensor, who: str = "CameraDegrade()") -> None:
         )
     if image.dtype != torch.uint8 and image.dtype not in FLOAT_DTYPES:
         raise TypeError(f"{who} supports uint8 and floating-point images, got dtype={image.dtype}")
-    if image.dtype != torch.uint8 and image.numel() and not bool(torch.isfinite(image).all()):
+
+
+def check_image_tensor(image: Tensor, who: str = "CameraDegrade()") -> None:
+    """:func:`check_image_shape`, and for floats: finite values within :data:`UNIT_TOLERANCE` of [0, 1].
+
+    One ``aminmax`` pass (about 0.05 ms for a 224² image on one CPU thread, 15× cheaper than ``isfinite().all()``)."""
+    check_image_shape(image, who)
+    if image.dtype == torch.uint8 or image.numel() == 0:
+        return
+    low, high = torch.stack(torch.aminmax(image.detach())).tolist()  # NaN propagates to both
+    if not (math.isfinite(low) and math.isfinite(high)):
         raise ValueError(f"{who} got an image containing NaN or infinite values")
+    if low < -UNIT_TOLERANCE or high > 1.0 + UNIT_TOLERANCE:
+        raise ValueError(
+            f"{who} expects float images in [0, 1], got values in [{low:.4g}, {high:.4g}]; scale 0..255 images "
+            "by 1/255 (or pass uint8), map [-1, 1] images with (x + 1) / 2, and degrade before normalising"
+        )
 
 
 def degrade_frames(profile: CameraProfile, frames: Tensor, params: EffectParams, precision: Precision) -> Tensor:
     """``profile`` applied without autograd to ``frames`` ``(N, 3, H, W)`` (uint8 or float in [0, 1]), returned
     in their dtype; on the CPU in chunks of :data:`CHUNK_PIXELS` (each param is sliced along its batch dim)."""
     count, _, height, width = frames.shape
+    if frames.numel() == 0:
+        return frames.clone()
     step = count if frames.device.type != "cpu" else max(1, CHUNK_PIXELS // max(1, height * width))
     if step >= count:
         return _degrade_chunk(profile, frames, params, precision)

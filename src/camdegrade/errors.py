@@ -27,3 +27,17 @@ class UnknownPresetError(CamdegradeError, KeyError):
 
 class PairsError(CamdegradeError, ValueError):
     """A set of (clean, captured) pairs could not be used."""
+
+
+class ImageError(CamdegradeError, OSError):
+    """An image file could not be used: unreadable, truncated, animated, or larger than camdegrade decodes."""
+
+
+class BatchError(CamdegradeError):
+    """Some files of a batch could not be processed; every other file was. ``failed`` holds ``(path, reason)``
+    for each failure and ``done`` what was written."""
+
+    def __init__(self, message: str, failed: list[tuple[object, str]], done: list[object]) -> None:
+        super().__init__(message)
+        self.failed = failed
+        self.done = done

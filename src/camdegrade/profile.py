@@ -33,6 +33,11 @@ METADATA_KEY = "camdegrade"
 
 _PICKLE_SUFFIXES = frozenset({".pth", ".pt", ".ckpt", ".bin", ".pkl", ".pickle", ".tar"})
 _MAX_HEADER_BYTES = 100 * 1024 * 1024
+#: The longest effect chain a profile may declare (a camera has nine kinds of stage; a few may repeat). Effects are
+#: built from the metadata before the tensors are compared, so this bounds what a file can make camdegrade build.
+MAX_EFFECTS = 64
+#: Names listed per kind of mismatch in an error (the rest are counted).
+_LISTED = 10
 EffectParams = list[dict[str, Tensor]]
 
 
@@ -101,6 +106,8 @@ class CameraProfile(nn.Module):
             params = self.make_params(image.shape)
         if len(params) != len(self.effects):
             raise ValueError(f"params must hold one entry per effect ({len(self.effects)}), got {len(params)}")
+        if image.numel() == 0:  # empty in, empty out (the network cannot pad an image without pixels)
+            return torch.zeros(image.shape, dtype=torch.float32, device=image.device)
         owned = False  # whether ``image`` is a tensor this call made, which it may overwrite
         if self.network is not None:
             image, owned = run_network(self.network, image, precision), True
@@ -159,7 +166,11 @@ class CameraProfile(nn.Module):
         path = Path(path)
         if path.suffix != ".safetensors":
             raise ValueError(f"path must end in '.safetensors', got {str(path)!r}")
-        tensors = {key: value.detach().cpu().contiguous().clone() for key, value in self.state_dict().items()}
+        try:
+            check_profile_values(self)
+        except ValueError as error:
+            raise ValueError(f"cannot save profile {self.name or '(unnamed)'!r}: {error}") from None
+        tensors = {key: _storable(value) for key, value in self.state_dict().items()}
         with atomic_path(path) as temporary:
             save_file(tensors, str(temporary), metadata=serialize_metadata(self.metadata()))
         return path
@@ -185,6 +196,29 @@ class CameraProfile(nn.Module):
         return f"name={self.name!r}"
 
 
+def check_profile_values(profile: CameraProfile) -> None:
+    """Raise ``ValueError`` naming the first value that is out of range: a network weight that is not finite, or
+    an effect value outside what its :meth:`~camdegrade.effects.Effect.check_values` allows."""
+    if profile.network is not None:
+        for key, value in profile.network.state_dict().items():
+            if value.is_floating_point() and not bool(torch.isfinite(value).all()):
+                bad = int((~torch.isfinite(value)).sum())
+                raise ValueError(f"network.{key} must be finite, got {bad} NaN or infinite values")
+    for index, effect in enumerate(profile.effects):
+        try:
+            effect.check_values()
+        except ValueError as error:
+            raise ValueError(f"effect {index} ({effect.name}): {error}") from None
+
+
+def _storable(value: Tensor) -> Tensor:
+    """A tensor as a profile file stores it: on the CPU, contiguous, half precisions widened to float32."""
+    value = value.detach().cpu()
+    if value.dtype in (torch.float16, torch.bfloat16):
+        value = value.float()
+    return value.contiguous().clone()
+
+
 def builtin_profiles_dir() -> Path:
     return Path(str(resources.files("camdegrade") / "profiles"))
 
@@ -201,8 +235,13 @@ def resolve_profile_path(name_or_path: str | os.PathLike[str]) -> Path:
         return path
     if isinstance(name_or_path, str) and "/" not in name_or_path and name_or_path in list_profiles():
         return builtin_profiles_dir() / f"{name_or_path}.safetensors"
-    if path.exists():
-        raise ProfileError(f"profile must be a file, got directory {str(path)!r}")
+    if path.is_dir():
+        raise ProfileError(f"profile {str(path)!r} is a folder, not a profile file")
+    if path.exists():  # never opened: a FIFO would block the reader, a device would never end
+        raise ProfileError(f"profile {str(path)!r} is not a regular file (a device, FIFO or socket)")
+    blocker = next((ancestor for ancestor in path.parents if ancestor.exists()), None)
+    if blocker is not None and not blocker.is_dir():
+        raise ProfileError(f"profile {str(path)!r} cannot exist: {str(blocker)!r} is a file, not a folder")
     known = ", ".join(list_profiles()) or "none"
     raise UnknownProfileError(
         f"profile {str(name_or_path)!r} is neither an existing file nor a built-in profile; built-in profiles: {known}"
@@ -212,9 +251,12 @@ def resolve_profile_path(name_or_path: str | os.PathLike[str]) -> Path:
 def load_profile(name_or_path: str | os.PathLike[str], device: torch.device | str | None = None) -> CameraProfile:
     """Load a built-in profile by name, or a profile file by path, strictly.
 
-    Only safetensors files are read (pickled checkpoints are refused, never unpickled). The format version is
-    checked, and every tensor the profile's network and effects need must be present with the right shape, with
-    nothing left over; otherwise a :class:`~camdegrade.errors.ProfileError` lists what is wrong.
+    Only regular safetensors files are read (pickled checkpoints are refused, never unpickled). The format version
+    is checked; the network's width is bounded (:data:`~camdegrade.network.MAX_WIDTH`) and the network is built
+    without memory until the file's header shows every tensor the profile needs, with the right shape and a float
+    dtype, with nothing left over. Then the values are checked: network weights finite, every effect's values in
+    its ranges (:meth:`~camdegrade.effects.Effect.check_values`). Anything wrong is a one-line
+    :class:`~camdegrade.errors.ProfileError`.
 
     Examples:
         >>> load_profile("city100-iphonex").name
@@ -226,12 +268,19 @@ def load_profile(name_or_path: str | os.PathLike[str], device: torch.device | st
         with safe_open(str(path), framework="pt", device="cpu") as handle:
             metadata = handle.metadata() or {}
             profile = _profile_from_metadata(metadata, path)
+            _check_header(profile, handle, path)
             tensors = {key: handle.get_tensor(key) for key in handle.keys()}  # noqa: SIM118 - safe_open has no iter
     except SafetensorError as error:
         raise ProfileError(
             f"profile file {str(path)!r} is corrupt or truncated ({error}); fit or copy it again"
         ) from error
-    _load_state_strictly(profile, tensors, path)
+    if profile.network is not None:
+        profile.network.to_empty(device="cpu")  # built on the meta device; the file's weights fill it below
+    profile.load_state_dict(tensors, strict=True)
+    try:
+        check_profile_values(profile)
+    except ValueError as error:
+        raise ProfileError(f"profile {str(path)!r}: {error}") from None
     return profile if device is None else profile.to(device)
 
 
@@ -277,11 +326,17 @@ def _parse_metadata(raw: Mapping[str, str], path: Path) -> dict[str, Any]:
         metadata = json.loads(raw[METADATA_KEY])
     except json.JSONDecodeError as error:
         raise ProfileError(f"profile {str(path)!r} has invalid JSON metadata: {error}") from None
+    except RecursionError:
+        raise ProfileError(f"profile {str(path)!r} has JSON metadata nested too deeply to read") from None
     if not isinstance(metadata, dict) or metadata.get("format") != FORMAT_NAME:
         raise ProfileError(f"{str(path)!r} is not a camdegrade profile (metadata 'format' is not {FORMAT_NAME!r})")
     version = metadata.get("format_version")
     if isinstance(version, bool) or not isinstance(version, int):
         raise ProfileError(f"profile {str(path)!r} has format_version {version!r}, expected an integer")
+    if version < 1:
+        raise ProfileError(
+            f"profile {str(path)!r} has format_version {version}, expected an integer from 1 to {FORMAT_VERSION}"
+        )
     if version > FORMAT_VERSION:
         raise ProfileError(
             f"profile {str(path)!r} has format version {version}, newer than this camdegrade ({__version__}) reads "
@@ -292,6 +347,11 @@ def _parse_metadata(raw: Mapping[str, str], path: Path) -> dict[str, Any]:
 
 def _profile_from_metadata(raw: Mapping[str, str], path: Path) -> CameraProfile:
     metadata = _parse_metadata(raw, path)
+    specs = metadata.get("effects", [])
+    if isinstance(specs, list) and len(specs) > MAX_EFFECTS:
+        raise ProfileError(
+            f"profile {str(path)!r} declares {len(specs)} effect stages, more than camdegrade builds ({MAX_EFFECTS})"
+        )
     try:
         network = _network_from_spec(metadata.get("network"), path)
         effects = [_effect_from_spec(spec, path) for spec in metadata.get("effects", [])]
@@ -318,7 +378,8 @@ def _network_from_spec(spec: Any, path: Path) -> DomainShiftNet | None:
             f"profile {str(path)!r} metadata 'network' must be null or {{'arch': 'DomainShiftNet', 'config': ...}}, "
             f"got {spec!r}"
         )
-    return DomainShiftNet(**spec.get("config", {}))
+    with torch.device("meta"):  # no memory until the file's header matches (see _check_header)
+        return DomainShiftNet(**spec.get("config", {}))
 
 
 def _effect_from_spec(spec: Any, path: Path) -> Effect:
@@ -332,22 +393,46 @@ def _effect_from_spec(spec: Any, path: Path) -> Effect:
     return build_effect(spec["name"], spec.get("config", {}))
 
 
-def _load_state_strictly(profile: CameraProfile, tensors: dict[str, Tensor], path: Path) -> None:
+_FLOAT_DTYPES = ("F32", "F64")
+_DTYPE_PREFIXES = {"F": "float", "BF": "bfloat", "I": "int", "U": "uint"}
+
+
+def _listing(items: list[str]) -> str:
+    more = f" and {len(items) - _LISTED} more" if len(items) > _LISTED else ""
+    return ", ".join(items[:_LISTED]) + more
+
+
+def _dtype_name(code: str) -> str:
+    """A safetensors dtype code as torch names it: ``I32`` → ``int32``."""
+    prefix = code.rstrip("0123456789")
+    bits = code[len(prefix) :]
+    return f"{_DTYPE_PREFIXES[prefix]}{bits}" if prefix in _DTYPE_PREFIXES and bits else code.lower()
+
+
+def _check_header(profile: CameraProfile, handle: Any, path: Path) -> None:
+    """Compare the file's tensor names, shapes and dtypes (its header: nothing is read) with what the profile
+    needs; raise a :class:`ProfileError` listing every difference."""
     expected = profile.state_dict()
-    missing = sorted(set(expected) - set(tensors))
-    unexpected = sorted(set(tensors) - set(expected))
+    header = {key: handle.get_slice(key) for key in handle.keys()}  # noqa: SIM118 - safe_open has no iter
+    shapes = {key: tuple(piece.get_shape()) for key, piece in header.items()}
+    missing = sorted(set(expected) - set(header))
+    unexpected = sorted(set(header) - set(expected))
     wrong_shape = [
-        f"{key} {tuple(tensors[key].shape)} (expected {tuple(expected[key].shape)})"
-        for key in sorted(set(expected) & set(tensors))
-        if tensors[key].shape != expected[key].shape
+        f"{key} {shapes[key]} (expected {tuple(expected[key].shape)})"
+        for key in sorted(set(expected) & set(header))
+        if shapes[key] != tuple(expected[key].shape)
     ]
-    problems = []
-    if missing:
-        problems.append(f"missing tensors: {', '.join(missing)}")
-    if unexpected:
-        problems.append(f"unexpected tensors: {', '.join(unexpected)}")
-    if wrong_shape:
-        problems.append(f"wrong shapes: {', '.join(wrong_shape)}")
+    wrong_dtype = [
+        f"{key} has dtype {_dtype_name(header[key].get_dtype())}, expected float32 or float64"
+        for key in sorted(set(expected) & set(header))
+        if expected[key].is_floating_point() and header[key].get_dtype() not in _FLOAT_DTYPES
+    ]
+    kinds = (
+        ("missing tensors", missing),
+        ("unexpected tensors", unexpected),
+        ("wrong shapes", wrong_shape),
+        ("wrong dtypes", wrong_dtype),
+    )
+    problems = [f"{kind}: {_listing(items)}" for kind, items in kinds if items]
     if problems:
         raise ProfileError(f"profile {str(path)!r} does not match its own metadata; " + "; ".join(problems))
-    profile.load_state_dict(tensors, strict=True)

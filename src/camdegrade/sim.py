@@ -17,12 +17,13 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from camdegrade._files import atomic_path
+from camdegrade._checks import check_int, check_seed
+from camdegrade._files import atomic_path, check_outputs_spare_inputs, folder_relation
 from camdegrade._pixels import as_unit, bytes_to_unit, unit_to_bytes
 from camdegrade._seeds import derived_generator
 from camdegrade.effects import EFFECTS, STAGES, Effect
 from camdegrade.effects.chain import apply_effects
-from camdegrade.errors import UnknownPresetError
+from camdegrade.errors import BatchError, UnknownPresetError
 from camdegrade.io import is_image_path, iter_images, read_image, write_image
 
 CameraParams = list[dict[str, Tensor]]
@@ -202,14 +203,34 @@ class VirtualCamera(nn.Module):
         return f"name={self.name!r}, scale={self.scale}"
 
 
-def _inputs(input: Path) -> list[tuple[Path, Path]]:
+def _inputs(input: Path, out_dir: Path, overwrite: bool) -> list[tuple[Path, Path]]:
+    """``(image, relative name)`` of every input image; a pairs folder inside the input folder is left out."""
     if input.is_file():
         if not is_image_path(input):
             raise ValueError(f"input must be an image file or a folder of images, got {str(input)!r}")
         return [(input, Path(input.name))]
     if not input.is_dir():
+        if input.exists():
+            raise ValueError(f"input {str(input)!r} is not a regular file or folder (a device, FIFO or socket)")
         raise FileNotFoundError(f"input {str(input)!r} does not exist")
-    found = [(path, path.relative_to(input)) for path in iter_images(input)]
+    relation = folder_relation(input, out_dir)
+    if relation == "same":
+        raise ValueError(
+            f"out_dir {str(out_dir)!r} is the input folder: the pairs would be written among the images they are made "
+            "from; choose another folder"
+        )
+    if relation == "inside" and not overwrite:
+        raise ValueError(
+            f"out_dir {str(out_dir)!r} is inside the input folder {str(input)!r}: a rerun would read the pairs it "
+            "wrote as inputs; choose a folder outside it, or allow it with overwrite=True (CLI: --overwrite), which "
+            "leaves out_dir out of the inputs"
+        )
+    skipped = out_dir.resolve() if relation == "inside" else None
+    found = [
+        (path, path.relative_to(input))
+        for path in iter_images(input)
+        if skipped is None or not path.resolve().is_relative_to(skipped)
+    ]
     if not found:
         raise ValueError(f"input folder {str(input)!r} holds no images (looked for .png, .jpg, ...)")
     return found
@@ -232,6 +253,7 @@ def simulate_pairs(
     seed: int = 0,
     *,
     max_side: int | None = None,
+    overwrite: bool = False,
 ) -> list[Path]:
     """Write a pairs folder made by a virtual camera: ``out_dir/clean/<name>.png`` and ``out_dir/captured/<name>.png``.
 
@@ -243,36 +265,61 @@ def simulate_pairs(
         seed: the run seed. Each image's capture is seeded by ``seed`` and its relative path, so the same
             seed gives the same bytes whatever else is in the folder.
         max_side: downsize clean images whose longer side exceeds this (keeps demos fast).
+        overwrite: allow ``out_dir`` inside the input folder (it is then left out of the inputs). No option lets an
+            output replace an input image.
 
     Returns:
         The captured image paths, in input order (each clean image has the same relative path under ``clean/``).
         Both images of a pair have the same size (the capture's lower resolution is simulated in place).
+
+    Raises:
+        BatchError: after every readable image was simulated, when some could not be read or written
+            (``error.failed``: ``(path, reason)``; ``error.done``: the captured paths written).
     """
+    check_seed(seed)
+    if max_side is not None:
+        check_int("max_side", max_side, minimum=1)
     camera = VirtualCamera.from_preset(preset) if isinstance(preset, str) else preset
     if not isinstance(camera, VirtualCamera):
         raise TypeError(f"preset must be a preset name or a VirtualCamera, got {type(preset).__name__}")
     root = Path(out_dir)
-    source = Path(input)
-    if source.is_dir() and root.resolve().is_relative_to(source.resolve()):
-        raise ValueError(
-            f"out_dir must not be inside the input folder (a rerun would read its own output), got {str(root)!r}"
-        )
-    items = _inputs(source)
     names: dict[Path, Path] = {}
-    for path, relative in items:
+    for path, relative in _inputs(Path(input), root, overwrite):
         name = relative.with_suffix(".png")
         if name in names:
             raise ValueError(f"inputs {str(names[name])!r} and {str(path)!r} would both be written as {str(name)!r}")
         names[name] = path
-    written = []
+    check_outputs_spare_inputs(
+        [(path, root / side / name) for name, path in names.items() for side in ("clean", "captured")]
+    )
+    written: list[Path] = []
+    failed: list[tuple[Path, str]] = []
     for name, path in names.items():
-        clean = _shrink(read_image(path), max_side)
+        try:
+            clean = _shrink(read_image(path), max_side)
+        except OSError as error:  # unreadable, truncated, too large, animated: reported at the end
+            failed.append((path, str(error)))
+            continue
         # Seeded by the relative path: the same bytes whatever else is in the folder and in whichever order.
         captured = camera(clean, generator=derived_generator(seed, "simulate", name.as_posix()))
-        write_image(clean, root / "clean" / name)
-        write_image(captured, root / "captured" / name)
+        try:
+            write_image(clean, root / "clean" / name)
+            write_image(captured, root / "captured" / name)
+        except OSError as error:
+            failed.append((path, str(error)))
+            continue
         written.append(root / "captured" / name)
     record = {"preset": camera.name, "seed": seed, "max_side": max_side, "camera": camera.describe()}
+    record["skipped"] = [{"path": str(path), "reason": reason} for path, reason in failed]
     with atomic_path(root / "simulation.json") as temporary:
         temporary.write_text(json.dumps(record, indent=2, sort_keys=True) + "\n")
+    if failed:
+        raise BatchError(
+            f"{len(failed)} of {len(names)} image(s) could not be simulated: {_listed(failed)}", failed, written
+        )
     return written
+
+
+def _listed(failed: Sequence[tuple[Path, str]], most: int = 5) -> str:
+    shown = ", ".join(str(path) for path, _ in failed[:most])
+    return shown + (f" and {len(failed) - most} more" if len(failed) > most else "")

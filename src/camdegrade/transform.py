@@ -17,7 +17,14 @@ from torchvision.transforms.v2 import functional as TF
 
 from camdegrade._checks import check_probability, check_seed
 from camdegrade._seeds import derive_seed
-from camdegrade.engine import DeviceCopies, check_image_tensor, degrade_frames, params_on, select_params
+from camdegrade.engine import (
+    DeviceCopies,
+    check_image_shape,
+    check_image_tensor,
+    degrade_frames,
+    params_on,
+    select_params,
+)
 from camdegrade.inference import Precision, resolve_precision
 from camdegrade.profile import CameraProfile, EffectParams, as_profile
 
@@ -154,7 +161,7 @@ class CameraDegrade(Transform):
                 f"frames (N, C, H, W), got an image with {frames}"
             )
         apply = params["apply"]
-        if frames[0] == 0 or not bool(apply.any()):
+        if image.numel() == 0 or not bool(apply.any()):  # empty in, empty out
             return image
         plain = image.as_subclass(Tensor)
         batch = plain.reshape(frames)
@@ -190,7 +197,7 @@ def _frames_shape(inpt: Any) -> tuple[int, int, int, int]:
     if isinstance(inpt, PIL.Image.Image):
         width, height = inpt.size
         return (1, 3, height, width)
-    check_image_tensor(inpt)
+    check_image_shape(inpt)
     *leading, channels, height, width = inpt.shape
     return (math.prod(leading), channels, height, width)
 

@@ -11,7 +11,7 @@ from camdegrade._checks import check_int
 from camdegrade.data._keys import SharedEpoch, item_generator
 from camdegrade.data.datasets import DegradeLike, as_camera_degrade, resolve_seed
 from camdegrade.data.policies import Bernoulli, MixPolicy
-from camdegrade.engine import check_image_tensor, degrade_frames
+from camdegrade.engine import check_image_shape, check_image_tensor, degrade_frames
 from camdegrade.profile import EffectParams
 
 
@@ -88,7 +88,7 @@ class BatchDegrade(nn.Module):
         batch = images.shape[0]
         epoch = self._epoch.get() if epoch is None else check_int("epoch", epoch, minimum=0)
         index_list = self._index_list(indices, batch)
-        if batch == 0:
+        if images.numel() == 0:  # empty in, empty out
             return images
         device = images.device
         apply = self.decisions(index_list, epoch).to(device, non_blocking=True)
@@ -130,6 +130,7 @@ def _one_view_policy(p: float | MixPolicy) -> MixPolicy:
 def _check_batch(images: Tensor) -> None:
     if not isinstance(images, Tensor):
         raise TypeError(f"images must be a tensor (B, 3, H, W), got {type(images).__name__}")
+    check_image_shape(images, "BatchDegrade()")
     if images.ndim != 4:
         raise ValueError(f"images must be a batch shaped (B, 3, H, W), got shape {tuple(images.shape)}")
-    check_image_tensor(images)
+    check_image_tensor(images, "BatchDegrade()")

@@ -5,12 +5,31 @@ from __future__ import annotations
 import math
 import os
 from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+from typing import Any
 
+from camdegrade._checks import check_seed
 from camdegrade.diagnose.attribute import Attribution, Candidate, attribute, effect_params
 from camdegrade.diagnose.report import DiagnosisReport, example_crops
 from camdegrade.diagnose.where import findings
+from camdegrade.errors import PairsError
 from camdegrade.fitting.pairset import PairSet, PairsSource
 from camdegrade.profile import CameraProfile, as_profile
+
+#: Fewest pairs on each side of the split: below this a held-out gap has no spread to judge it by, and the
+#: diagnosis refuses rather than state a verdict from one or two pairs.
+MIN_PAIRS = 4
+
+
+@dataclass
+class PairedDiagnosisReport(DiagnosisReport):
+    """The report of a paired diagnosis: also lists the files skipped while loading the pairs (``skipped``: one
+    ``{"path", "reason"}`` per file), so a dropped pair is never silent."""
+
+    skipped: list[dict[str, str]] = field(default_factory=list)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {**super().to_dict(), "skipped": self.skipped}
 
 
 def diagnose(
@@ -41,17 +60,27 @@ def diagnose(
         max_added: the most effects added in sequence (the best combination).
         seed: seeds the split, the simulations and the bootstrap.
         max_pairs: use at most this many pairs (the first, in name order).
-        log: called with progress lines.
+        log: called with progress lines (the files skipped while loading the pairs among them).
 
     Returns:
-        A :class:`DiagnosisReport`; ``report.profile`` is the profile with the chosen effects added.
+        A :class:`DiagnosisReport`; ``report.profile`` is the profile with the chosen effects added, and
+        ``report.skipped`` lists the files left out while loading the pairs.
+
+    Raises:
+        PairsError: fewer than :data:`MIN_PAIRS` calibration or held-out pairs.
     """
+    check_seed(seed)
     say = log or (lambda message: None)
     base = as_profile(profile)
     suffixes = {"clean_suffix": clean_suffix, "captured_suffix": captured_suffix}
     pair_set = PairSet.load(pairs, max_pairs=max_pairs, log=say, **suffixes)
     given = None if held_out is None else PairSet.load(held_out, log=say, **suffixes)
     calibration, held, split = _split(pair_set, given, calibration_fraction, seed)
+    if min(len(calibration), len(held)) < MIN_PAIRS:
+        raise PairsError(
+            f"diagnosis needs at least {MIN_PAIRS} calibration and {MIN_PAIRS} held-out pairs to conclude anything, "
+            f"got {len(calibration)} and {len(held)} ({split}); add pairs of more scenes"
+        )
     say(split)
     result = attribute(
         base,
@@ -64,7 +93,14 @@ def diagnose(
     )
     verdict = _verdict(result, findings_of(result))
     say(verdict)
-    return _report(base, result, calibration, held, split, verdict)
+    report = _report(base, result, calibration, held, split, verdict)
+    report.skipped = [
+        {"path": str(path), "reason": reason}
+        for loaded in (pair_set, given)
+        if loaded is not None and loaded.report is not None
+        for path, reason in loaded.report.skipped
+    ]
+    return report
 
 
 def _split(
@@ -147,7 +183,7 @@ def _combination_rows(combinations: list[Candidate]) -> list[dict]:
 
 def _report(
     base: CameraProfile, result: Attribution, calibration: PairSet, held: PairSet, split: str, verdict: str
-) -> DiagnosisReport:
+) -> PairedDiagnosisReport:
     chosen = result.chosen
     added = list(chosen.names) if chosen else []
     final = result.final_profile
@@ -155,7 +191,7 @@ def _report(
         final.fitted = {**final.fitted, "diagnosis": {"added": added, "gap_before": result.gap_before}}
     best_single = next((c for c in result.singles if c.profile is not None), None)
     held_pairs = held.unit_pairs()
-    return DiagnosisReport(
+    return PairedDiagnosisReport(
         gap_before=result.gap_before,
         gap_after=chosen.gap_after if chosen else result.gap_before,
         noise_floor=result.noise_floor,

@@ -44,7 +44,8 @@ class Effect(nn.Module):
     Everything the rest of the package needs to know about an effect is asked of its class, never looked up by
     name elsewhere: :meth:`neutral` (the identity), :meth:`without_randomness` (its deterministic centre, or
     ``None`` for pure noise), :meth:`scaled` (its strength), :attr:`fit_budget` and :meth:`fit_options` (what its
-    fitter affords), :attr:`explains` (the gap signatures it can cause) and :attr:`position_dependent`. The
+    fitter affords), :attr:`explains` (the gap signatures it can cause), :attr:`position_dependent` and
+    :meth:`check_values` (the valid ranges of its values, checked when a profile is loaded or saved). The
     registry-wide tests in ``tests/test_effects.py`` hold every registered effect to this contract.
     """
 
@@ -125,6 +126,14 @@ class Effect(nn.Module):
         """
         raise NotImplementedError(f"effect {cls.name!r} ({cls.__qualname__}) has no fitter")
 
+    def check_values(self) -> None:
+        """Raise ``ValueError`` naming the first value outside its valid range: profiles are checked when they are
+        loaded (values come from a file) and saved. Default: every floating-point buffer is finite. Effects add
+        their own ranges (and those of their ``config()`` numbers) with :func:`check_range`."""
+        for key, value in self.named_buffers():
+            if value.is_floating_point() and not bool(torch.isfinite(value).all()):
+                raise ValueError(f"{key} must be finite, got {key}={shown(value)}")
+
     def extra_repr(self) -> str:
         items = [f"{key}={value!r}" for key, value in self.config().items()]
         for key, value in self.named_buffers(recurse=False):
@@ -132,6 +141,24 @@ class Effect(nn.Module):
                 rounded = [round(v, 6) for v in value.flatten().tolist()]
                 items.append(f"{key}={rounded[0] if value.ndim == 0 else rounded}")
         return ", ".join(items)
+
+
+def check_range(name: str, value: Tensor | float, low: float, high: float, *, low_open: bool = False) -> None:
+    """Raise ``ValueError`` unless every element of ``value`` is finite and in ``[low, high]`` (``(low, high]`` with
+    ``low_open``), naming ``name`` and the value found."""
+    tensor = torch.as_tensor(value, dtype=torch.float64)
+    below = tensor <= low if low_open else tensor < low
+    if bool((~torch.isfinite(tensor) | below | (tensor > high)).any()):
+        bound = f"from {low:g}{' (exclusive)' if low_open else ''} to {high:g}"
+        raise ValueError(f"{name} must be {bound}, got {name}={shown(tensor)}")
+
+
+def shown(value: Tensor) -> str:
+    """A buffer's value for an error message: a number, or a short list."""
+    if value.ndim == 0:
+        return f"{value.item():.6g}"
+    items = [round(v, 6) for v in value.flatten().tolist()[:9]]
+    return f"{items}" if value.numel() <= 9 else f"{items[:-1]} ... ({value.numel()} values)"
 
 
 def register_effect(cls: type[Effect]) -> type[Effect]:

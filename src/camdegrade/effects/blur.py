@@ -5,7 +5,7 @@ from __future__ import annotations
 import copy
 import math
 from collections.abc import Callable, Mapping, Sequence
-from typing import Any
+from typing import Any, ClassVar
 
 import torch
 from torch import Tensor
@@ -14,7 +14,7 @@ from camdegrade._checks import check_non_negative
 from camdegrade._fingerprint import module_tensors, tensors_fingerprint
 from camdegrade.effects._common import batch_shape, resolve_params, scalar
 from camdegrade.effects._fitting import PairList, affine_residual, as_pairs, grid_search, minimize, textured_crops
-from camdegrade.effects.base import Effect, Encoding, Pairs, register_effect
+from camdegrade.effects.base import Effect, Encoding, Pairs, check_range, register_effect
 from camdegrade.functional import blur_image, convolve_separable, separable_taps
 
 
@@ -29,12 +29,18 @@ class Blur(Effect):
             shots), drawn in :meth:`make_params`. 0 disables it.
 
     Zero sigmas and zero motion are neutral. Sigmas are in pixels of the image the stage is applied to.
+
+    Valid values (:meth:`check_values`): sigmas from 0 to :attr:`MAX_SIGMA`, motion from 0 to :attr:`MAX_MOTION`,
+    finite angles, ``sigma_jitter`` from 0 to :attr:`MAX_SIGMA_JITTER` (the kernel grows with the sigma squared).
     """
 
     name = "blur"
     stage = "optics"
     explains = ("frequency",)
     fit_budget = 24
+    MAX_SIGMA: ClassVar[float] = 32.0
+    MAX_MOTION: ClassVar[float] = 128.0
+    MAX_SIGMA_JITTER: ClassVar[float] = 0.5
     sigma_x: Tensor
     sigma_y: Tensor
     angle: Tensor
@@ -72,6 +78,13 @@ class Blur(Effect):
 
     def config(self) -> dict[str, Any]:
         return {"linear": self.linear, "sigma_jitter": self.sigma_jitter}
+
+    def check_values(self) -> None:
+        super().check_values()
+        check_range("sigma_x", self.sigma_x, 0.0, self.MAX_SIGMA)
+        check_range("sigma_y", self.sigma_y, 0.0, self.MAX_SIGMA)
+        check_range("motion_length", self.motion_length, 0.0, self.MAX_MOTION)
+        check_range("sigma_jitter", self.sigma_jitter, 0.0, self.MAX_SIGMA_JITTER)
 
     def without_randomness(self) -> Blur:
         centre = copy.deepcopy(self)

@@ -12,7 +12,7 @@ from torch import Tensor
 from camdegrade._pixels import unit_to_bytes
 from camdegrade.effects._common import batch_shape, resolve_params, scalar
 from camdegrade.effects._fitting import as_pairs
-from camdegrade.effects.base import Effect, Pairs, register_effect
+from camdegrade.effects.base import Effect, Pairs, check_range, register_effect
 from camdegrade.functional import jpeg_image
 from camdegrade.functional.codec import check_quality
 
@@ -54,6 +54,13 @@ class JPEG(Effect):
     def neutral(cls) -> JPEG:
         """Never compressed, and at quality 100 (the codec's least change) for :meth:`scaled`."""
         return cls(100, probability=0.0)
+
+    def check_values(self) -> None:
+        """Quality an integer from 1 to 100, ``quality_jitter`` from 0 to 99, ``probability`` from 0 to 1."""
+        super().check_values()
+        check_quality(self.quality)
+        check_range("quality_jitter", self.quality_jitter, 0, 99)
+        check_range("probability", self.probability, 0.0, 1.0)
 
     def without_randomness(self) -> JPEG:
         """The fitted quality, no jitter, and compression on or off, whichever ``probability`` makes likelier."""

@@ -12,7 +12,7 @@ from torch import Tensor
 from camdegrade._checks import check_non_negative
 from camdegrade.effects._common import batch_shape, resolve_params, scalar
 from camdegrade.effects._fitting import as_pairs, downscale, huber_weights, minimize, robust_lstsq
-from camdegrade.effects.base import Effect, Encoding, Pairs, register_effect
+from camdegrade.effects.base import Effect, Encoding, Pairs, check_range, register_effect, shown
 from camdegrade.functional import color_matrix_image, srgb_to_linear, tone_curve_image
 from camdegrade.functional._utils import as_channel_view, per_sample
 from camdegrade.functional.tone import exposed_, levels_gamma_, tone_curve
@@ -45,6 +45,12 @@ class Color(Effect):
 
     def config(self) -> dict[str, Any]:
         return {"gain_jitter": self.gain_jitter, "linear": self.linear}
+
+    def check_values(self) -> None:
+        """Matrix entries from -16 to 16, ``gain_jitter`` from 0 to 1."""
+        super().check_values()
+        check_range("matrix", self.matrix, -16.0, 16.0)
+        check_range("gain_jitter", self.gain_jitter, 0.0, 1.0)
 
     def without_randomness(self) -> Color:
         centre = copy.deepcopy(self)
@@ -162,6 +168,20 @@ class Tone(Effect):
 
     def config(self) -> dict[str, Any]:
         return {"exposure_jitter": self.exposure_jitter}
+
+    def check_values(self) -> None:
+        """Gamma above 0 and at most 16, levels from -16 to 16 with white above black, exposure from -16 to 16 stops,
+        ``exposure_jitter`` from 0 to 4 stops."""
+        super().check_values()
+        check_range("gamma", self.gamma, 0.0, 16.0, low_open=True)
+        check_range("black", self.black, -16.0, 16.0)
+        check_range("white", self.white, -16.0, 16.0)
+        if not bool(self.white > self.black):
+            raise ValueError(
+                f"white must be greater than black, got black={shown(self.black)}, white={shown(self.white)}"
+            )
+        check_range("exposure", self.exposure, -16.0, 16.0)
+        check_range("exposure_jitter", self.exposure_jitter, 0.0, 4.0)
 
     def without_randomness(self) -> Tone:
         centre = copy.deepcopy(self)

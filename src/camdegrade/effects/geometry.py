@@ -14,7 +14,7 @@ from camdegrade._checks import check_non_negative
 from camdegrade.effects._common import batch_shape, resolve_params, scalar
 from camdegrade.effects._fitting import as_pairs, downscale, robust_lstsq
 from camdegrade.effects._warp import fit_warp
-from camdegrade.effects.base import Effect, Encoding, Pairs, register_effect
+from camdegrade.effects.base import Effect, Encoding, Pairs, check_range, register_effect
 from camdegrade.functional import (
     chromatic_aberration_image,
     distortion_image,
@@ -43,6 +43,12 @@ class Vignetting(Effect):
         super().__init__()
         self.register_buffer("k1", scalar(k1))
         self.register_buffer("k2", scalar(k2))
+
+    def check_values(self) -> None:
+        """``k1`` and ``k2`` from -10 to 10."""
+        super().check_values()
+        check_range("k1", self.k1, -10.0, 10.0)
+        check_range("k2", self.k2, -10.0, 10.0)
 
     def forward(self, image: Tensor, params: Mapping[str, Tensor] | None = None) -> Tensor:
         return vignetting_image(image, self.k1.to(image.device), self.k2.to(image.device))
@@ -107,6 +113,12 @@ class Distortion(Effect):
         self.register_buffer("k1", scalar(k1))
         self.register_buffer("k2", scalar(k2))
 
+    def check_values(self) -> None:
+        """``k1`` and ``k2`` from -2 to 2 (a fisheye's ``k1`` is below 1)."""
+        super().check_values()
+        check_range("k1", self.k1, -2.0, 2.0)
+        check_range("k2", self.k2, -2.0, 2.0)
+
     def forward(self, image: Tensor, params: Mapping[str, Tensor] | None = None) -> Tensor:
         return distortion_image(image, self.k1.to(image.device), self.k2.to(image.device))
 
@@ -146,6 +158,12 @@ class ChromaticAberration(Effect):
         super().__init__()
         self.register_buffer("red", scalar(red))
         self.register_buffer("blue", scalar(blue))
+
+    def check_values(self) -> None:
+        """``red`` and ``blue`` from -0.1 to 0.1 (real lenses: below 0.003)."""
+        super().check_values()
+        check_range("red", self.red, -0.1, 0.1)
+        check_range("blue", self.blue, -0.1, 0.1)
 
     def forward(self, image: Tensor, params: Mapping[str, Tensor] | None = None) -> Tensor:
         return chromatic_aberration_image(image, self.red.to(image.device), self.blue.to(image.device))
@@ -208,6 +226,16 @@ class Misalignment(Effect):
 
     def config(self) -> dict[str, Any]:
         return {"shift_std": self.shift_std, "angle_std": self.angle_std}
+
+    def check_values(self) -> None:
+        """Shifts from -4096 to 4096 pixels, ``angle`` from -360 to 360 degrees, ``shift_std`` from 0 to 64 pixels,
+        ``angle_std`` from 0 to 45 degrees."""
+        super().check_values()
+        check_range("dx", self.dx, -4096.0, 4096.0)
+        check_range("dy", self.dy, -4096.0, 4096.0)
+        check_range("angle", self.angle, -360.0, 360.0)
+        check_range("shift_std", self.shift_std, 0.0, 64.0)
+        check_range("angle_std", self.angle_std, 0.0, 45.0)
 
     def without_randomness(self) -> Misalignment:
         centre = copy.deepcopy(self)

@@ -17,6 +17,8 @@ from camdegrade._files import atomic_path
 from camdegrade.errors import CamdegradeError
 
 CHECKPOINT_KEY = "camdegrade_checkpoint"
+#: Metadata keys every checkpoint holds (and the tensor ``generator``).
+REQUIRED_KEYS = ("epoch", "best_score", "history", "config", "param_groups", "scheduler")
 
 
 @dataclass
@@ -32,6 +34,8 @@ class TrainingState:
     best_network: dict[str, Tensor] | None
     history: list[dict[str, Any]] = field(default_factory=list)
     config: dict[str, Any] = field(default_factory=dict)
+    #: A fingerprint of the training and validation pairs (names, sizes, sampled pixels): a resume must use them.
+    data: str = ""
 
 
 def save_checkpoint(state: TrainingState, path: str | os.PathLike[str]) -> Path:
@@ -50,6 +54,7 @@ def save_checkpoint(state: TrainingState, path: str | os.PathLike[str]) -> Path:
         "config": state.config,
         "param_groups": state.optimizer["param_groups"],
         "scheduler": state.scheduler,
+        "data": state.data,
     }
     with atomic_path(path) as temporary:
         save_file(tensors, str(temporary), metadata={CHECKPOINT_KEY: json.dumps(metadata, sort_keys=True)})
@@ -66,7 +71,20 @@ def load_checkpoint(path: str | os.PathLike[str]) -> TrainingState:
         raise CamdegradeError(f"cannot read checkpoint {str(path)!r}: {error}") from error
     if CHECKPOINT_KEY not in raw:
         raise CamdegradeError(f"{str(path)!r} is not a camdegrade training checkpoint")
-    metadata = json.loads(raw[CHECKPOINT_KEY])
+    try:
+        metadata = json.loads(raw[CHECKPOINT_KEY])
+    except (json.JSONDecodeError, RecursionError) as error:
+        raise CamdegradeError(
+            f"checkpoint {str(path)!r} metadata is not valid JSON ({error}); delete it and fit without resume"
+        ) from None
+    if not isinstance(metadata, dict):
+        raise CamdegradeError(f"{str(path)!r} is not a camdegrade training checkpoint (metadata is not an object)")
+    for key in (*REQUIRED_KEYS, "generator"):
+        if key not in (tensors if key == "generator" else metadata):
+            raise CamdegradeError(
+                f"checkpoint {str(path)!r} lacks {key!r} (damaged, or written by another version); "
+                "delete it and fit without resume"
+            )
     optimizer_state: dict[int, dict[str, Tensor]] = {}
     for key, value in tensors.items():
         if key.startswith("optimizer."):
@@ -83,6 +101,7 @@ def load_checkpoint(path: str | os.PathLike[str]) -> TrainingState:
         best_network=best or None,
         history=metadata["history"],
         config=metadata["config"],
+        data=str(metadata.get("data", "")),
     )
 
 

@@ -24,6 +24,7 @@ from camdegrade._distributed import is_main_process
 from camdegrade._threads import torch_threads
 from camdegrade._version import __version__
 from camdegrade.effects import EFFECTS, STAGES, Effect
+from camdegrade.fitting.pairs import UNREADABLE
 from camdegrade.fitting.pairset import PairSet, PairsSource, simulate
 from camdegrade.fitting.training import EpochResult, FitConfig, ImagePair, fit_network
 from camdegrade.metrics import psnr
@@ -116,6 +117,7 @@ def fit_profile(
             checkpoint=checkpoint,
             resume=resume,
             progress=progress,
+            pair_names=[*train.names, *val.names],
         )
         minutes = (time.perf_counter() - started) / 60
         profile = CameraProfile(network, name=name, description=description)
@@ -202,6 +204,7 @@ def _record(
     return {
         "pairs": len(pair_set),
         "skipped": len(pair_set.report.skipped) if pair_set.report is not None else 0,
+        "unreadable": _unreadable(pair_set),
         "train_pairs": len(train),
         "validation_pairs": len(val),
         "validation_scenes": sorted(set(val.scenes)),
@@ -213,6 +216,12 @@ def _record(
         "machine": f"{platform.machine()}, {torch.get_num_threads()} threads, torch {torch.__version__}",
         "camdegrade": __version__,
     }
+
+
+def _unreadable(pair_set: PairSet) -> list[dict[str, str]]:
+    """The files skipped because they could not be read (truncated, too large, ...): ``{"path", "reason"}``."""
+    skipped = pair_set.report.skipped if pair_set.report is not None else []
+    return [{"path": str(path), "reason": reason} for path, reason in skipped if reason.startswith(UNREADABLE)]
 
 
 def _mean_squared_error(predictions: Sequence[torch.Tensor], targets: Sequence[torch.Tensor]) -> float:

@@ -18,11 +18,12 @@ their common size.
 
 from __future__ import annotations
 
+import codecs
 import csv
 import os
 import random
 from collections import defaultdict
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
@@ -241,6 +242,8 @@ def _collect(root: Path, clean_suffix: str | None, captured_suffix: str | None) 
     use_suffixes = clean_suffix is not None or captured_suffix is not None
     if not root.exists():
         raise PairsError(f"source {str(root)!r} does not exist; {_LAYOUTS}")
+    if not root.is_file() and not root.is_dir():  # never opened: a FIFO would block the reader
+        raise PairsError(f"source {str(root)!r} is not a regular file or folder (a device, FIFO or socket); {_LAYOUTS}")
     if root.is_file():
         if root.suffix.lower() != ".csv":
             raise PairsError(f"source {str(root)!r} is a file but not a .csv manifest; {_LAYOUTS}")
@@ -287,31 +290,64 @@ def _from_suffixes(root: Path, clean_suffix: str, captured_suffix: str) -> tuple
 
 
 def _from_manifest(manifest: Path) -> tuple[list[Pair], _Skipped]:
+    with manifest.open("rb") as handle:
+        lines = _Utf8Lines(handle, manifest)
+        try:
+            return _read_manifest(csv.DictReader(lines), manifest)
+        except csv.Error as error:  # e.g. a field longer than csv.field_size_limit()
+            raise PairsError(f"manifest {str(manifest)!r} line {lines.number} is not valid CSV ({error})") from None
+
+
+def _read_manifest(reader: csv.DictReader, manifest: Path) -> tuple[list[Pair], _Skipped]:
     skipped: _Skipped = []
     base = manifest.parent
-    with manifest.open(newline="", encoding="utf-8-sig") as handle:
-        reader = csv.DictReader(handle)
-        columns = {name.strip().lower(): name for name in reader.fieldnames or [] if name is not None}
-        if "clean" not in columns or "captured" not in columns:
-            raise PairsError(
-                f"manifest {str(manifest)!r} must have columns 'clean' and 'captured', "
-                f"got columns {list(reader.fieldnames or [])}"
-            )
-        candidates: dict[str, Pair] = {}
-        first_line: dict[tuple[Path, Path], int] = {}
-        for row in reader:
-            where = f"{manifest.name} line {reader.line_num}"
-            cells = {key: (row.get(original) or "").strip() for key, original in columns.items()}
-            pair = _manifest_pair(base, cells, where, skipped)
-            if pair is None:
-                continue
-            seen = first_line.setdefault((pair.clean, pair.captured), reader.line_num)
-            if seen != reader.line_num:
-                skipped.append((where, f"{DUPLICATE}: same files as line {seen}"))
-                continue
-            name = pair.name if pair.name not in candidates else f"{pair.name}~{_relative_stem(pair.captured, base)}"
-            candidates[name] = Pair(pair.clean, pair.captured, name, pair.scene, pair.meta)
+    columns = {name.strip().lower(): name for name in reader.fieldnames or [] if name is not None}
+    if "clean" not in columns or "captured" not in columns:
+        raise PairsError(
+            f"manifest {str(manifest)!r} must have columns 'clean' and 'captured', "
+            f"got columns {list(reader.fieldnames or [])}"
+        )
+    candidates: dict[str, Pair] = {}
+    first_line: dict[tuple[Path, Path], int] = {}
+    for row in reader:
+        where = f"{manifest.name} line {reader.line_num}"
+        cells = {key: (row.get(original) or "").strip() for key, original in columns.items()}
+        pair = _manifest_pair(base, cells, where, skipped)
+        if pair is None:
+            continue
+        seen = first_line.setdefault((pair.clean, pair.captured), reader.line_num)
+        if seen != reader.line_num:
+            skipped.append((where, f"{DUPLICATE}: same files as line {seen}"))
+            continue
+        name = pair.name if pair.name not in candidates else f"{pair.name}~{_relative_stem(pair.captured, base)}"
+        candidates[name] = Pair(pair.clean, pair.captured, name, pair.scene, pair.meta)
     return list(candidates.values()), skipped
+
+
+class _Utf8Lines:
+    """A manifest's lines as text (UTF-8, a byte-order mark allowed), naming a line that is not UTF-8; ``number``
+    is the last line read (where the csv module stopped, when it raises)."""
+
+    def __init__(self, handle: Iterable[bytes], manifest: Path) -> None:
+        self._lines = iter(handle)
+        self._manifest = manifest
+        self.number = 0
+
+    def __iter__(self) -> Iterator[str]:
+        return self
+
+    def __next__(self) -> str:
+        raw = next(self._lines)
+        self.number += 1
+        if self.number == 1 and raw.startswith(codecs.BOM_UTF8):
+            raw = raw[len(codecs.BOM_UTF8) :]
+        try:
+            return raw.decode("utf-8")
+        except UnicodeDecodeError as error:
+            raise PairsError(
+                f"manifest {str(self._manifest)!r} line {self.number} is not UTF-8 (byte 0x{raw[error.start]:02x} "
+                f"at column {error.start + 1}); save the CSV as UTF-8"
+            ) from None
 
 
 def _manifest_pair(base: Path, cells: dict[str, str], where: str, skipped: _Skipped) -> Pair | None:

@@ -7,6 +7,7 @@ batch, so the global batch and the result match a single process).
 
 from __future__ import annotations
 
+import hashlib
 import math
 import os
 from collections.abc import Callable, Sequence
@@ -19,7 +20,9 @@ import torch.nn.functional as F
 from torch import Tensor
 from tqdm.auto import tqdm
 
+from camdegrade._checks import check_seed
 from camdegrade._distributed import rank_and_world_size
+from camdegrade._files import check_writable
 from camdegrade._pixels import as_unit
 from camdegrade.errors import CamdegradeError
 from camdegrade.fitting.checkpoint import TrainingState, capture_state, load_checkpoint, save_checkpoint
@@ -59,6 +62,7 @@ class FitConfig:
             raise ValueError(f"crop must be a multiple of {SIZE_MULTIPLE}, got crop={self.crop}")
         if not (isinstance(self.lr, (int, float)) and math.isfinite(self.lr) and self.lr > 0):
             raise ValueError(f"lr must be a positive number, got lr={self.lr!r}")
+        check_seed(self.seed)
 
     def as_dict(self) -> dict[str, int | float]:
         return asdict(self)
@@ -112,13 +116,16 @@ def fit_network(
     checkpoint: str | os.PathLike[str] | None = None,
     resume: bool = False,
     progress: bool = False,
+    pair_names: Sequence[str] | None = None,
 ) -> tuple[DomainShiftNet, list[EpochResult]]:
     """Train a :class:`DomainShiftNet` mapping clean → captured; return the best epoch's weights (by ``val`` PSNR,
     or by training loss when ``val`` is empty) and the per-epoch history.
 
     Same pairs, config and machine → identical weights: initialisation and crops come from ``config.seed``.
     With ``checkpoint``, the full training state is written there after every epoch (atomically); ``resume=True``
-    continues from it, giving the same weights as an uninterrupted fit. Ctrl-C raises :class:`FitInterrupted`
+    continues from it, giving the same weights as an uninterrupted fit; the checkpoint must exist and hold the same
+    recipe and pairs (:func:`pairs_fingerprint` of ``train``, ``val`` and ``pair_names``), otherwise a
+    :class:`~camdegrade.errors.CamdegradeError` says which differs. Ctrl-C raises :class:`FitInterrupted`
     after the last finished epoch's checkpoint is on disk. Under ``torch.distributed`` (e.g. ``torchrun``), each
     rank trains on its share of every batch and only rank 0 writes files.
     """
@@ -127,8 +134,11 @@ def fit_network(
     rank, world = rank_and_world_size()
     if config.batch_size % world:
         raise ValueError(f"batch_size ({config.batch_size}) must be divisible by the number of processes ({world})")
+    if checkpoint is not None and rank == 0:
+        check_writable(checkpoint)  # before training, not after its first epoch
+    fingerprint = pairs_fingerprint(train, val, pair_names)
     network, optimizer, scheduler, generator = _new_training(config, device)
-    state = _initial_state(network, optimizer, scheduler, generator, config, checkpoint, resume)
+    state = _initial_state(network, optimizer, scheduler, generator, config, checkpoint, resume, fingerprint)
     model = _distributed(network, device) if world > 1 else network
     epochs = tqdm(
         range(state.epoch, config.epochs),
@@ -158,6 +168,7 @@ def fit_network(
                 else state.best_network,
                 history=[*state.history, asdict(result)],
                 config=config.as_dict(),
+                data=fingerprint,
             )
             if checkpoint is not None and rank == 0:
                 save_checkpoint(state, checkpoint)
@@ -182,7 +193,28 @@ def _new_training(config: FitConfig, device: torch.device | str):
     return network, optimizer, scheduler, torch.Generator().manual_seed(config.seed)
 
 
-def _initial_state(network, optimizer, scheduler, generator, config, checkpoint, resume) -> TrainingState:
+def pairs_fingerprint(train: Sequence[ImagePair], val: Sequence[ImagePair], names: Sequence[str] | None = None) -> str:
+    """A short hash of the pairs a fit uses: their number, names, sizes, dtypes and a grid of about 4096 sampled
+    pixels per image (cheap: no image is copied whole), so a resume can tell other pairs from the same ones."""
+    digest = hashlib.blake2b(digest_size=8)
+    for part, pairs in (("train", train), ("val", val)):
+        digest.update(f"{part}:{len(pairs)};".encode())
+        for image in (image for pair in pairs for image in pair):
+            step = max(1, math.isqrt(image.shape[-2] * image.shape[-1] // _SAMPLED_PIXELS))
+            sample = image.detach()[..., ::step, ::step].cpu().contiguous()
+            digest.update(f"{tuple(image.shape)}{image.dtype};".encode())
+            digest.update(sample.numpy().tobytes())
+    for name in names or ():
+        digest.update(f"{name}\0".encode())
+    return digest.hexdigest()
+
+
+_SAMPLED_PIXELS = 4096
+
+
+def _initial_state(
+    network, optimizer, scheduler, generator, config, checkpoint, resume, fingerprint: str
+) -> TrainingState:
     fresh = capture_state(
         network,
         optimizer,
@@ -192,18 +224,27 @@ def _initial_state(network, optimizer, scheduler, generator, config, checkpoint,
         best_score=-math.inf,
         best_network=None,
         config=config.as_dict(),
+        data=fingerprint,
     )
     if not resume:
         return fresh
     if checkpoint is None:
         raise ValueError("resume=True needs checkpoint=PATH")
     if not Path(checkpoint).exists():
-        return fresh
+        raise CamdegradeError(
+            f"resume: checkpoint {str(checkpoint)!r} does not exist; check its path, or start a new fit without resume"
+        )
     state = load_checkpoint(checkpoint)
     recipe = {k: v for k, v in config.as_dict().items() if k != "epochs"}
     saved = {k: v for k, v in state.config.items() if k != "epochs"}
     if recipe != saved:
         raise ValueError(f"checkpoint {str(checkpoint)!r} was written with a different recipe: {saved}, now {recipe}")
+    if state.data != fingerprint:
+        raise CamdegradeError(
+            f"checkpoint {str(checkpoint)!r} was written for other training pairs (fingerprint "
+            f"{state.data or 'none recorded'}, these pairs give {fingerprint}); resume with the same pairs, or start "
+            "a new fit without resume"
+        )
     network.load_state_dict(state.network)
     optimizer.load_state_dict(state.optimizer)
     scheduler.load_state_dict(state.scheduler)
