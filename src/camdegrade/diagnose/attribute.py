@@ -1,11 +1,19 @@
-"""Which unmodelled effect causes the sim-to-real gap, and how far adding it closes the gap.
+"""Which change to the profile closes the sim-to-real gap, and by how much.
 
-Method (``docs/diagnosis.md``): split the real pairs by scene into a calibration part and a held-out part. For
-every effect in :data:`camdegrade.effects.EFFECTS`, fit it on the calibration part on top of the profile
-(source: the profile's output without its random stages; target: the real capture), insert it into the chain
-at its physical stage, simulate the held-out clean images and measure the held-out gap. Candidates are ranked by
-gap reduction; the best is added when its reduction is significant (beyond three bootstrap standard errors and
-a minimum size), then the next candidates are refitted on top of it (combinations), until nothing helps.
+Method (``docs/diagnosis.md``): the real pairs are split by scene into a calibration part and a held-out part. On
+top of the profile, every change of four kinds is fitted on the calibration part and measured on the held-out part:
+
+- **add** a registered effect the profile lacks (fitted against the profile's deterministic output, its strength
+  refined for its place in the chain; noise calibrated by simulating the whole chain);
+- **remove** a stage (the camera may not have it);
+- **refit** a stage whose signature shows (too strong, too weak, the wrong shape): fitted anew with the stage left
+  out, or the stage's own strength rescaled, whichever matches the calibration pairs better;
+- **network**: a short fine-tune of the network through the stages after it, when a signature that no effect
+  explains (8×8 blocks, the high-frequency transfer) is significant.
+
+Changes are ranked by held-out gap. The best is accepted when its reduction is significant (beyond three bootstrap
+standard errors and a minimum size); the other significant changes are then refitted on top of it (combinations),
+until nothing helps or ``max_changes`` are accepted.
 """
 
 from __future__ import annotations
@@ -13,26 +21,27 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Literal
 
 import torch
 from torch import Tensor
 
 from camdegrade._seeds import derive_seed
-from camdegrade.diagnose.noise_fit import NoiseMoments, calibrate_noise
 from camdegrade.diagnose.stats import (
     Scale,
     StatisticSet,
     bootstrap_indices,
     family_gaps,
-    flat_mask,
     gap,
     gap_spread,
     measurement_scale,
 )
-from camdegrade.effects import EFFECTS, Effect, Noise
+from camdegrade.effects import EFFECTS, Effect
 from camdegrade.errors import CamdegradeError
+from camdegrade.fitting.finetune import finetune_network
+from camdegrade.fitting.noise import fit_noise_stage
 from camdegrade.fitting.pairset import simulate
+from camdegrade.functional.analysis import flat_mask
 from camdegrade.profile import CameraProfile
 
 #: A reduction counts when it exceeds this many bootstrap standard errors ...
@@ -42,32 +51,51 @@ MIN_REDUCTION = 0.5
 #: ... and this share of the gap above the noise floor.
 MIN_RELATIVE = 0.1
 BOOTSTRAP_ROUNDS = 100
-#: Calibration pairs on which the strength of each fitted candidate is refined.
+#: Calibration pairs on which the strength of each fitted change is refined.
 REFINE_PAIRS = 12
-#: Calibration pairs on which the noise candidate's level is calibrated by simulation (noise statistics only):
-#: at most ``NOISE_PAIRS``, fewer for large images (about ``NOISE_PIXELS`` pixels), at least ``MIN_NOISE_PAIRS``.
+#: Calibration pairs a noise stage is calibrated on by simulating the profile (about ``NOISE_PIXELS`` pixels).
 NOISE_PAIRS = 32
 NOISE_PIXELS = 1 << 20
 MIN_NOISE_PAIRS = 8
+#: Signatures no effect explains, which send the network to a fine-tune when significant.
+NETWORK_SIGNATURES = ("blocks", "frequency")
+STRENGTHS = (0.6, 1.0, 1.6)
 
+Kind = Literal["add", "remove", "refit", "network"]
 ImagePairs = list[tuple[Tensor, Tensor]]
 Log = Callable[[str], None]
 
 
 @dataclass
-class Candidate:
-    """One candidate (an effect, or effects added in sequence) evaluated on the held-out pairs."""
+class Change:
+    """One change to the profile (after the changes accepted before it), evaluated on the held-out pairs."""
 
-    names: list[str]
-    effects: list[Effect]
+    kind: Kind
+    name: str
     profile: CameraProfile | None
+    effect: Effect | None
     gap_after: float
-    reduction: float
-    reduction_se: float
+    reduction: float = 0.0
+    reduction_se: float = float("nan")
     significant: bool = False
     families: dict[str, float] = field(default_factory=dict)
+    description: str = ""
+    before: list[Change] = field(default_factory=list)
     error: str | None = None
     stats: StatisticSet | None = field(default=None, repr=False)
+
+    @property
+    def label(self) -> str:
+        return f"{self.kind} {self.name}"
+
+    @property
+    def key(self) -> tuple[str, str]:
+        return self.kind, self.name
+
+    @property
+    def chain(self) -> list[Change]:
+        """This change after the ones accepted before it."""
+        return [*self.before, self]
 
 
 def effect_params(effect: Effect) -> dict[str, Any]:
@@ -103,38 +131,41 @@ def fit_candidate(name: str, sources: Sequence[Tensor], targets: Sequence[Tensor
     return cls.fit(list(sources), list(targets), **cls.fit_options(sources))
 
 
-STRENGTHS = (0.6, 1.0, 1.6)
-
-
 def refine_strength(
-    effect: Effect, gap_of: Callable[[Effect], float], baseline: float, say: Callable[[str], None]
-) -> tuple[Effect, float]:
+    effect: Effect, gap_of: Callable[[Effect], float], baseline: float | None, say: Log
+) -> tuple[Effect, float, float]:
     """Scale the fitted change so that the effect, at its place in the chain, best matches the calibration
     pairs: the fit itself sees the end of the chain, where later stages (tone, codec) have transformed it.
-    A candidate that does not lower the calibration gap (``baseline``) at all is left as fitted."""
+    A candidate that does not lower the calibration gap (``baseline``) at all is left as fitted; with ``baseline``
+    None every strength is explored. Returns the effect, its strength and its calibration gap."""
     tried = {1.0: gap_of(effect)}
-    if tried[1.0] > baseline - MIN_REDUCTION:
-        return effect, 1.0
+    if baseline is not None and tried[1.0] > baseline - MIN_REDUCTION:
+        return effect, 1.0, tried[1.0]
     tried.update({strength: gap_of(effect.scaled(strength)) for strength in STRENGTHS if strength != 1.0})
     best = min(tried, key=tried.__getitem__)
     if best != 1.0:  # extend once past the edge of the bracket
-        further = best * (best / 1.0)
+        further = best * best
         tried[further] = gap_of(effect.scaled(further))
+    vertex = _parabola_vertex(tried)
+    if vertex is not None and all(abs(vertex - p) > 0.03 * p for p in tried):
+        tried[vertex] = gap_of(effect.scaled(vertex))
+    best = min(tried, key=tried.__getitem__)
+    say(f"    {effect.name}: strength {best:.2f} (calibration gap {tried[best]:.2f}, at 1: {tried[1.0]:.2f})")
+    return effect.scaled(best), best, tried[best]
+
+
+def _parabola_vertex(tried: dict[float, float]) -> float | None:
+    """The minimum, in log strength, of the parabola through the three best strengths tried (within 0.1–10)."""
     points = sorted(tried, key=tried.__getitem__)[:3]
     x = torch.tensor([math.log(p) for p in points], dtype=torch.float64)
     y = torch.tensor([tried[p] for p in points], dtype=torch.float64)
-    design = torch.stack([x * x, x, torch.ones_like(x)], 1)
     try:
-        a, b, _ = torch.linalg.solve(design, y).tolist()
+        a, b, _ = torch.linalg.solve(torch.stack([x * x, x, torch.ones_like(x)], 1), y).tolist()
     except RuntimeError:
-        a = 0.0
-    if a > 0:
-        vertex = math.exp(min(max(-b / (2 * a), math.log(0.1)), math.log(10.0)))
-        if all(abs(vertex - p) > 0.03 * p for p in tried):
-            tried[vertex] = gap_of(effect.scaled(vertex))
-    best = min(tried, key=tried.__getitem__)
-    say(f"    {effect.name}: strength {best:.2f} (calibration gap {tried[best]:.2f}, at 1: {tried[1.0]:.2f})")
-    return effect.scaled(best), best
+        return None
+    if a <= 0:
+        return None
+    return math.exp(min(max(-b / (2 * a), math.log(0.1)), math.log(10.0)))
 
 
 @dataclass
@@ -182,66 +213,7 @@ class HeldOut:
 
 
 @dataclass
-class _NoiseCalibration:
-    """Calibration pairs (every ``NOISE_PAIRS``-th) on which a noise candidate is calibrated by simulation."""
-
-    index: list[int]
-    cleans: list[Tensor]
-    masks: list[Tensor]
-    real: NoiseMoments
-    seed: int
-
-    @classmethod
-    def build(cls, pairs: ImagePairs, seed: int) -> _NoiseCalibration:
-        pixels = sum(clean.shape[-1] * clean.shape[-2] for clean, _ in pairs) / len(pairs)
-        count = min(NOISE_PAIRS, max(MIN_NOISE_PAIRS, round(NOISE_PIXELS / pixels)))
-        index = _every(list(range(len(pairs))), count)
-        cleans = [pairs[i][0] for i in index]
-        masks = [flat_mask(clean) for clean in cleans]
-        real = NoiseMoments.measure([pairs[i][1] for i in index], cleans, masks)
-        return cls(index, cleans, masks, real, seed)
-
-    def measure(self, images: list[Tensor]) -> NoiseMoments:
-        return NoiseMoments.measure(images, self.cleans, self.masks)
-
-    def calibrate(self, effect: Noise, current: CameraProfile, sources: Sequence[Tensor], say: Log) -> Noise:
-        """``effect`` rescaled so that ``current`` with it reproduces the real noise-level function."""
-        return calibrate_noise(
-            effect,
-            lambda e: add_effect(current, e),
-            lambda p: simulate(p, self.cleans, self.seed, stream="noise-moments"),
-            self.real,
-            self.measure([sources[i] for i in self.index]),
-            self.measure,
-            say=say,
-        )
-
-
-@dataclass
-class Attribution:
-    """Everything the ranking found, for the report."""
-
-    gap_before: float
-    gap_before_se: float
-    base_families: dict[str, float]
-    base_null: float
-    base_null_families: dict[str, float]
-    singles: list[Candidate]
-    combinations: list[Candidate]
-    chosen: Candidate | None
-    final_profile: CameraProfile
-    final_families: dict[str, float]
-    noise_floor: float
-    base_stats: StatisticSet
-    final_stats: StatisticSet
-    base_sims: list[Tensor]
-    final_sims: list[Tensor]
-    significant_gap: bool
-    held_real: StatisticSet
-
-
-@dataclass
-class _Baseline:
+class Baseline:
     """The profile as given, measured on the held-out pairs: its gap, the gap's spread, the noise of the
     measurement (the profile against itself) and the smallest reduction that can count."""
 
@@ -249,12 +221,13 @@ class _Baseline:
     sims: list[Tensor]
     gap: float
     gap_se: float
+    families: dict[str, float]
     null_families: dict[str, float]
     threshold: float
     significant: bool
 
     @classmethod
-    def measure(cls, held: HeldOut, profile: CameraProfile) -> _Baseline:
+    def measure(cls, held: HeldOut, profile: CameraProfile) -> Baseline:
         stats, sims = held.calibrate(profile)
         null_stats, _ = held.statistics(profile, null=True)
         before = held.gap(stats)
@@ -262,19 +235,59 @@ class _Baseline:
         spreads = gap_spread(held.real, [stats], held.indices, held.scale)
         se = float(spreads[:, 0].std())
         excess = max(0.0, before - sum(null_families.values()))
-        threshold = max(MIN_REDUCTION, MIN_RELATIVE * excess)
-        return cls(stats, sims, before, se, null_families, threshold, excess > max(SIGNIFICANCE * se, MIN_REDUCTION))
+        return cls(
+            stats,
+            sims,
+            before,
+            se,
+            family_gaps(held.real, stats, scale=held.scale),
+            null_families,
+            max(MIN_REDUCTION, MIN_RELATIVE * excess),
+            excess > max(SIGNIFICANCE * se, MIN_REDUCTION),
+        )
 
     @property
     def null(self) -> float:
         return sum(self.null_families.values())
 
+    def significant_axes(self) -> set[str]:
+        """The signature families whose score stands out of their null band (as ``where`` marks them)."""
+        return {name for name, score in self.families.items() if score > max(3 * self.null_families[name], 1.0)}
 
-class _Search:
-    """Fits every candidate effect on the calibration pairs on top of a profile and measures it on the held-out
-    pairs."""
 
-    def __init__(self, profile: CameraProfile, calibration: ImagePairs, held: HeldOut, baseline: _Baseline, seed: int):
+@dataclass
+class Attribution:
+    """Everything the search found, for the report."""
+
+    baseline: Baseline
+    held: HeldOut
+    singles: list[Change]
+    combinations: list[Change]
+    accepted: list[Change]
+    final_profile: CameraProfile
+    final_stats: StatisticSet
+    final_sims: list[Tensor]
+    noise_floor: float
+
+    @property
+    def chosen(self) -> Change | None:
+        return self.accepted[-1] if self.accepted else None
+
+    @property
+    def gap_after(self) -> float:
+        return self.chosen.gap_after if self.chosen else self.baseline.gap
+
+    @property
+    def final_families(self) -> dict[str, float]:
+        return family_gaps(self.held.real, self.final_stats, scale=self.held.scale)
+
+
+class Search:
+    """Fits every change on the calibration pairs on top of a profile and measures it on the held-out pairs."""
+
+    def __init__(
+        self, profile: CameraProfile, calibration: ImagePairs, held: HeldOut, baseline: Baseline, seed: int
+    ) -> None:
         self.profile = profile
         self.cleans = [clean for clean, _ in calibration]
         self.reals = [real for _, real in calibration]
@@ -282,77 +295,233 @@ class _Search:
         self.baseline = baseline
         self.seed = seed
         self.check = HeldOut.build(_every(calibration, REFINE_PAIRS), seed, "strength-check")
-        self.check_base, _ = self.check.calibrate(profile)
-        self.moments = _NoiseCalibration.build(calibration, seed)
+        self.check.calibrate(profile)
+        pixels = sum(clean.shape[-1] * clean.shape[-2] for clean in self.cleans) / len(self.cleans)
+        self.noise_pairs = min(NOISE_PAIRS, max(MIN_NOISE_PAIRS, round(NOISE_PIXELS / pixels)))
 
-    def candidates(
+    def changes(
         self,
         current: CameraProfile,
         stats: StatisticSet,
         gap_now: float,
-        chain: list[Candidate],
-        pool: list[str],
+        before: list[Change],
+        allowed: set[tuple[str, str]] | None,
+        adds: Sequence[str],
         say: Log,
-    ) -> list[Candidate]:
-        """Each effect of ``pool`` fitted on top of ``current`` (which ``chain`` built), best first."""
-        sources = simulate(current, self.cleans, self.seed, stream="sources", deterministic=True)
-        check_gap = self.check.gap(self.check_base if current is self.profile else self.check.statistics(current)[0])
-        prefix_names = chain[-1].names if chain else []
-        prefix_effects = chain[-1].effects if chain else []
+    ) -> list[Change]:
+        """Every change on top of ``current`` (which ``before`` built), best first; ``allowed`` restricts them to
+        those ``(kind, name)`` (None: all)."""
+        context = _Context(self, current, stats, gap_now, before, say)
+        plans = self._plans(current, adds)
         results = []
-        for name in pool:
-            try:
-                effect = self._fitted(name, current, sources, check_gap, say)
-            except (ValueError, RuntimeError, CamdegradeError) as error:
-                say(f"  {name}: not fitted ({error})")
-                failed = Candidate([*prefix_names, name], [*prefix_effects], None, gap_now, 0.0, 0.0, error=str(error))
-                results.append(failed)
+        for kind, name, make in plans:
+            if allowed is not None and (kind, name) not in allowed:
                 continue
-            names, effects = [*prefix_names, name], [*prefix_effects, effect]
-            candidate = _evaluate(
-                self.held, stats, gap_now, self.baseline.threshold, names, effects, add_effect(current, effect)
-            )
-            say(
-                f"  {'+'.join(candidate.names)}: gap {candidate.gap_after:.2f} "
-                f"(reduction {candidate.reduction:+.2f} ± {candidate.reduction_se:.2f})"
-                f"{' *' if candidate.significant else ''}"
-            )
-            results.append(candidate)
-        return sorted(results, key=lambda c: c.gap_after)
+            results.append(context.evaluate(kind, name, make))
+        return _prefer_simpler(sorted(results, key=lambda change: change.gap_after))
 
-    def _fitted(self, name: str, current: CameraProfile, sources: list[Tensor], check_gap: float, say: Log) -> Effect:
-        """Effect ``name`` fitted against ``current``'s deterministic output, its strength set for its place in the
-        chain (noise: calibrated by simulated moments)."""
-        effect = fit_candidate(name, sources, self.reals)
-        if isinstance(effect, Noise):
-            return self.moments.calibrate(effect, current, sources, say)
-        check = self.check
+    def _plans(self, current: CameraProfile, adds: Sequence[str]) -> list[tuple[Kind, str, Callable]]:
+        """``(kind, name, make)`` for each change worth trying; ``make(context)`` returns ``(profile, effect,
+        description)``."""
+        present = {type(effect) for effect in current.effects}
+        plans: list[tuple[Kind, str, Callable]] = [
+            ("add", name, _adder(name)) for name in adds if EFFECTS[name] not in present
+        ]
+        axes = self.baseline.significant_axes()
+        for index, stage in enumerate(current.effects):
+            plans.append(("remove", stage.name, _remover(index)))
+            if set(stage.explains) & axes:
+                plans.append(("refit", stage.name, _refitter(index)))
+        if current.network is not None and axes & set(NETWORK_SIGNATURES):
+            plans.append(("network", "network", _network_refit))
+        return plans
+
+    def fit_noise(self, profile: CameraProfile) -> Effect:
+        return fit_noise_stage(profile, self.cleans, self.reals, seed=self.seed, calibration_pairs=self.noise_pairs)
+
+
+@dataclass
+class _Context:
+    """One round of the search: the profile changes are made to, and how each is measured."""
+
+    search: Search
+    current: CameraProfile
+    stats: StatisticSet
+    gap_now: float
+    before: list[Change]
+    say: Log
+    _sources: list[Tensor] | None = None
+    _check_gap: float | None = None
+
+    def sources(self, profile: CameraProfile | None = None) -> list[Tensor]:
+        """The deterministic output of ``profile`` (default: the current one) on the calibration images."""
+        if profile is not None:
+            return simulate(profile, self.search.cleans, self.search.seed, stream="sources", deterministic=True)
+        if self._sources is None:
+            self._sources = self.sources(self.current)
+        return self._sources
+
+    def check_gap(self, profile: CameraProfile | None = None) -> float:
+        """The calibration check set's gap of ``profile`` (default: the current one)."""
+        check = self.search.check
+        if profile is not None:
+            return check.gap(check.statistics(profile)[0])
+        if self._check_gap is None:
+            self._check_gap = self.check_gap(self.current)
+        return self._check_gap
+
+    def evaluate(self, kind: Kind, name: str, make: Callable) -> Change:
+        try:
+            profile, effect, description = make(self)
+        except (ValueError, RuntimeError, CamdegradeError) as error:
+            self.say(f"  {kind} {name}: not fitted ({error})")
+            return Change(kind, name, None, None, self.gap_now, before=list(self.before), error=str(error))
+        change = _measured(self.search, self.stats, self.gap_now, kind, name, profile, effect, self.before)
+        change.description = description
+        marker = " *" if change.significant else ""
+        said = f" — {description}" if description else ""
+        self.say(
+            f"  {change.label}: gap {change.gap_after:.2f} (reduction {change.reduction:+.2f} ± "
+            f"{change.reduction_se:.2f}){marker}{said}"
+        )
+        return change
+
+    def refined(self, effect: Effect, base: CameraProfile, *, explore: bool = False) -> tuple[Effect, float]:
+        """``effect`` with its strength set for its place in ``base``'s chain, and its calibration gap; ``explore``
+        tries other strengths even where the effect as it is does not help (an existing stage, rescaled)."""
 
         def calibration_gap(candidate: Effect) -> float:
-            return check.gap(check.statistics(add_effect(current, candidate))[0])
+            return self.check_gap(add_effect(base, candidate))
 
-        return refine_strength(effect, calibration_gap, check_gap, say)[0]
+        baseline = None if explore else (self.check_gap() if base is self.current else self.check_gap(base))
+        refined, _, calibrated_gap = refine_strength(effect, calibration_gap, baseline, self.say)
+        return refined, calibrated_gap
 
 
-def _evaluate(
-    held: HeldOut,
+def _adder(name: str) -> Callable[[_Context], tuple[CameraProfile, Effect, str]]:
+    def make(context: _Context) -> tuple[CameraProfile, Effect, str]:
+        cls = EFFECTS[name]
+        if _is_noise(cls):
+            effect = context.search.fit_noise(context.current)
+        else:
+            effect, _ = context.refined(fit_candidate(name, context.sources(), context.search.reals), context.current)
+        return add_effect(context.current, effect), effect, f"adds {name}"
+
+    return make
+
+
+def _remover(index: int) -> Callable[[_Context], tuple[CameraProfile, None, str]]:
+    def make(context: _Context) -> tuple[CameraProfile, None, str]:
+        chain = [e for i, e in enumerate(context.current.effects) if i != index]
+        return context.current.with_chain(chain), None, f"the camera has no {context.current.effects[index].name}"
+
+    return make
+
+
+def _refitter(index: int) -> Callable[[_Context], tuple[CameraProfile, Effect, str]]:
+    """A stage refitted: a fresh fit with the stage left out, or the stage (and its simpler versions) rescaled,
+    whichever matches the calibration pairs better."""
+
+    def make(context: _Context) -> tuple[CameraProfile, Effect, str]:
+        stage = context.current.effects[index]
+        rest = context.current.with_chain([e for i, e in enumerate(context.current.effects) if i != index])
+        if _is_noise(type(stage)):
+            options = [context.search.fit_noise(rest)]
+        else:
+            options = [context.refined(fit_candidate(stage.name, context.sources(rest), context.search.reals), rest)[0]]
+        options += [context.refined(version, rest, explore=True)[0] for version in [stage, *stage.simplified()]]
+        fitted = min(options, key=lambda option: context.check_gap(add_effect(rest, option)))
+        return add_effect(rest, fitted), fitted, _strength_text(stage, fitted, context)
+
+    return make
+
+
+def _network_refit(context: _Context) -> tuple[CameraProfile, None, str]:
+    network = finetune_network(context.current, context.search.cleans, context.search.reals)
+    tuned = context.current.with_chain(list(context.current.effects))
+    tuned.network = network
+    return tuned, None, "a short fine-tune of the network's decoder on the calibration pairs"
+
+
+#: Kinds in order of simplicity: a removal explains as much with less.
+_SIMPLICITY = {"remove": 0, "add": 1, "refit": 2, "network": 3}
+
+
+def _prefer_simpler(ranked: list[Change]) -> list[Change]:
+    """``ranked`` (by held-out gap) with a simpler change of the same stage moved ahead of the best when it does as
+    well (within half the best's reduction SE, or 2 % of its gap): removing vignetting, rather than refitting it to
+    nothing."""
+    if len(ranked) < 2 or ranked[0].error is not None:
+        return ranked
+    best = ranked[0]
+    tolerance = max(0.02 * best.gap_after, 0.5 * best.reduction_se if math.isfinite(best.reduction_se) else 0.0)
+    rivals = [
+        change
+        for change in ranked[1:]
+        if change.name == best.name
+        and _SIMPLICITY[change.kind] < _SIMPLICITY[best.kind]
+        and change.gap_after <= best.gap_after + tolerance
+    ]
+    if not rivals:
+        return ranked
+    simpler = min(rivals, key=lambda change: _SIMPLICITY[change.kind])
+    return [simpler, *[change for change in ranked if change is not simpler]]
+
+
+def _is_noise(cls: type[Effect]) -> bool:
+    """Whether stages of this kind are pure noise (left out of the deterministic part; fitted by simulation)."""
+    return cls.neutral().without_randomness() is None
+
+
+def _strength_text(old: Effect, new: Effect, context: _Context) -> str:
+    """What was wrong with a refitted stage, in words: for noise, measured on the held-out flat pixels ("noise
+    stage is 2.0× the camera's noise and banded"); otherwise from the stage's magnitude."""
+    if "noise" in old.explains:
+        return _noise_text(old.name, context.search.held.real, context.stats)
+    before, after = old.magnitude(), new.magnitude()
+    if after < 0.1 * before:
+        return f"{old.name} stage is one the camera shows almost none of ({after / max(before, 1e-12):.0%} of it)"
+    if abs(before - after) <= 0.05 * max(before, after):
+        return f"{old.name} stage has the right strength but the wrong shape"
+    ratio = before / after if before > after else after / max(before, 1e-12)
+    return f"{old.name} stage is {ratio:.1f}× too {'strong' if before > after else 'weak'}"
+
+
+def _noise_text(name: str, real: StatisticSet, sim: StatisticSet) -> str:
+    """ "noise stage is 4.6× the camera's noise and banded (row means 9.5× the camera's)", from the pooled noise and
+    banding statistics of the flat pixels."""
+    real_values, sim_values = real.values(), sim.values()
+    real_std, sim_std = (float(torch.nanmean(v["noise"])) for v in (real_values, sim_values))
+    text = f"{name} stage is {sim_std / real_std:.1f}× the camera's noise" if real_std > 0 else f"{name} stage"
+    real_lines, sim_lines = (float(torch.nanmean(v["banding"][:3])) for v in (real_values, sim_values))
+    if real_lines > 0 and sim_lines / real_lines > 1.5:
+        text += f" and banded (row means {sim_lines / real_lines:.1f}× the camera's)"
+    return text
+
+
+def _measured(
+    search: Search,
     base: StatisticSet,
-    before: float,
-    threshold: float,
-    names: list[str],
-    effects: list[Effect],
+    before_gap: float,
+    kind: Kind,
+    name: str,
     profile: CameraProfile,
-) -> Candidate:
+    effect: Effect | None,
+    before: list[Change],
+) -> Change:
+    held = search.held
     stats, _ = held.statistics(profile)
     after = held.gap(stats)
-    reduction = before - after
+    reduction = before_gap - after
     se, significant = float("nan"), False
-    if reduction > threshold:  # otherwise it cannot be significant: skip the bootstrap
+    if reduction > search.baseline.threshold:  # otherwise it cannot be significant: skip the bootstrap
         spreads = gap_spread(held.real, [base, stats], held.indices, held.scale)
         se = float((spreads[:, 0] - spreads[:, 1]).std())
-        significant = reduction > max(SIGNIFICANCE * se, threshold)
+        significant = reduction > max(SIGNIFICANCE * se, search.baseline.threshold)
     families = family_gaps(held.real, stats, scale=held.scale)
-    return Candidate(names, effects, profile, after, reduction, se, significant, families, stats=stats)
+    return Change(
+        kind, name, profile, effect, after, reduction, se, significant, families, before=list(before), stats=stats
+    )
 
 
 def _check_candidates(candidates: Iterable[str] | None) -> list[str]:
@@ -363,29 +532,29 @@ def _check_candidates(candidates: Iterable[str] | None) -> list[str]:
     return names
 
 
-def _grow_chain(
-    search: _Search, singles: list[Candidate], baseline: _Baseline, max_added: int, say: Log
-) -> tuple[list[Candidate], list[Candidate]]:
-    """Add the best significant candidate, refit the other significant ones on top of it, and repeat while the
-    best marginal reduction is significant (at most ``max_added``). Returns the chain and every combination tried."""
-    chain: list[Candidate] = []
-    combinations: list[Candidate] = []
-    if not (baseline.significant and singles and singles[0].significant):
-        return chain, combinations
-    pool = [c.names[-1] for c in singles if c.significant]
+def _grow(
+    search: Search, singles: list[Change], adds: list[str], max_changes: int, say: Log
+) -> tuple[list[Change], list[Change]]:
+    """Accept the best significant change, refit the other significant ones on top of it, and repeat while the best
+    marginal reduction is significant (at most ``max_changes``). Returns the accepted chain and every combination."""
+    accepted: list[Change] = []
+    combinations: list[Change] = []
+    if not (search.baseline.significant and singles and singles[0].significant):
+        return accepted, combinations
+    pool = {change.key for change in singles if change.significant}
     best = singles[0]
     while True:
-        chain.append(best)
+        accepted.append(best)
+        pool.discard(best.key)
+        if len(accepted) >= max_changes or not pool:
+            return accepted, combinations
         current: CameraProfile = best.profile  # type: ignore[assignment]  # significant ones were fitted
         stats = best.stats if best.stats is not None else search.held.statistics(current)[0]
-        pool = [name for name in pool if name not in best.names]
-        if len(chain) >= max_added or not pool:
-            return chain, combinations
-        say(f"on top of {'+'.join(best.names)}:")
-        extended = search.candidates(current, stats, best.gap_after, chain, pool, say)
+        say(f"on top of {' + '.join(change.label for change in accepted)}:")
+        extended = search.changes(current, stats, best.gap_after, list(accepted), pool, adds, say)
         combinations.extend(extended)
         if not extended or not extended[0].significant:
-            return chain, combinations
+            return accepted, combinations
         best = extended[0]
 
 
@@ -395,43 +564,35 @@ def attribute(
     held_out: ImagePairs,
     *,
     candidates: Iterable[str] | None = None,
-    max_added: int = 3,
+    max_changes: int = 3,
     seed: int = 0,
     log: Log | None = None,
 ) -> Attribution:
-    """Rank candidate effects by held-out gap reduction and choose the ones to add (see the module docstring)."""
+    """Rank the changes by held-out gap and accept the ones that close it (see the module docstring)."""
     say = log or (lambda message: None)
-    names = _check_candidates(candidates)
+    adds = _check_candidates(candidates)
     held = HeldOut.build(held_out, seed, "held-out")
-    baseline = _Baseline.measure(held, profile)
+    baseline = Baseline.measure(held, profile)
     say(f"held-out gap {baseline.gap:.2f} ± {baseline.gap_se:.2f} (profile against itself: {baseline.null:.2f})")
-    search = _Search(profile, calibration, held, baseline, seed)
-    say("single candidates:")
-    singles = search.candidates(profile, baseline.stats, baseline.gap, [], names, say)
-    chain, combinations = _grow_chain(search, singles, baseline, max_added, say)
-    chosen = chain[-1] if chain else None
-    final_profile = chosen.profile if chosen and chosen.profile is not None else profile
+    search = Search(profile, calibration, held, baseline, seed)
+    say("single changes:")
+    singles = search.changes(profile, baseline.stats, baseline.gap, [], None, adds, say)
+    accepted, combinations = _grow(search, singles, adds, max_changes, say)
+    chosen = accepted[-1] if accepted else None
+    final_profile = chosen.profile if chosen is not None and chosen.profile is not None else profile
     if chosen is not None and chosen.stats is not None:  # measured with the same draws when it was evaluated
         final_stats, final_sims = chosen.stats, simulate(final_profile, held.cleans, seed, stream=held.stream)
     else:
         final_stats, final_sims = baseline.stats, baseline.sims
     final_null, _ = held.statistics(final_profile, null=True)
     return Attribution(
-        gap_before=baseline.gap,
-        gap_before_se=baseline.gap_se,
-        base_families=family_gaps(held.real, baseline.stats, scale=held.scale),
-        base_null=baseline.null,
-        base_null_families=baseline.null_families,
+        baseline=baseline,
+        held=held,
         singles=singles,
         combinations=combinations,
-        chosen=chosen,
+        accepted=accepted,
         final_profile=final_profile,
-        final_families=family_gaps(held.real, final_stats, scale=held.scale),
-        noise_floor=held.gap_between(final_null, final_stats),
-        base_stats=baseline.stats,
         final_stats=final_stats,
-        base_sims=baseline.sims,
         final_sims=final_sims,
-        significant_gap=baseline.significant,
-        held_real=held.real,
+        noise_floor=held.gap_between(final_null, final_stats),
     )

@@ -1,35 +1,27 @@
-"""``diagnose(profile, pairs)``: where the sim-to-real gap lies, which effect causes it, how far it shrinks."""
+"""``diagnose(profile, pairs)``: where the sim-to-real gap lies, which change to the profile closes it, how far it
+shrinks, and whether a learned critic agrees."""
 
 from __future__ import annotations
 
 import math
 import os
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass, field
-from typing import Any
 
 from camdegrade._checks import check_seed
-from camdegrade.diagnose.attribute import Attribution, Candidate, attribute, effect_params
-from camdegrade.diagnose.report import DiagnosisReport, example_crops
+from camdegrade.diagnose.attribute import Attribution, Change, attribute, effect_params
+from camdegrade.diagnose.critic import CriticResult, critic_test
+from camdegrade.diagnose.report import DiagnosisReport, example_crops, flat_crops
 from camdegrade.diagnose.where import findings
 from camdegrade.errors import PairsError
-from camdegrade.fitting.pairset import PairSet, PairsSource
+from camdegrade.fitting.pairset import PairSet, PairsSource, simulate
 from camdegrade.profile import CameraProfile, as_profile
 
 #: Fewest pairs on each side of the split: below this a held-out gap has no spread to judge it by, and the
 #: diagnosis refuses rather than state a verdict from one or two pairs.
 MIN_PAIRS = 4
-
-
-@dataclass
-class PairedDiagnosisReport(DiagnosisReport):
-    """The report of a paired diagnosis: also lists the files skipped while loading the pairs (``skipped``: one
-    ``{"path", "reason"}`` per file), so a dropped pair is never silent."""
-
-    skipped: list[dict[str, str]] = field(default_factory=list)
-
-    def to_dict(self) -> dict[str, Any]:
-        return {**super().to_dict(), "skipped": self.skipped}
+#: The critic "tells them apart" when the lower end of its 95 % interval is above this.
+CRITIC_CHANCE = 0.55
+NETWORK_COMMAND = "camdegrade fit PAIRS -o REFIT.safetensors --init-from {profile} --epochs 20 --lr 0.001"
 
 
 def diagnose(
@@ -44,6 +36,7 @@ def diagnose(
     clean_suffix: str | None = None,
     captured_suffix: str | None = None,
     max_pairs: int | None = None,
+    critic: bool = True,
     log: Callable[[str], None] | None = None,
 ) -> DiagnosisReport:
     """Diagnose the gap between a profile's simulations and REAL captures it was not fitted on.
@@ -52,18 +45,20 @@ def diagnose(
         profile: a :class:`CameraProfile`, a built-in profile name or a ``.safetensors`` path.
         pairs: REAL (clean, captured) pairs: a folder, CSV manifest or suffix-rule folder (as ``camdegrade fit``
             takes), a :class:`~camdegrade.fitting.PairReport`, a list of ``Pair`` or of ``(clean, captured)``
-            tensors. They are split by scene into a calibration part (candidate effects are fitted on it) and a
-            held-out part (every reported gap is measured on it).
+            tensors. They are split by scene into a calibration part (changes are fitted on it) and a held-out
+            part (every reported gap is measured on it).
         held_out: give the held-out pairs explicitly; then ``pairs`` is the calibration part as a whole.
         calibration_fraction: share of scenes used for calibration when ``held_out`` is not given.
-        candidates: effect names to try (default: every registered effect).
-        max_added: the most effects added in sequence (the best combination).
-        seed: seeds the split, the simulations and the bootstrap.
+        candidates: effect names that may be added (default: every registered effect). Removing or refitting a
+            stage of the profile, and fine-tuning its network, are always considered.
+        max_added: the most changes accepted in sequence.
+        seed: seeds the split, the simulations, the bootstrap and the critic.
         max_pairs: use at most this many pairs (the first, in name order).
+        critic: train the learned critic before and after the accepted changes (``report.critic``).
         log: called with progress lines (the files skipped while loading the pairs among them).
 
     Returns:
-        A :class:`DiagnosisReport`; ``report.profile`` is the profile with the chosen effects added, and
+        A :class:`DiagnosisReport`; ``report.profile`` is the profile with every accepted change, and
         ``report.skipped`` lists the files left out while loading the pairs.
 
     Raises:
@@ -82,18 +77,14 @@ def diagnose(
             f"got {len(calibration)} and {len(held)} ({split}); add pairs of more scenes"
         )
     say(split)
+    calibration_pairs, held_pairs = calibration.unit_pairs(), held.unit_pairs()
     result = attribute(
-        base,
-        calibration.unit_pairs(),
-        held.unit_pairs(),
-        candidates=candidates,
-        max_added=max_added,
-        seed=seed,
-        log=log,
+        base, calibration_pairs, held_pairs, candidates=candidates, max_changes=max_added, seed=seed, log=log
     )
-    verdict = _verdict(result, findings_of(result))
+    critics = _critics(base, result, calibration_pairs, held_pairs, seed, say) if critic else {}
+    verdict = _verdict(result, findings_of(result), critics, base.name)
     say(verdict)
-    report = _report(base, result, calibration, held, split, verdict)
+    report = _report(base, result, calibration, held, held_pairs, split, verdict, critics)
     report.skipped = [
         {"path": str(path), "reason": reason}
         for loaded in (pair_set, given)
@@ -124,101 +115,168 @@ def _split(
 
 
 def findings_of(result: Attribution) -> list[dict]:
-    return findings(result.held_real, result.base_stats, result.base_families, result.base_null_families)
+    baseline = result.baseline
+    return findings(result.held.real, baseline.stats, baseline.families, baseline.null_families)
+
+
+def _critics(
+    base: CameraProfile,
+    result: Attribution,
+    calibration: list,
+    held: list,
+    seed: int,
+    say: Callable[[str], None],
+) -> dict[str, CriticResult]:
+    """The critic trained and scored on the profile as given, and on the profile with the accepted changes."""
+    cal_cleans, cal_reals = [c for c, _ in calibration], [r for _, r in calibration]
+    held_cleans, held_reals = [c for c, _ in held], [r for _, r in held]
+    out = {}
+    for label, profile, held_sims in (
+        ("before", base, result.baseline.sims),
+        ("after", result.final_profile, result.final_sims),
+    ):
+        if label == "after" and not result.accepted:
+            out[label] = out["before"]
+            break
+        cal_sims = simulate(profile, cal_cleans, seed, stream="critic-calibration")
+        out[label] = critic_test((cal_cleans, cal_reals, cal_sims), (held_cleans, held_reals, held_sims), seed)
+        say(f"critic {label}: {out[label].describe()}")
+    return out
 
 
 def _fraction_closed(result: Attribution) -> float:
-    gap_after = result.chosen.gap_after if result.chosen else result.gap_before
-    excess = result.gap_before - result.noise_floor
-    return (result.gap_before - gap_after) / excess if excess > 0 else 0.0
+    excess = result.baseline.gap - result.noise_floor
+    return (result.baseline.gap - result.gap_after) / excess if excess > 0 else 0.0
 
 
-def _verdict(result: Attribution, where: list[dict]) -> str:
-    added = list(result.chosen.names) if result.chosen else []
-    if not result.significant_gap:
-        return (
-            f"No significant gap: the held-out gap {result.gap_before:.2f} is within the noise of the measurement "
-            f"(profile against itself {result.base_null:.2f}, bootstrap SE {result.gap_before_se:.2f})."
+def _finding(change: Change, profile_name: str) -> tuple[str, str]:
+    """(what is wrong, what fixes it) for an accepted change, in words."""
+    if change.kind == "add":
+        return f"the profile is missing {change.name}", f"adding {change.name}"
+    if change.kind == "remove":
+        return f"the profile has a {change.name} stage the camera lacks", "removing it"
+    if change.kind == "refit":
+        return f"the profile's {change.description}", f"refitting {change.name}"
+    command = NETWORK_COMMAND.format(profile=profile_name or "PROFILE")
+    return "the network itself leaves a gap no effect explains", f"refitting the network ({command})"
+
+
+def _verdict(result: Attribution, where: list[dict], critics: dict[str, CriticResult], profile_name: str) -> str:
+    baseline = result.baseline
+    if not baseline.significant:
+        text = (
+            f"No significant gap: the held-out gap {baseline.gap:.2f} is within the noise of the measurement "
+            f"(profile against itself {baseline.null:.2f}, bootstrap SE {baseline.gap_se:.2f})."
         )
-    if not added:
-        return (
-            f"Unexplained gap: {result.gap_before:.2f} (noise floor {result.noise_floor:.2f}), mostly in "
-            f"{where[0]['axis']}; no candidate effect closes a significant part of it."
+    elif not result.accepted:
+        text = (
+            f"Unexplained gap: {baseline.gap:.2f} (noise floor {result.noise_floor:.2f}), mostly in "
+            f"{where[0]['axis']}; no change to the profile closes a significant part of it."
         )
-    gap_after = result.chosen.gap_after if result.chosen else result.gap_before
-    return (
-        f"The profile is missing {' + '.join(added)}: adding it closes {_fraction_closed(result):.0%} of the held-out "
-        f"gap ({result.gap_before:.2f} → {gap_after:.2f}; noise floor {result.noise_floor:.2f})."
-    )
+    else:
+        parts = [_finding(change, profile_name) for change in result.accepted]
+        problems = "; ".join(problem for problem, _ in parts)
+        fixes = ", then ".join(fix for _, fix in parts)
+        text = (
+            f"{problems[0].upper()}{problems[1:]}: {fixes} closes {_fraction_closed(result):.0%} of the held-out gap "
+            f"({baseline.gap:.2f} → {result.gap_after:.2f}; noise floor {result.noise_floor:.2f})."
+        )
+    return text + _critic_clause(baseline.significant, critics)
 
 
-def _effect_rows(singles: list[Candidate]) -> list[dict]:
-    ranked = [c for c in singles if c.error is None] + [c for c in singles if c.error is not None]
+def _critic_clause(significant_gap: bool, critics: dict[str, CriticResult]) -> str:
+    """What the critic adds to the verdict: its accuracy before and after, and where it disagrees."""
+    if not critics:
+        return ""
+    before, after = critics["before"], critics["after"]
+    clause = f" Critic: {before.describe()}"
+    if after is not before:
+        clause += f"; after the changes {after.accuracy:.2f} [{after.low:.2f}–{after.high:.2f}]"
+    clause += "."
+    if significant_gap and before.low <= 0.5:
+        clause += " The critic cannot tell the captures from the simulations although the statistics see a gap."
+    elif not significant_gap and before.low > CRITIC_CHANCE:
+        clause += (
+            " The critic still tells them apart although the statistics see no significant gap: a difference the "
+            "statistics do not measure (see where it decides)."
+        )
+    return clause
+
+
+def _change_rows(changes: list[Change]) -> list[dict]:
+    ranked = [c for c in changes if c.error is None] + [c for c in changes if c.error is not None]
     return [
         {
-            "name": c.names[-1],
+            "kind": c.kind,
+            "name": c.name,
             "gap_after": round(c.gap_after, 4),
             "reduction": round(c.reduction, 4),
             "reduction_se": _finite(c.reduction_se),
             "significant": c.significant,
-            "params": effect_params(c.effects[-1]) if c.effects and c.error is None else {},
+            "description": c.description,
+            "after": [earlier.label for earlier in c.before],
+            "params": effect_params(c.effect) if c.effect is not None else {},
             **({"error": c.error} if c.error else {}),
         }
         for c in ranked
     ]
 
 
-def _combination_rows(combinations: list[Candidate]) -> list[dict]:
-    return [
-        {
-            "names": c.names,
-            "gap_after": round(c.gap_after, 4),
-            "reduction": round(c.reduction, 4),
-            "reduction_se": _finite(c.reduction_se),
-            "significant": c.significant,
-        }
-        for c in combinations
-    ]
-
-
 def _report(
-    base: CameraProfile, result: Attribution, calibration: PairSet, held: PairSet, split: str, verdict: str
-) -> PairedDiagnosisReport:
-    chosen = result.chosen
-    added = list(chosen.names) if chosen else []
+    base: CameraProfile,
+    result: Attribution,
+    calibration: PairSet,
+    held: PairSet,
+    held_pairs: list,
+    split: str,
+    verdict: str,
+    critics: dict[str, CriticResult],
+) -> DiagnosisReport:
+    accepted = result.accepted
+    added = [change.name for change in accepted if change.kind == "add"]
     final = result.final_profile
-    if added:
-        final.fitted = {**final.fitted, "diagnosis": {"added": added, "gap_before": result.gap_before}}
+    if accepted:
+        final.fitted = {
+            **final.fitted,
+            "diagnosis": {"changes": [change.label for change in accepted], "gap_before": result.baseline.gap},
+        }
+    adds = [change for change in result.singles if change.kind == "add"]
     best_single = next((c for c in result.singles if c.profile is not None), None)
-    held_pairs = held.unit_pairs()
-    return PairedDiagnosisReport(
-        gap_before=result.gap_before,
-        gap_after=chosen.gap_after if chosen else result.gap_before,
+    cleans, reals = [c for c, _ in held_pairs], [r for _, r in held_pairs]
+    changes = _change_rows(result.singles)
+    effects = [
+        {key: row[key] for key in row if key not in ("kind", "after", "description")} for row in _change_rows(adds)
+    ]
+    return DiagnosisReport(
+        gap_before=result.baseline.gap,
+        gap_after=result.gap_after,
         noise_floor=result.noise_floor,
         where=findings_of(result),
-        effects=_effect_rows(result.singles),
+        effects=effects,
         added=added,
         verdict=verdict,
         fraction_closed=_fraction_closed(result),
-        gap_before_se=result.gap_before_se,
-        gap_after_best_single=best_single.gap_after if best_single else result.gap_before,
-        combinations=_combination_rows(result.combinations),
-        fitted_params={effect.name: effect_params(effect) for effect in chosen.effects} if chosen else {},
+        gap_before_se=result.baseline.gap_se,
+        gap_after_best_single=best_single.gap_after if best_single else result.baseline.gap,
+        combinations=_change_rows(result.combinations),
+        fitted_params={c.name: effect_params(c.effect) for c in accepted if c.effect is not None},
         split=split,
         calibration_pairs=len(calibration),
         held_out_pairs=len(held),
-        families_before=result.base_families,
+        families_before=result.baseline.families,
         families_after=result.final_families,
         statistics={
-            "real": result.held_real.values(),
-            "before": result.base_stats.values(),
+            "real": result.held.real.values(),
+            "before": result.baseline.stats.values(),
             "after": result.final_stats.values(),
         },
-        crops=example_crops(
-            [clean for clean, _ in held_pairs], [real for _, real in held_pairs], result.base_sims, result.final_sims
-        ),
+        crops=example_crops(cleans, reals, result.baseline.sims, result.final_sims),
+        flat_crops=flat_crops(cleans, reals, result.baseline.sims, result.final_sims),
         profile=final,
         profile_name=base.name,
+        changes=changes,
+        accepted=[change.label for change in accepted],
+        critic={label: value.to_dict() for label, value in critics.items()},
     )
 
 

@@ -1,11 +1,11 @@
 """A learned critic beside the statistics: can a small CNN tell the real captures from the simulated ones?
 
 A classifier two-sample test. Patches of the calibration pairs are shown to a small CNN as (clean patch, image
-patch − clean patch, position in the frame), labelled real (the capture) or simulated (the profile's sample of the
-same clean image, drawn as training would see it); both come from the same positions, so content alone tells
-nothing. The critic is then scored on patches of the held-out pairs, which it never saw: accuracy 0.5 means the
-simulation cannot be told from the camera, 1.0 that every patch gives it away. The 95 % interval comes from a
-bootstrap over held-out *pairs* (patches of one image are not independent).
+patch − clean patch, the image's fine detail, position in the frame), labelled real (the capture) or simulated
+(the profile's sample of the same clean image, drawn as training would see it); both come from the same positions,
+so content alone tells nothing. The critic is then scored on patches of the held-out pairs, which it never saw:
+accuracy 0.5 means the simulation cannot be told from the camera, 1.0 that every patch gives it away. The 95 %
+interval comes from a bootstrap over held-out *pairs* (patches of one image are not independent).
 
 Where it decides is reported by the patch's distance from the frame centre, its clean intensity, and whether it is
 flat (most of its pixels on :func:`~camdegrade.functional.analysis.flat_mask`) or textured.
@@ -26,30 +26,38 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from camdegrade._seeds import derive_seed, derived_generator
-from camdegrade.functional.analysis import flat_mask
+from camdegrade.functional.analysis import box_mean, flat_mask
 
 PATCH = 32
+GRID = 8
 #: Patches drawn from each pair (the same positions for its real and its simulated image).
 PATCHES_PER_PAIR = 24
 STEPS = 250
 BATCH = 32
 LEARNING_RATE = 2e-3
 BOOTSTRAP_ROUNDS = 1000
-#: The residual (image − clean) is scaled by this before the CNN sees it: a few levels of noise become ~0.1.
-RESIDUAL_GAIN = 8.0
 #: Group edges of the "where it decides" breakdown.
 RADIUS_EDGES = (1 / 3, 2 / 3)
 INTENSITY_EDGES = (1 / 3, 2 / 3)
 FLAT_SHARE = 0.5
 
 
+#: Input planes: clean RGB, residual RGB (image − clean), the image's fine detail RGB (image minus its 3×3
+#: mean, where noise and blocking live), and the position (y, x) in the frame.
+PLANES = 11
+
+
 class CriticNet(nn.Module):
-    """Eight input planes (clean RGB, residual RGB, y, x) → one logit (real vs simulated)."""
+    """:data:`PLANES` input planes → one logit (real vs simulated). Inputs are standardised per plane with the
+    training patches' mean and std (:meth:`standardise`), so small signals (a few levels of noise) are not drowned
+    by large ones (a tone shift)."""
 
     def __init__(self, width: int = 12) -> None:
         super().__init__()
+        self.register_buffer("mean", torch.zeros(PLANES, 1, 1))
+        self.register_buffer("std", torch.ones(PLANES, 1, 1))
         self.features = nn.Sequential(
-            nn.Conv2d(8, width, 3, padding=1),
+            nn.Conv2d(PLANES, width, 3, padding=1),
             nn.ReLU(),
             nn.Conv2d(width, 2 * width, 3, stride=2, padding=1),
             nn.ReLU(),
@@ -58,8 +66,13 @@ class CriticNet(nn.Module):
         )
         self.head = nn.Linear(4 * width, 1)
 
+    def standardise(self, patches: Tensor) -> None:
+        """Set the per-plane mean and std from training ``patches``."""
+        self.mean.copy_(patches.mean((0, 2, 3))[:, None, None])
+        self.std.copy_(patches.std((0, 2, 3)).clamp_min(1e-6)[:, None, None])
+
     def forward(self, patches: Tensor) -> Tensor:
-        hidden = self.features(patches)
+        hidden = self.features((patches - self.mean) / self.std)
         pooled = torch.cat([hidden.mean((-2, -1)), hidden.pow(2).mean((-2, -1)).sqrt()], 1)  # level and energy
         return self.head(pooled).squeeze(1)
 
@@ -98,18 +111,20 @@ def _pair_patches(
     height, width = clean.shape[-2:]
     if min(height, width) < PATCH:
         return None
-    tops = torch.randint(0, height - PATCH + 1, (PATCHES_PER_PAIR,), generator=generator).tolist()
-    lefts = torch.randint(0, width - PATCH + 1, (PATCHES_PER_PAIR,), generator=generator).tolist()
+    # On the 8-pixel grid: a codec's 8×8 blocks and the network's 4-pixel grid keep one phase in every patch.
+    tops = (torch.randint(0, (height - PATCH) // GRID + 1, (PATCHES_PER_PAIR,), generator=generator) * GRID).tolist()
+    lefts = (torch.randint(0, (width - PATCH) // GRID + 1, (PATCHES_PER_PAIR,), generator=generator) * GRID).tolist()
     ys = torch.linspace(-1, 1, height)[:, None].expand(height, width)
     xs = torch.linspace(-1, 1, width)[None, :].expand(height, width)
     flat = flat_mask(clean).float()
+    detail = {label: image - box_mean(image, 3) for label, image in ((1.0, real), (0.0, sim))}
     inputs, labels, radius, intensity, flat_share = [], [], [], [], []
     for top, left in zip(tops, lefts, strict=True):
         window = (..., slice(top, top + PATCH), slice(left, left + PATCH))
         position = torch.stack([ys[window], xs[window]])
         for label, image in ((1.0, real), (0.0, sim)):
-            residual = (image[window] - clean[window]) * RESIDUAL_GAIN
-            inputs.append(torch.cat([clean[window], residual, position]))
+            residual = image[window] - clean[window]
+            inputs.append(torch.cat([clean[window], residual, detail[label][window], position]))
             labels.append(label)
         centre_y, centre_x = (top + PATCH / 2) / height - 0.5, (left + PATCH / 2) / width - 0.5
         patch_radius = math.hypot(centre_y, centre_x) / math.hypot(0.5, 0.5)
@@ -163,6 +178,7 @@ def train_critic(patches: Patches, seed: int, steps: int = STEPS) -> CriticNet:
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(derive_seed(seed, "critic-init"))
         net = CriticNet()
+    net.standardise(patches.inputs)
     optimizer = torch.optim.Adam(net.parameters(), lr=LEARNING_RATE)
     generator = derived_generator(seed, "critic-batches")
     net.train()

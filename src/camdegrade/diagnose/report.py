@@ -24,6 +24,7 @@ from torch import Tensor
 from camdegrade._files import atomic_path
 from camdegrade._pixels import unit_to_bytes
 from camdegrade.diagnose.stats import BANDS, FAMILIES, INTENSITY_BINS, NOISE_BINS, TILES
+from camdegrade.functional.analysis import flat_mask
 from camdegrade.profile import CameraProfile
 
 #: Keys every JSON report has at the top level (more follow them).
@@ -56,6 +57,11 @@ class DiagnosisReport:
     profile: CameraProfile | None = field(default=None, repr=False)
     profile_name: str = ""
     mode: str = "paired"
+    changes: list[dict[str, Any]] = field(default_factory=list)
+    accepted: list[str] = field(default_factory=list)
+    critic: dict[str, dict[str, Any]] = field(default_factory=dict)
+    skipped: list[dict[str, str]] = field(default_factory=list)
+    flat_crops: list[tuple[str, list[Tensor]]] = field(default_factory=list, repr=False)
 
     def to_dict(self) -> dict[str, Any]:
         """The JSON report: the required keys first, then the evidence."""
@@ -84,6 +90,10 @@ class DiagnosisReport:
             ),
             "family_tau": {name: family.tau for name, family in FAMILIES.items()},
             "profile": self.profile_name,
+            "changes": self.changes,
+            "accepted": list(self.accepted),
+            "critic": self.critic,
+            "skipped": self.skipped,
         }
 
     def to_json(self) -> str:
@@ -131,6 +141,29 @@ def example_crops(
             )
         )
     return out
+
+
+def flat_crops(
+    cleans: Sequence[Tensor], reals: Sequence[Tensor], before: Sequence[Tensor], after: Sequence[Tensor], side: int = 96
+) -> list[tuple[str, list[Tensor]]]:
+    """One ``side``² crop at 1:1 (real, sim before, sim after) of the held-out pair with the largest flat region,
+    where the clean image is flattest: noise and banding show there first."""
+    best, best_share, best_corner = None, 0.0, (0, 0)
+    for index, clean in enumerate(cleans):
+        if min(clean.shape[-2:]) < side:
+            continue
+        flat = flat_mask(clean).float()[None, None]
+        pooled = torch.nn.functional.avg_pool2d(flat, side, stride=max(1, side // 4))[0, 0]
+        share = float(pooled.max())
+        if share > best_share:
+            top, left = divmod(int(pooled.argmax()), pooled.shape[1])
+            best, best_share, best_corner = index, share, (top * max(1, side // 4), left * max(1, side // 4))
+    if best is None:
+        return []
+    top, left = best_corner
+    crop = (slice(None), slice(top, top + side), slice(left, left + side))
+    label = f"held-out pair {best}, {best_share:.0%} flat"
+    return [(label, [image[crop] for image in (reals[best], before[best], after[best])])]
 
 
 def _png(image: Tensor, scale: int = 2) -> str:
@@ -254,8 +287,9 @@ def render_html(report: DiagnosisReport) -> str:
         f"<body><h1>{title}</h1><p class='verdict'>{html.escape(report.verdict)}</p>{_numbers(report)}"
         f"<p class='muted'>{html.escape(report.split)}. Candidates are fitted on the calibration pairs; every gap "
         "is measured on the held-out pairs. Gap = Σ over statistic families of RMS((real − sim)/τ).</p>"
-        f"<h2>Where the gap lies (before)</h2>{_where(report)}<h2>Which effect: candidates ranked</h2>"
-        f"{_candidates(report)}{_combinations(report)}<h2>Evidence</h2>{_evidence(report)}{_crops(report)}"
+        f"{_critic(report)}<h2>Where the gap lies (before)</h2>{_where(report)}"
+        f"<h2>Which change: candidates ranked</h2>{_changes(report)}{_combinations(report)}"
+        f"<h2>Evidence</h2>{_evidence(report)}{_flat_crops(report)}{_crops(report)}"
         "</body></html>\n"
     )
 
@@ -286,26 +320,62 @@ def _where(report: DiagnosisReport) -> str:
     return _table(rows, ("axis", "score", "null", "significant", "finding"))
 
 
-def _candidates(report: DiagnosisReport) -> str:
+def _changes(report: DiagnosisReport) -> str:
     rows = [
         (
-            e["name"],
-            f"{e['gap_after']:.2f}",
-            _pm(e["reduction"], e.get("reduction_se")),
-            "yes" if e.get("significant") else "no",
-            e.get("error") or json.dumps(e["params"]),
+            f"{c['kind']} {c['name']}",
+            f"{c['gap_after']:.2f}",
+            _pm(c["reduction"], c.get("reduction_se")),
+            "yes" if c.get("significant") else "no",
+            c.get("error") or c.get("description", ""),
         )
-        for e in report.effects
+        for c in report.changes
     ]
-    return _table(rows, ("candidate", "held-out gap", "reduction", "significant", "fitted parameters"))
+    return _table(rows, ("change", "held-out gap", "reduction", "significant", "what it says"))
 
 
 def _combinations(report: DiagnosisReport) -> str:
     if not report.combinations:
         return ""
-    rows = [(" + ".join(c["names"]), f"{c['gap_after']:.2f}", f"{c['reduction']:+.2f}") for c in report.combinations]
-    return "<h3>Combinations (fitted on top of the best so far)</h3>" + _table(
-        rows, ("effects", "held-out gap", "marginal reduction")
+    rows = [
+        (" + ".join([*c["after"], f"{c['kind']} {c['name']}"]), f"{c['gap_after']:.2f}", f"{c['reduction']:+.2f}")
+        for c in report.combinations
+    ]
+    return "<h3>Combinations (fitted on top of the accepted changes)</h3>" + _table(
+        rows, ("changes", "held-out gap", "marginal reduction")
+    )
+
+
+def _critic(report: DiagnosisReport) -> str:
+    """The critic's accuracy before and after the changes, and where it decides."""
+    if not report.critic:
+        return ""
+    rows = []
+    for label, result in report.critic.items():
+        groups = {**result["by_position"], **result["by_intensity"], **result["by_texture"]}
+        where = ", ".join(
+            f"{name} {value['accuracy']:.2f}" for name, value in groups.items() if value["accuracy"] is not None
+        )
+        rows.append(
+            (label, f"{result['accuracy']:.2f} [{result['low']:.2f}–{result['high']:.2f}]", result["patches"], where)
+        )
+    return "<h2>Learned critic (0.5: cannot tell real from simulated)</h2>" + _table(
+        rows, ("profile", "held-out accuracy [95 % CI]", "patches", "accuracy by position, intensity, texture")
+    )
+
+
+def _flat_crops(report: DiagnosisReport) -> str:
+    if not report.flat_crops:
+        return ""
+    return (
+        "<h2>A flat region at 1:1 (real | sim before | sim after)</h2><div class='crops'>"
+        + "".join(
+            f"<div>{html.escape(label)}<br>"
+            + "".join(f"<img src='{_png(image, 1)}' alt=''>" for image in images)
+            + "</div>"
+            for label, images in report.flat_crops
+        )
+        + "</div>"
     )
 
 

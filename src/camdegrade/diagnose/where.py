@@ -10,6 +10,7 @@ from torch import Tensor
 
 from camdegrade.diagnose.stats import BANDS, FAMILIES, INTENSITY_BINS, NOISE_BINS, SHIFT_TILES, TILES, StatisticSet
 from camdegrade.effects import EFFECTS
+from camdegrade.functional.noise_stats import LAGS, MIN_LINES, MIN_PIXELS
 
 _CHANNELS = ("R", "G", "B")
 
@@ -50,14 +51,45 @@ def _intensity(diff: Tensor) -> str:
     return f"real − sim tone residual up to {luma[worst]:+.1f} levels at clean value {centre:.2f}"
 
 
-def _noise(real: Tensor, sim: Tensor) -> str:
+def _noise(real: Tensor, sim: Tensor, pixels: int) -> str:
     r = torch.nanmean(real.reshape(3, NOISE_BINS), 1)
+    if not bool(torch.isfinite(r).any()):
+        return f"noise not measurable: {pixels:,} pixels where the clean image is flat (a bin needs {MIN_PIXELS:,})"
     s = torch.nanmean(sim.reshape(3, NOISE_BINS), 1)
     return (
-        "noise std (levels, flat areas) real "
+        f"noise std on {pixels:,} flat pixels (levels): real "
         + ", ".join(f"{c} {a:.2f}" for c, a in zip(_CHANNELS, r.tolist(), strict=True))
         + " vs sim "
         + ", ".join(f"{c} {b:.2f}" for c, b in zip(_CHANNELS, s.tolist(), strict=True))
+    )
+
+
+def _noise_correlation(real: Tensor, sim: Tensor, pixels: int) -> str:
+    if not bool(torch.isfinite(real).any()):
+        return f"noise correlation not measurable: {pixels:,} flat pixels (needs {MIN_PIXELS:,})"
+
+    def lag1(values: Tensor) -> tuple[float, float]:
+        lags = values[: 2 * len(LAGS) * 3].reshape(2, len(LAGS), 3)
+        return float(lags[0, 0].mean()), float(lags[1, 0].mean())
+
+    def chroma(values: Tensor) -> float:
+        return float(values[2 * len(LAGS) * 3 :].mean())
+
+    (rh, rv), (sh, sv) = lag1(real), lag1(sim)
+    return (
+        f"noise correlation with the next pixel: real h {rh:.2f} v {rv:.2f} vs sim h {sh:.2f} v {sv:.2f}; "
+        f"between channels real {chroma(real):.2f} vs sim {chroma(sim):.2f} ({pixels:,} flat pixels)"
+    )
+
+
+def _banding(real: Tensor, sim: Tensor, lines: tuple[int, int]) -> str:
+    rows, columns = lines
+    if not bool(torch.isfinite(real).any()):
+        return f"banding not measurable: {rows} rows, {columns} columns with enough flat pixels (needs {MIN_LINES})"
+    r, s = real.reshape(2, 3).nanmean(1), sim.reshape(2, 3).nanmean(1)
+    return (
+        f"std of row means real {r[0]:.2f} vs sim {s[0]:.2f} levels, of column means real {r[1]:.2f} vs sim "
+        f"{s[1]:.2f} ({rows:,} rows, {columns:,} columns on flat pixels)"
     )
 
 
@@ -103,15 +135,17 @@ def _alignment(diff: Tensor) -> str:
     )
 
 
-#: axis → how its real and simulated values read to a person.
-_DESCRIBE: dict[str, Callable[[Tensor, Tensor], str]] = {
-    "spatial": lambda r, s: _spatial(r - s),
-    "intensity": lambda r, s: _intensity(r - s),
-    "noise": _noise,
-    "frequency": _frequency,
-    "blocks": _blocks,
-    "color": lambda r, s: _color(r - s),
-    "alignment": lambda r, s: _alignment(r - s),
+#: axis → how its real and simulated values read to a person (the real set passed for its pixel counts).
+_DESCRIBE: dict[str, Callable[[Tensor, Tensor, StatisticSet], str]] = {
+    "spatial": lambda r, s, _: _spatial(r - s),
+    "intensity": lambda r, s, _: _intensity(r - s),
+    "noise": lambda r, s, real: _noise(r, s, real.flat_pixels()),
+    "noise_correlation": lambda r, s, real: _noise_correlation(r, s, real.flat_pixels()),
+    "banding": lambda r, s, real: _banding(r, s, real.lines()),
+    "frequency": lambda r, s, _: _frequency(r, s),
+    "blocks": lambda r, s, _: _blocks(r, s),
+    "color": lambda r, s, _: _color(r - s),
+    "alignment": lambda r, s, _: _alignment(r - s),
 }
 
 
@@ -123,7 +157,7 @@ def findings(
     out = []
     for name in FAMILIES:
         r, s = real_values[name], sim_values[name]
-        text = _DESCRIBE[name](r, s)
+        text = _DESCRIBE[name](r, s, real)
         score = scores[name]
         null = nulls.get(name, 0.0)
         out.append(

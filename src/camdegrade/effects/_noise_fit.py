@@ -17,11 +17,14 @@ from camdegrade._seeds import derived_generator
 from camdegrade.effects._fitting import as_pairs
 from camdegrade.effects.base import Pairs
 from camdegrade.functional.analysis import flat_mask
-from camdegrade.functional.noise_stats import BINS, HIGH_PASS, MIN_PIXELS, NoiseSums
+from camdegrade.functional.noise_stats import BINS, HIGH_PASS, NoiseSums
 
 if TYPE_CHECKING:
     from camdegrade.effects.noise import Noise
 
+#: A bin's noise level is estimated from at least this many flat pixels (its std then has a relative standard
+#: error of a few per cent, more where the noise is correlated).
+FIT_MIN_PIXELS = 500
 #: The added noise's own correlation is read from the excess over the source only where the excess is at least
 #: this share of the target's variance; below, the excess is mostly the two images' texture disagreeing, and the
 #: target's own correlation is the better guess.
@@ -85,17 +88,17 @@ def _measure_for(sources: Sequence[Tensor], masks: Sequence[Tensor], estimator: 
 
 
 def check_measurable(real: NoiseSums) -> None:
-    measurable = torch.isfinite(real.std()).any(1)
+    measurable = torch.isfinite(real.std(FIT_MIN_PIXELS)).any(1)
     if not bool(measurable.all()):
         raise ValueError(
             f"too few flat pixels to measure noise: {real.pixels} pixels where the source is flat (an intensity bin "
-            f"needs {MIN_PIXELS}); use pairs with flat regions (sky, walls, a grey card) or larger images"
+            f"needs {FIT_MIN_PIXELS}); use pairs with flat regions (sky, walls, a grey card) or larger images"
         )
 
 
 def initial_noise(cls: type[Noise], real: NoiseSums, base: NoiseSums, taps: int) -> Noise:
     """The closed-form start: the excess variance per bin, the excess (or the target's) correlation, no banding."""
-    levels = _fill(((real.std().pow(2) - base.std().pow(2)).clamp_min(0)).sqrt()) / 255.0
+    levels = _fill(((_variance(real) - _variance(base)).clamp_min(0)).sqrt()) / 255.0
     rho = _noise_correlation(real, base)
     across, down = _kernels(rho, taps)
     return cls(
@@ -158,9 +161,9 @@ def _fill(values: Tensor) -> Tensor:
 
 def _correct_levels(noise: Noise, real: NoiseSums, base: NoiseSums, sim: NoiseSums) -> None:
     """Each knot's std scaled by how far the simulated excess variance is from the real one."""
-    base_variance = base.std().pow(2)
-    wanted = real.std().pow(2) - base_variance
-    got = sim.std().pow(2) - base_variance
+    base_variance = _variance(base)
+    wanted = _variance(real) - base_variance
+    got = _variance(sim) - base_variance
     levels = noise.levels.double()
     factor = (wanted.clamp_min(0) / got.clamp_min(1e-12)).sqrt().clamp(1 / MAX_STEP, MAX_STEP)
     switched_on = wanted.clamp_min(0).sqrt() / 255.0  # a knot at zero has no response to scale
@@ -168,6 +171,11 @@ def _correct_levels(noise: Noise, real: NoiseSums, base: NoiseSums, sim: NoiseSu
     updated = torch.where(wanted <= 0, torch.zeros_like(updated), updated)
     measurable = torch.isfinite(wanted) & torch.isfinite(got)
     noise.levels.copy_(torch.where(measurable, updated, levels).float())
+
+
+def _variance(sums: NoiseSums) -> Tensor:
+    """``(3, BINS)`` noise variance per bin (levels²), NaN where the fit has too few pixels."""
+    return sums.std(FIT_MIN_PIXELS).pow(2)
 
 
 # -- correlation ---------------------------------------------------------------------------------------------------

@@ -22,7 +22,17 @@ Pairs: TypeAlias = "Tensor | Sequence[Tensor]"
 #: name → Effect subclass. Filled by :func:`register_effect`; the names are the diagnosis vocabulary.
 EFFECTS: dict[str, type[Effect]] = {}
 #: The gap signatures (axes of :mod:`camdegrade.diagnose.stats`) an effect can name in :attr:`Effect.explains`.
-SIGNATURES: tuple[str, ...] = ("spatial", "intensity", "noise", "frequency", "blocks", "color", "alignment")
+SIGNATURES: tuple[str, ...] = (
+    "spatial",
+    "intensity",
+    "noise",
+    "noise_correlation",
+    "banding",
+    "frequency",
+    "blocks",
+    "color",
+    "alignment",
+)
 
 
 class Effect(nn.Module):
@@ -81,6 +91,23 @@ class Effect(nn.Module):
         out = copy.deepcopy(self)
         out.load_state_dict(state)
         return out
+
+    def simplified(self) -> list[Effect]:
+        """Simpler versions of this stage, each with one of its parts switched off (noise without its banding,
+        say), which a refit tries beside a fresh fit. Default: none."""
+        return []
+
+    def magnitude(self) -> float:
+        """How far this stage is from :meth:`neutral`: the L2 norm of its buffers' change (in their own units).
+        Ratios of two stages of one kind say how much stronger one is; effects with a natural measure override it
+        (noise: its std at mid-grey in 8-bit levels)."""
+        neutral = type(self).neutral().state_dict()
+        squares = [
+            float((value.double() - neutral[key].double()).pow(2).sum())
+            for key, value in self.state_dict().items()
+            if key in neutral and value.is_floating_point()
+        ]
+        return sum(squares) ** 0.5
 
     @classmethod
     def fit_options(cls, images: Sequence[Tensor]) -> dict[str, Any]:

@@ -14,7 +14,7 @@ from torch import Tensor
 from camdegrade._checks import check_non_negative
 from camdegrade._random import standard_normal
 from camdegrade.effects._common import batch_shape, resolve_params, vector
-from camdegrade.effects.base import Effect, Encoding, Pairs, register_effect
+from camdegrade.effects.base import Effect, Encoding, Pairs, check_range, register_effect
 from camdegrade.functional import linear_to_srgb, srgb_to_linear
 from camdegrade.functional.noise import add_noise_, correlated_field, noise_std
 
@@ -56,7 +56,7 @@ class Noise(Effect):
 
     name = "noise"
     stage = "sensor"
-    explains = ("noise",)
+    explains = ("noise", "noise_correlation", "banding")
     a: Tensor
     b: Tensor
     row_sigma: Tensor
@@ -129,6 +129,11 @@ class Noise(Effect):
         """A stage with buffers of the shapes ``config`` describes (values to be loaded from a state dict)."""
         options = dict(config)
         knots, taps = int(options.pop("knots", 0)), int(options.pop("taps", 0))
+        if not (0 <= knots <= cls.MAX_KNOTS and 0 <= taps <= cls.MAX_TAPS):
+            raise ValueError(
+                f"knots must be from 0 to {cls.MAX_KNOTS} and taps from 0 to {cls.MAX_TAPS}, got knots={knots}, "
+                f"taps={taps}"
+            )
         columns, mixing = bool(options.pop("columns", False)), bool(options.pop("mixing", False))
         impulse = torch.zeros(3, taps)
         if taps:
@@ -142,9 +147,41 @@ class Noise(Effect):
             **options,
         )
 
+    #: Upper bounds of the stored values: a variance or std above 1 means nothing on [0, 1] images, and a log-gain
+    #: std above 2 draws gains whose square overflows.
+    MAX_LEVEL = 1.0
+    MAX_GAIN_JITTER = 2.0
+    #: The most knots and taps a profile may declare (bounded before anything is allocated).
+    MAX_KNOTS = 64
+    MAX_TAPS = 31
+
+    def check_values(self) -> None:
+        super().check_values()
+        for key in ("a", "b", "row_sigma", "column_sigma", "levels"):
+            if hasattr(self, key):
+                check_range(key, getattr(self, key), 0.0, self.MAX_LEVEL)
+        check_range("gain_jitter", self.gain_jitter, 0.0, self.MAX_GAIN_JITTER)
+        for key in ("across", "down", "mixing"):
+            if hasattr(self, key):
+                norms = getattr(self, key).double().norm(dim=1)
+                if not bool(torch.allclose(norms, torch.ones_like(norms), atol=1e-3)):
+                    raise ValueError(f"every row of {key} must have unit norm, got norms {norms.tolist()}")
+
     def without_randomness(self) -> None:
         """None: the stage only adds zero-mean noise, so the conditional mean leaves it out."""
         return None
+
+    def simplified(self) -> list[Effect]:
+        """This stage without its row and column banding (when it has some)."""
+        banded = bool((self.row_sigma > 0).any()) or bool((getattr(self, "column_sigma", torch.zeros(1)) > 0).any())
+        if not banded:
+            return []
+        unbanded = copy.deepcopy(self)
+        with torch.no_grad():
+            unbanded.row_sigma.zero_()
+            if hasattr(unbanded, "column_sigma"):
+                unbanded.column_sigma.zero_()
+        return [unbanded]
 
     def scaled(self, strength: float) -> Noise:
         """A copy whose noise power is ``strength`` times this one's: ``a`` and ``b`` times ``strength``, every std

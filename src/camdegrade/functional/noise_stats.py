@@ -96,9 +96,10 @@ class NoiseSums:
         """Flat pixels measured (per channel, the most any channel has)."""
         return int(self.count.sum(1).max())
 
-    def std(self) -> Tensor:
-        """``(3, BINS)`` noise std per channel and bin of clean value, in 8-bit levels; NaN where not measurable."""
-        return _ratio(self.square, self.count).sqrt()
+    def std(self, min_pixels: int = MIN_PIXELS) -> Tensor:
+        """``(3, BINS)`` noise std per channel and bin of clean value, in 8-bit levels; NaN where a bin has fewer
+        than ``min_pixels`` pixels."""
+        return _ratio(self.square, self.count, min_pixels).sqrt()
 
     def pooled_std(self) -> float:
         """The noise std over every flat pixel and channel (levels); NaN when not measurable."""
@@ -147,8 +148,8 @@ class NoiseSums:
         return self.lines[:, 0, 2]
 
 
-def _ratio(num: Tensor, den: Tensor) -> Tensor:
-    return torch.where(den >= MIN_PIXELS, num / den.clamp_min(1), torch.nan)
+def _ratio(num: Tensor, den: Tensor, min_pixels: int = MIN_PIXELS) -> Tensor:
+    return torch.where(den >= min_pixels, num / den.clamp_min(1), torch.nan)
 
 
 def _level_sums(residual: Tensor, clean: Tensor, usable: Tensor) -> tuple[Tensor, Tensor]:
