@@ -240,11 +240,18 @@ def parameter_error(name: str, truth: dict[str, Any], params: dict[str, Any]) ->
 
 
 def run_scenario(
-    name: str, calibration: int, held_out: int, size: int, seed: int = 0, log: Any = None
+    name: str,
+    calibration: int,
+    held_out: int,
+    size: int,
+    seed: int = 0,
+    log: Any = None,
+    candidates: list[str] | None = None,
 ) -> dict[str, Any]:
+    """Diagnose one scenario; ``candidates`` limits the effects that may be added (default: all)."""
     profile, cal, held, info = scenario(name, calibration, held_out, size, seed)
     started = time.perf_counter()
-    report = diagnose(profile, cal, held_out=held, seed=seed, log=log)
+    report = diagnose(profile, cal, held_out=held, seed=seed, log=log, candidates=candidates)
     seconds = time.perf_counter() - started
     expected = info["expected"]
     top = report.accepted[0] if report.accepted else None

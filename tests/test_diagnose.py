@@ -12,21 +12,21 @@ import torch.nn.functional as F
 
 from camdegrade.__main__ import main
 from camdegrade.diagnose import DiagnosisReport, diagnose
-from camdegrade.diagnose.attribute import HeldOut, add_effect, fit_candidate
-from camdegrade.diagnose.noise_fit import NoiseMoments, calibrate_noise
+from camdegrade.diagnose.attribute import HeldOut, add_effect
 from camdegrade.diagnose.report import REQUIRED_KEYS
 from camdegrade.diagnose.stats import (
     FAMILIES,
     StatisticSet,
     bootstrap_indices,
     family_gaps,
-    flat_mask,
     gap,
     measurement_scale,
 )
 from camdegrade.effects import EFFECTS, JPEG, Noise, Tone, Vignetting
+from camdegrade.fitting.noise import fit_noise_stage
 from camdegrade.fitting.pairset import PairSet, simulate
-from camdegrade.functional.analysis import box_mean
+from camdegrade.functional.analysis import box_mean, flat_mask
+from camdegrade.functional.noise_stats import measure_set
 from camdegrade.io import write_image
 from camdegrade.profile import CameraProfile, load_profile
 from camdegrade.sim import VirtualCamera
@@ -41,8 +41,8 @@ def _content(count: int, size: int, seed: int) -> list[torch.Tensor]:
     names = ("astronaut", "coffee", "chelsea")
     images = []
     for index in range(count):
-        if index % 3 == 2:
-            images.append(patch_chart(size, patches=6, seed=seed * 100 + index))
+        if index % 3 == 2:  # patches wide enough to stay flat after the flat mask's 8-pixel erosion
+            images.append(patch_chart(size, patches=max(1, size // 48), seed=seed * 100 + index))
             continue
         full = photo(names[index % 3], 3 * size)
         top = int(torch.randint(0, full.shape[-2] - size + 1, (1,), generator=generator))
@@ -102,10 +102,10 @@ def test_noise_family_compares_levels_relatively() -> None:
 
 def test_components_resting_on_one_pair_are_left_out_of_the_gap() -> None:
     """An intensity bin only one of eight pairs populates has no bootstrap spread: it must not enter the gap."""
-    cleans = [torch.full((3, 32, 32), 0.3) for _ in range(7)] + [torch.full((3, 32, 32), 0.9)]
-    masks = [torch.ones(32, 32, dtype=torch.bool)] * 8
+    cleans = [torch.full((3, 64, 64), 0.3) for _ in range(7)] + [torch.full((3, 64, 64), 0.9)]
+    masks = [torch.ones(64, 64, dtype=torch.bool)] * 8
     generator = torch.Generator().manual_seed(1)
-    reals = [clean + torch.randn(3, 32, 32, generator=generator) * 0.01 for clean in cleans]
+    reals = [clean + torch.randn(3, 64, 64, generator=generator) * 0.01 for clean in cleans]
     real = StatisticSet.measure(reals, cleans, masks)
     sim = StatisticSet.measure(cleans, cleans, masks)
     scale = measurement_scale(real, sim, bootstrap_indices(8, 100, seed=0))
@@ -115,37 +115,29 @@ def test_components_resting_on_one_pair_are_left_out_of_the_gap() -> None:
 
 
 def test_noise_level_is_calibrated_through_the_later_stages() -> None:
-    """Noise at the sensor, then a strong tone curve and JPEG: the closed-form fit reads the noise at the end of
-    the chain; calibrating by simulation recovers the sensor level."""
-    truth = Noise(a=0.003, b=2e-5)
+    """Noise at the sensor, then a strong tone curve and JPEG: fitted against the end of the chain, the stage is
+    off where the later stages reshape the noise; calibrated by simulating the chain, its noise per intensity bin
+    matches the camera's (on flat pixels)."""
     later = [Tone(gamma=0.6, black=0.04, white=0.9), JPEG(quality=50)]
-    camera = _camera(truth, *later)
+    camera = _camera(Noise(a=0.003, b=2e-5), *later)
     profile = CameraProfile(None, list(later))
-    pairs = _pairs(camera, 12, 64, seed=11)
+    pairs = _pairs(camera, 18, 128, seed=11)
     cleans, reals = [c for c, _ in pairs], [r for _, r in pairs]
     masks = [flat_mask(clean) for clean in cleans]
-    sources = simulate(profile, cleans, 0, deterministic=True)
-    real = NoiseMoments.measure(reals, cleans, masks)
+    real = measure_set(reals, cleans, masks)
 
-    def moments(effect: Noise) -> torch.Tensor:  # simulated / real noise std per populated bin
-        simulated = NoiseMoments.measure(simulate(add_effect(profile, effect), cleans, 9), cleans, masks)
-        return (simulated.variance / real.variance)[real.count > 1000].sqrt()
+    def ratios(noise: Noise) -> torch.Tensor:  # simulated / real noise std per measurable bin
+        simulated = measure_set(simulate(add_effect(profile, noise), cleans, 9), cleans, masks)
+        ratio = simulated.std() / real.std()
+        return ratio[torch.isfinite(ratio)]
 
-    def level(effect: Noise) -> float:  # sensor noise std at a dark linear intensity, relative to the truth
-        return float((effect.a * 0.1 + effect.b).sqrt().mean() / (truth.a * 0.1 + truth.b).sqrt().mean())
-
-    closed_form = fit_candidate("noise", sources, reals)
-    calibrated = calibrate_noise(
-        closed_form,
-        lambda effect: add_effect(profile, effect),
-        lambda p: simulate(p, cleans, 5),
-        real,
-        NoiseMoments.measure(sources, cleans, masks),
-        lambda images: NoiseMoments.measure(images, cleans, masks),
-    )
-    assert level(calibrated) == pytest.approx(1.0, abs=0.12)
-    assert moments(calibrated).median() == pytest.approx(1.0, abs=0.05)
-    assert (moments(calibrated) - 1).abs().max() < 0.5 * (moments(closed_form) - 1).abs().max()
+    closed_form = Noise.fit(simulate(profile, cleans, 0, deterministic=True), reals, rounds=0, banding=False)
+    calibrated = fit_noise_stage(profile, cleans, reals)
+    errors = (ratios(calibrated) - 1).abs()
+    assert errors.numel() >= 12
+    assert ratios(calibrated).median() == pytest.approx(1.0, abs=0.05)
+    assert (errors <= 0.15).double().mean() >= 0.8  # bins of a few thousand correlated pixels scatter
+    assert errors.median() < 0.5 * (ratios(closed_form) - 1).abs().median()
 
 
 def test_split_keeps_scenes_apart() -> None:
@@ -169,8 +161,9 @@ def vignetting_report() -> DiagnosisReport:
 
 def test_withheld_vignetting_is_named_and_closes_the_gap(vignetting_report: DiagnosisReport) -> None:
     report = vignetting_report
-    assert report.added[0] == "vignetting"
+    assert report.added[0] == "vignetting" and report.accepted[0] == "add vignetting"
     assert report.effects[0]["name"] == "vignetting"
+    assert report.changes[0]["kind"] == "add" and report.changes[0]["name"] == "vignetting"
     assert report.fraction_closed >= 0.7
     assert report.gap_after < report.gap_before
     k1 = report.fitted_params["vignetting"]["k1"]
@@ -195,6 +188,18 @@ def test_json_schema(vignetting_report: DiagnosisReport, tmp_path: Path) -> None
     reductions = [entry["reduction"] for entry in data["effects"] if "error" not in entry]
     assert reductions == sorted(reductions, reverse=True)
     assert all(isinstance(name, str) and name in EFFECTS for name in data["added"])
+    kinds = {entry["kind"] for entry in data["changes"]}
+    assert kinds >= {"add", "remove"} and kinds <= {"add", "remove", "refit", "network"}
+    for entry in data["changes"]:
+        assert set(entry) >= {"kind", "name", "gap_after", "reduction", "params"}
+        assert isinstance(entry["gap_after"], float) and isinstance(entry["params"], dict)
+    assert data["accepted"] and data["accepted"][0] == "add vignetting"
+    for label in ("before", "after"):
+        critic = data["critic"][label]
+        assert 0.0 <= critic["low"] <= critic["accuracy"] <= critic["high"] <= 1.0
+        assert critic["patches"] > 0 and set(critic["by_texture"]) == {"flat", "textured"}
+    assert data["critic"]["before"]["accuracy"] > data["critic"]["after"]["accuracy"]
+    assert data["skipped"] == []
 
 
 def test_html_is_one_self_contained_file(vignetting_report: DiagnosisReport, tmp_path: Path) -> None:
@@ -205,6 +210,7 @@ def test_html_is_one_self_contained_file(vignetting_report: DiagnosisReport, tmp
     assert not re.search(r"(src|href)\s*=\s*['\"](?!data:)", page)
     assert "<link" not in page and "<script" not in page and "@import" not in page and "url(" not in page
     assert "data:image/png;base64," in page
+    assert "Learned critic" in page and "A flat region at 1:1" in page
 
 
 def test_control_names_nothing() -> None:
@@ -216,7 +222,7 @@ def test_control_names_nothing() -> None:
         held_out=_pairs(camera, 12, 64, seed=6),
         candidates=["vignetting", "tone", "noise"],
     )
-    assert report.added == []
+    assert report.added == [] and report.accepted == []
     assert report.gap_after == report.gap_before
     assert "No significant gap" in report.verdict or "Unexplained" in report.verdict
 

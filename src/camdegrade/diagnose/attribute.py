@@ -62,6 +62,7 @@ NETWORK_SIGNATURES = ("blocks", "frequency")
 STRENGTHS = (0.6, 1.0, 1.6)
 
 Kind = Literal["add", "remove", "refit", "network"]
+KINDS: tuple[str, ...] = ("add", "remove", "refit", "network")
 ImagePairs = list[tuple[Tensor, Tensor]]
 Log = Callable[[str], None]
 
@@ -286,9 +287,16 @@ class Search:
     """Fits every change on the calibration pairs on top of a profile and measures it on the held-out pairs."""
 
     def __init__(
-        self, profile: CameraProfile, calibration: ImagePairs, held: HeldOut, baseline: Baseline, seed: int
+        self,
+        profile: CameraProfile,
+        calibration: ImagePairs,
+        held: HeldOut,
+        baseline: Baseline,
+        seed: int,
+        kinds: Sequence[str] = KINDS,
     ) -> None:
         self.profile = profile
+        self.kinds = set(kinds)
         self.cleans = [clean for clean, _ in calibration]
         self.reals = [real for _, real in calibration]
         self.held = held
@@ -315,7 +323,7 @@ class Search:
         plans = self._plans(current, adds)
         results = []
         for kind, name, make in plans:
-            if allowed is not None and (kind, name) not in allowed:
+            if kind not in self.kinds or (allowed is not None and (kind, name) not in allowed):
                 continue
             results.append(context.evaluate(kind, name, make))
         return _prefer_simpler(sorted(results, key=lambda change: change.gap_after))
@@ -412,8 +420,13 @@ def _adder(name: str) -> Callable[[_Context], tuple[CameraProfile, Effect, str]]
 
 def _remover(index: int) -> Callable[[_Context], tuple[CameraProfile, None, str]]:
     def make(context: _Context) -> tuple[CameraProfile, None, str]:
+        stage = context.current.effects[index]
         chain = [e for i, e in enumerate(context.current.effects) if i != index]
-        return context.current.with_chain(chain), None, f"the camera has no {context.current.effects[index].name}"
+        if "noise" in stage.explains:  # say what the stage does wrong, measured
+            description = _noise_text(stage.name, context.search.held.real, context.stats)
+        else:
+            description = f"the camera has no {stage.name}"
+        return context.current.with_chain(chain), None, description
 
     return make
 
@@ -564,17 +577,23 @@ def attribute(
     held_out: ImagePairs,
     *,
     candidates: Iterable[str] | None = None,
+    kinds: Iterable[str] = KINDS,
     max_changes: int = 3,
     seed: int = 0,
     log: Log | None = None,
 ) -> Attribution:
-    """Rank the changes by held-out gap and accept the ones that close it (see the module docstring)."""
+    """Rank the changes by held-out gap and accept the ones that close it (see the module docstring); ``kinds``
+    says which kinds of change are tried."""
     say = log or (lambda message: None)
     adds = _check_candidates(candidates)
+    kinds = list(kinds)
+    unknown = [kind for kind in kinds if kind not in KINDS]
+    if unknown:
+        raise ValueError(f"kinds must be among {list(KINDS)}, got {unknown}")
     held = HeldOut.build(held_out, seed, "held-out")
     baseline = Baseline.measure(held, profile)
     say(f"held-out gap {baseline.gap:.2f} ± {baseline.gap_se:.2f} (profile against itself: {baseline.null:.2f})")
-    search = Search(profile, calibration, held, baseline, seed)
+    search = Search(profile, calibration, held, baseline, seed, kinds)
     say("single changes:")
     singles = search.changes(profile, baseline.stats, baseline.gap, [], None, adds, say)
     accepted, combinations = _grow(search, singles, adds, max_changes, say)

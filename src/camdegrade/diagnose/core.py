@@ -8,7 +8,7 @@ import os
 from collections.abc import Callable, Iterable
 
 from camdegrade._checks import check_seed
-from camdegrade.diagnose.attribute import Attribution, Change, attribute, effect_params
+from camdegrade.diagnose.attribute import KINDS, Attribution, Change, attribute, effect_params
 from camdegrade.diagnose.critic import CriticResult, critic_test
 from camdegrade.diagnose.report import DiagnosisReport, example_crops, flat_crops
 from camdegrade.diagnose.where import findings
@@ -31,6 +31,7 @@ def diagnose(
     held_out: PairsSource | None = None,
     calibration_fraction: float = 0.5,
     candidates: Iterable[str] | None = None,
+    kinds: Iterable[str] = KINDS,
     max_added: int = 3,
     seed: int = 0,
     clean_suffix: str | None = None,
@@ -49,8 +50,9 @@ def diagnose(
             part (every reported gap is measured on it).
         held_out: give the held-out pairs explicitly; then ``pairs`` is the calibration part as a whole.
         calibration_fraction: share of scenes used for calibration when ``held_out`` is not given.
-        candidates: effect names that may be added (default: every registered effect). Removing or refitting a
-            stage of the profile, and fine-tuning its network, are always considered.
+        candidates: effect names that may be added (default: every registered effect).
+        kinds: the kinds of change tried: ``"add"`` an effect, ``"remove"`` or ``"refit"`` a stage, ``"network"``
+            (a short fine-tune of the network when a signature no effect explains stands out). Default: all.
         max_added: the most changes accepted in sequence.
         seed: seeds the split, the simulations, the bootstrap and the critic.
         max_pairs: use at most this many pairs (the first, in name order).
@@ -79,7 +81,14 @@ def diagnose(
     say(split)
     calibration_pairs, held_pairs = calibration.unit_pairs(), held.unit_pairs()
     result = attribute(
-        base, calibration_pairs, held_pairs, candidates=candidates, max_changes=max_added, seed=seed, log=log
+        base,
+        calibration_pairs,
+        held_pairs,
+        candidates=candidates,
+        kinds=kinds,
+        max_changes=max_added,
+        seed=seed,
+        log=log,
     )
     critics = _critics(base, result, calibration_pairs, held_pairs, seed, say) if critic else {}
     verdict = _verdict(result, findings_of(result), critics, base.name)

@@ -148,10 +148,9 @@ def flat_crops(
 ) -> list[tuple[str, list[Tensor]]]:
     """One ``side``² crop at 1:1 (real, sim before, sim after) of the held-out pair with the largest flat region,
     where the clean image is flattest: noise and banding show there first."""
-    best, best_share, best_corner = None, 0.0, (0, 0)
+    side = min(side, *(min(clean.shape[-2:]) for clean in cleans))
+    best, best_share, best_corner = None, -1.0, (0, 0)
     for index, clean in enumerate(cleans):
-        if min(clean.shape[-2:]) < side:
-            continue
         flat = flat_mask(clean).float()[None, None]
         pooled = torch.nn.functional.avg_pool2d(flat, side, stride=max(1, side // 4))[0, 0]
         share = float(pooled.max())

@@ -135,8 +135,10 @@ def calibrate(
     noise = copy.deepcopy(noise)
     for _ in range(rounds):
         sim = measure(simulate(noise))
-        _correct_levels(noise, real, base, sim)
         _correct_correlation(noise, real, base, sim)
+        _correct_levels(noise, real, base, sim)
+    if rounds:  # the last correlation step changed what the chain lets through: the levels follow it once more
+        _correct_levels(noise, real, base, measure(simulate(noise)))
     if banding and hasattr(noise, "column_sigma"):
         _set_banding(noise, real, measure(simulate(_without_banding(noise))))
     return noise
