@@ -15,6 +15,7 @@ from __future__ import annotations
 import ast
 import functools
 import json
+import math
 import os
 import re
 import sys
@@ -115,7 +116,7 @@ def parse_metadata(raw: Mapping[str, str], path: Path) -> dict[str, Any]:
             f"{str(path)!r} is a safetensors file but not a camdegrade profile (no {METADATA_KEY!r} metadata; "
             f"found keys: {sorted(raw) or 'none'})"
         )
-    metadata = _json(raw[METADATA_KEY], f"profile {str(path)!r} has invalid JSON metadata", path)
+    metadata = _json(raw[METADATA_KEY], f"profile {str(path)!r} has invalid JSON metadata", "JSON metadata", path)
     if not isinstance(metadata, dict) or metadata.get("format") != FORMAT_NAME:
         raise ProfileError(f"{str(path)!r} is not a camdegrade profile (metadata 'format' is not {FORMAT_NAME!r})")
     version = metadata.get("format_version")
@@ -133,13 +134,15 @@ def parse_metadata(raw: Mapping[str, str], path: Path) -> dict[str, Any]:
     return metadata
 
 
-def _json(text: str | bytes, what: str, path: Path) -> Any:
+def _json(text: str | bytes, invalid: str, part: str, path: Path) -> Any:
+    """``text`` parsed; a :class:`ProfileError` starting with ``invalid`` when it is not JSON, naming ``part`` when
+    it is nested too deeply to parse."""
     try:
         return json.loads(text)
     except (json.JSONDecodeError, UnicodeDecodeError) as error:
-        raise ProfileError(f"{what}: {error}") from None
+        raise ProfileError(f"{invalid}: {error}") from None
     except RecursionError:
-        raise ProfileError(f"profile {str(path)!r} has JSON nested too deeply to read") from None
+        raise ProfileError(f"profile {str(path)!r} has {part} nested too deeply to read") from None
 
 
 def effect_specs(metadata: Mapping[str, Any], path: Path) -> Any:
@@ -187,10 +190,7 @@ class TensorEntry:
 
     @property
     def numel(self) -> int:
-        count = 1
-        for size in self.shape:
-            count *= size
-        return count
+        return math.prod(self.shape)
 
 
 @dataclass(frozen=True)
@@ -286,10 +286,8 @@ def read_header(name_or_path: str | os.PathLike[str]) -> ProfileHeader:
     corrupt = f"profile file {str(path)!r} is corrupt or truncated"
     with path.open("rb") as handle:
         length = int.from_bytes(handle.read(8), "little")  # bounded by refuse_non_safetensors
-        header = _json(handle.read(length), f"{corrupt} (its header is not JSON)", path)
-    raw = header.pop("__metadata__", None) if isinstance(header, dict) else []
-    if raw is None:
-        raw = {}
+        header = _json(handle.read(length), f"{corrupt} (its header is not JSON)", "a header", path)
+    raw = (header.pop("__metadata__", None) or {}) if isinstance(header, dict) else None
     if not isinstance(raw, dict) or not all(isinstance(value, str) for value in raw.values()):
         raise ProfileError(f"{corrupt} (not a safetensors header); fit or copy it again")
     metadata = parse_metadata(raw, path)
