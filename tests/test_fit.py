@@ -10,10 +10,12 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-from camdegrade import CameraDegrade, load_profile
+from camdegrade import CameraDegrade, CameraProfile, DomainShiftNet, ProfileError, load_profile
 from camdegrade.__main__ import main
 from camdegrade.fitting.fit import fit_profile
+from camdegrade.fitting.training import FitConfig, fit_network, random_crop_batch
 from camdegrade.io import write_image
+from profiles_for_tests import seeded_network
 
 QUICK = ["--epochs", "2", "--crop", "16", "--batch-size", "4", "--crops-per-pair", "2", "--quiet"]
 
@@ -170,3 +172,86 @@ def test_cli_fit_align_prints_the_shifts(tmp_path, capsys):
     assert main(["fit", str(folder), "-o", str(tmp_path / "a.safetensors"), *QUICK, "--align"]) == 0
     out = capsys.readouterr().out
     assert "largest shift" in out and "img0" in out
+
+
+# --- starting from a profile's network (--init-from) --------------------------------------------------------------
+
+
+def _tiny_pairs(count: int = 4, size: int = 32) -> list[tuple[torch.Tensor, torch.Tensor]]:
+    generator = torch.Generator().manual_seed(5)
+    cleans = [torch.rand(3, size, size, generator=generator) for _ in range(count)]
+    return [(clean, (clean * 0.8 + 0.05).clamp(0, 1)) for clean in cleans]
+
+
+def test_fit_network_starts_from_the_initial_weights():
+    pairs = _tiny_pairs()
+    initial = seeded_network(7)
+    before = {key: value.clone() for key, value in initial.state_dict().items()}
+    config = FitConfig(epochs=1, crop=16, batch_size=8, crops_per_pair=2, lr=1e-12, seed=0)  # one step, no move
+    network, history = fit_network(pairs, [], config, initial=initial)
+    assert network is not initial
+    for key, value in network.state_dict().items():
+        assert torch.equal(initial.state_dict()[key], before[key])  # the initial network is not changed
+        assert torch.allclose(value, before[key], rtol=0, atol=1e-9), key
+    # the epoch's one batch was scored by the initial network: the same crops the fit draws from its seed
+    clean, captured = random_crop_batch(pairs, 16, 8, torch.Generator().manual_seed(0))
+    with torch.no_grad():
+        expected = F.mse_loss(initial(clean), captured).item()
+    assert history[0].train_loss == pytest.approx(expected, rel=1e-5)
+    fresh, _ = fit_network(pairs, [], config)
+    assert not torch.allclose(fresh.decode2.weight, before["decode2.weight"])
+
+
+def test_fit_network_refuses_an_initial_network_it_cannot_start_from():
+    config = FitConfig(epochs=1, crop=16, batch_size=4, crops_per_pair=1)
+    with pytest.raises(ValueError, match=r"initial must be a DomainShiftNet of width 64 .*got width=8"):
+        fit_network(_tiny_pairs(), [], config, initial=DomainShiftNet(width=8))
+    with pytest.raises(TypeError, match="initial must be a DomainShiftNet or None, got dict"):
+        fit_network(_tiny_pairs(), [], config, initial={})  # type: ignore[arg-type]
+
+
+def test_fit_profile_init_from_a_file_keeps_its_weights_at_a_tiny_lr_and_records_it(tmp_path):
+    start = CameraProfile(seeded_network(3), name="start").save(tmp_path / "start.safetensors")
+    folder = make_pairs_folder(tmp_path / "pairs", count=4)
+    options = dict(epochs=1, crop=16, batch_size=4, crops_per_pair=1, lr=1e-12, effects=(), val_fraction=0.0)
+    profile = fit_profile(folder, init_from=start, **options)
+    assert profile.network is not None
+    for key, value in profile.network.state_dict().items():
+        assert torch.allclose(value, seeded_network(3).state_dict()[key], rtol=0, atol=1e-9), key
+    assert profile.fitted["init_from"] == str(start)
+    assert fit_profile(folder, **options).fitted["init_from"] is None
+    assert fit_profile(folder, init_from=load_profile(start), **options).fitted["init_from"] == "start"
+
+
+def test_fit_profile_records_the_torch_and_torchvision_versions(tmp_path):
+    import torchvision
+
+    profile = fit_profile(make_pairs_folder(tmp_path / "pairs", count=4), epochs=1, crop=16, crops_per_pair=1)
+    assert torch.__version__.startswith(profile.fitted["torch"])
+    assert torchvision.__version__.startswith(profile.fitted["torchvision"])
+
+
+@pytest.mark.parametrize(
+    ("init_from", "error", "message"),
+    [
+        (CameraProfile(None, name="effects-only"), ValueError, "init_from: profile 'effects-only' has no network"),
+        (CameraProfile(DomainShiftNet(width=8), name="narrow"), ValueError, "'narrow' has a network of width 8"),
+        (3, TypeError, "init_from must be a CameraProfile, a profile name, a path or None, got int"),
+        ("no-such-camera", ProfileError, "neither an existing file nor a built-in profile"),
+    ],
+)
+def test_fit_profile_refuses_what_it_cannot_start_from_before_reading_pairs(tmp_path, init_from, error, message):
+    with pytest.raises(error, match=message):
+        fit_profile(tmp_path / "no-pairs-here", init_from=init_from)
+
+
+def test_cli_fit_init_from(tmp_path, capsys):
+    folder = make_pairs_folder(tmp_path / "pairs", count=4)
+    out = tmp_path / "refit.safetensors"
+    assert main(["fit", str(folder), "-o", str(out), *QUICK, "--init-from", "city100-iphonex", "--lr", "0.001"]) == 0
+    assert load_profile(out).fitted["init_from"] == "city100-iphonex"
+    capsys.readouterr()
+    assert main(["fit", str(folder), "-o", str(tmp_path / "x.safetensors"), *QUICK, "--init-from", "nope"]) == 1
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and "profile 'nope' is neither" in err
+    assert not (tmp_path / "x.safetensors").exists()

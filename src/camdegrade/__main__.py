@@ -1,9 +1,10 @@
 """Command line: ``camdegrade list|info|apply|simulate|fit|diagnose ...`` (also ``python -m camdegrade``).
 
 The one CLI module: every subcommand's parser and runner is here. Heavy imports (torch, the package's layers) wait
-until a subcommand runs, so ``--help`` answers at once. User errors print one line on stderr, never a traceback:
-exit status 2 for a bad argument (checked while parsing, before any work), 1 for everything else. Batches (a folder
-for ``apply`` or ``simulate``) process every readable file and list the others at the end, with status 1.
+until a subcommand needs them: ``--help``, ``--version``, ``list`` and ``info`` never import torch. User errors
+print one line on stderr, never a traceback: exit status 2 for a bad argument (checked while parsing, before any
+work), 1 for everything else. Batches (a folder for ``apply`` or ``simulate``) process every readable file and list
+the others at the end, with status 1.
 """
 
 from __future__ import annotations
@@ -167,6 +168,13 @@ def _add_fit_parser(commands: argparse._SubParsersAction) -> None:
         help="pairs whose images differ in size: skip them (default) or centre-crop both to the common size",
     )
     fit.add_argument("--no-effects", action="store_true", help="network only: fit no effect stages after it")
+    fit.add_argument(
+        "--init-from",
+        default=None,
+        metavar="PROFILE",
+        help="start the network from this profile's weights (built-in name or .safetensors path) instead of a fresh "
+        "initialisation; a refit usually takes fewer epochs and a lower --lr (e.g. --epochs 20 --lr 0.001)",
+    )
     fit.add_argument("--checkpoint", type=Path, default=None, help="default: OUTPUT with .ckpt.safetensors")
     fit.add_argument("--resume", action="store_true", help="continue an interrupted fit from --checkpoint")
     fit.add_argument("--name", default=None, help="profile name (default: OUTPUT's stem)")
@@ -288,17 +296,20 @@ def _list_failures(failed: Sequence[tuple[Path, str]]) -> None:
 
 
 def _run_info(args: argparse.Namespace) -> int:
-    from camdegrade.profile import load_profile
+    from camdegrade._metadata import read_header
 
-    print(load_profile(args.profile).describe())
+    header = read_header(args.profile)  # no torch: the metadata and a few small tensors
+    print(header.describe())
+    for warning in header.version_warnings():
+        print(f"camdegrade info: warning: {warning}", file=sys.stderr)
     return 0
 
 
 def _run_list(args: argparse.Namespace) -> int:
-    from camdegrade.profile import list_profiles, load_profile
+    from camdegrade._metadata import list_profiles, read_header
 
     for name in list_profiles():
-        print(f"{name:24s} {load_profile(name).description}")
+        print(f"{name:24s} {read_header(name).description}")
     return 0
 
 
@@ -344,6 +355,7 @@ def _run_fit(args: argparse.Namespace) -> int:
             strict=args.strict,
             size_mismatch=args.size_mismatch,
             effects=() if args.no_effects else DEFAULT_EFFECTS,
+            init_from=args.init_from,
             device=device,
             checkpoint=checkpoint,
             resume=args.resume,

@@ -6,7 +6,6 @@ import copy
 import json
 import os
 from collections.abc import Mapping, Sequence
-from importlib import resources
 from pathlib import Path
 from typing import Any
 
@@ -16,26 +15,23 @@ from safetensors.torch import save_file
 from torch import Tensor, nn
 
 from camdegrade._files import atomic_path
+from camdegrade._metadata import FORMAT_NAME as FORMAT_NAME
+from camdegrade._metadata import FORMAT_VERSION as FORMAT_VERSION
+from camdegrade._metadata import MAX_EFFECTS as MAX_EFFECTS
+from camdegrade._metadata import METADATA_KEY as METADATA_KEY
+from camdegrade._metadata import builtin_profiles_dir as builtin_profiles_dir
+from camdegrade._metadata import effect_name, effect_specs, network_config, parse_metadata, refuse_non_safetensors
+from camdegrade._metadata import list_profiles as list_profiles
+from camdegrade._metadata import resolve_profile_path as resolve_profile_path
+from camdegrade._metadata import serialize_metadata as serialize_metadata
 from camdegrade._pixels import bytes_to_unit
 from camdegrade._version import __version__
 from camdegrade.effects import EFFECTS, STAGES, Effect, build_effect
 from camdegrade.effects.chain import apply_effects
-from camdegrade.errors import ProfileError, UnknownProfileError
+from camdegrade.errors import ProfileError
 from camdegrade.inference import Precision, run_network
 from camdegrade.network import DomainShiftNet
 
-#: Value of the ``format`` metadata key in every profile file.
-FORMAT_NAME = "camdegrade-profile"
-#: Highest profile format version this release reads (and the one it writes).
-FORMAT_VERSION = 1
-#: The single safetensors metadata key holding the profile's JSON metadata.
-METADATA_KEY = "camdegrade"
-
-_PICKLE_SUFFIXES = frozenset({".pth", ".pt", ".ckpt", ".bin", ".pkl", ".pickle", ".tar"})
-_MAX_HEADER_BYTES = 100 * 1024 * 1024
-#: The longest effect chain a profile may declare (a camera has nine kinds of stage; a few may repeat). Effects are
-#: built from the metadata before the tensors are compared, so this bounds what a file can make camdegrade build.
-MAX_EFFECTS = 64
 #: Names listed per kind of mismatch in an error (the rest are counted).
 _LISTED = 10
 EffectParams = list[dict[str, Tensor]]
@@ -219,35 +215,6 @@ def _storable(value: Tensor) -> Tensor:
     return value.contiguous().clone()
 
 
-def builtin_profiles_dir() -> Path:
-    return Path(str(resources.files("camdegrade") / "profiles"))
-
-
-def list_profiles() -> list[str]:
-    """Names of the profiles shipped inside the package, loadable with :func:`load_profile`."""
-    return sorted(path.stem for path in builtin_profiles_dir().glob("*.safetensors"))
-
-
-def resolve_profile_path(name_or_path: str | os.PathLike[str]) -> Path:
-    """The file a profile name or path refers to: an existing path wins over a built-in name."""
-    path = Path(name_or_path)
-    if path.is_file():
-        return path
-    if isinstance(name_or_path, str) and "/" not in name_or_path and name_or_path in list_profiles():
-        return builtin_profiles_dir() / f"{name_or_path}.safetensors"
-    if path.is_dir():
-        raise ProfileError(f"profile {str(path)!r} is a folder, not a profile file")
-    if path.exists():  # never opened: a FIFO would block the reader, a device would never end
-        raise ProfileError(f"profile {str(path)!r} is not a regular file (a device, FIFO or socket)")
-    blocker = next((ancestor for ancestor in path.parents if ancestor.exists()), None)
-    if blocker is not None and not blocker.is_dir():
-        raise ProfileError(f"profile {str(path)!r} cannot exist: {str(blocker)!r} is a file, not a folder")
-    known = ", ".join(list_profiles()) or "none"
-    raise UnknownProfileError(
-        f"profile {str(name_or_path)!r} is neither an existing file nor a built-in profile; built-in profiles: {known}"
-    )
-
-
 def load_profile(name_or_path: str | os.PathLike[str], device: torch.device | str | None = None) -> CameraProfile:
     """Load a built-in profile by name, or a profile file by path, strictly.
 
@@ -263,7 +230,7 @@ def load_profile(name_or_path: str | os.PathLike[str], device: torch.device | st
         'city100-iphonex'
     """
     path = resolve_profile_path(name_or_path)
-    _refuse_non_safetensors(path)
+    refuse_non_safetensors(path)
     try:
         with safe_open(str(path), framework="pt", device="cpu") as handle:
             metadata = handle.metadata() or {}
@@ -293,68 +260,12 @@ def as_profile(profile: CameraProfile | str | os.PathLike[str]) -> CameraProfile
     raise TypeError(f"profile must be a CameraProfile, a profile name or a path, got {type(profile).__name__}")
 
 
-def _refuse_non_safetensors(path: Path) -> None:
-    """Refuse anything but a safetensors file, and name pickled checkpoints as such; never unpickle."""
-    with path.open("rb") as handle:
-        head = handle.read(9)
-    size = path.stat().st_size
-    header_length = int.from_bytes(head[:8], "little") if len(head) == 9 else -1
-    looks_like_safetensors = 0 < header_length <= min(size - 8, _MAX_HEADER_BYTES) and head[8:9] == b"{"
-    if looks_like_safetensors and path.suffix.lower() not in _PICKLE_SUFFIXES:
-        return
-    pickled = head[:2] in (b"\x80\x02", b"\x80\x03", b"\x80\x04", b"\x80\x05") or head[:4] == b"PK\x03\x04"
-    if pickled or path.suffix.lower() in _PICKLE_SUFFIXES:
-        raise ProfileError(
-            f"profile {str(path)!r} looks like a pickled PyTorch checkpoint; camdegrade only loads .safetensors "
-            "profiles and never unpickles files (use camdegrade.CameraProfile(...).save('profile.safetensors'))"
-        )
-    raise ProfileError(f"profile {str(path)!r} is not a safetensors file (bad or truncated header)")
-
-
-def serialize_metadata(metadata: Mapping[str, Any]) -> dict[str, str]:
-    """The safetensors metadata for a profile: one key, canonical JSON (sorted keys), so bytes are reproducible."""
-    return {METADATA_KEY: json.dumps(metadata, sort_keys=True, separators=(",", ":"))}
-
-
-def _parse_metadata(raw: Mapping[str, str], path: Path) -> dict[str, Any]:
-    if METADATA_KEY not in raw:
-        raise ProfileError(
-            f"{str(path)!r} is a safetensors file but not a camdegrade profile (no {METADATA_KEY!r} metadata; "
-            f"found keys: {sorted(raw) or 'none'})"
-        )
-    try:
-        metadata = json.loads(raw[METADATA_KEY])
-    except json.JSONDecodeError as error:
-        raise ProfileError(f"profile {str(path)!r} has invalid JSON metadata: {error}") from None
-    except RecursionError:
-        raise ProfileError(f"profile {str(path)!r} has JSON metadata nested too deeply to read") from None
-    if not isinstance(metadata, dict) or metadata.get("format") != FORMAT_NAME:
-        raise ProfileError(f"{str(path)!r} is not a camdegrade profile (metadata 'format' is not {FORMAT_NAME!r})")
-    version = metadata.get("format_version")
-    if isinstance(version, bool) or not isinstance(version, int):
-        raise ProfileError(f"profile {str(path)!r} has format_version {version!r}, expected an integer")
-    if version < 1:
-        raise ProfileError(
-            f"profile {str(path)!r} has format_version {version}, expected an integer from 1 to {FORMAT_VERSION}"
-        )
-    if version > FORMAT_VERSION:
-        raise ProfileError(
-            f"profile {str(path)!r} has format version {version}, newer than this camdegrade ({__version__}) reads "
-            f"(up to {FORMAT_VERSION}); upgrade camdegrade"
-        )
-    return metadata
-
-
 def _profile_from_metadata(raw: Mapping[str, str], path: Path) -> CameraProfile:
-    metadata = _parse_metadata(raw, path)
-    specs = metadata.get("effects", [])
-    if isinstance(specs, list) and len(specs) > MAX_EFFECTS:
-        raise ProfileError(
-            f"profile {str(path)!r} declares {len(specs)} effect stages, more than camdegrade builds ({MAX_EFFECTS})"
-        )
+    metadata = parse_metadata(raw, path)
+    specs = effect_specs(metadata, path)
     try:
         network = _network_from_spec(metadata.get("network"), path)
-        effects = [_effect_from_spec(spec, path) for spec in metadata.get("effects", [])]
+        effects = [_effect_from_spec(spec, path) for spec in specs]
         return CameraProfile(
             network,
             effects,
@@ -373,24 +284,14 @@ def _profile_from_metadata(raw: Mapping[str, str], path: Path) -> CameraProfile:
 def _network_from_spec(spec: Any, path: Path) -> DomainShiftNet | None:
     if spec is None:
         return None
-    if not isinstance(spec, dict) or spec.get("arch") != "DomainShiftNet":
-        raise ProfileError(
-            f"profile {str(path)!r} metadata 'network' must be null or {{'arch': 'DomainShiftNet', 'config': ...}}, "
-            f"got {spec!r}"
-        )
+    config = network_config(spec, path)
     with torch.device("meta"):  # no memory until the file's header matches (see _check_header)
-        return DomainShiftNet(**spec.get("config", {}))
+        return DomainShiftNet(**config)
 
 
 def _effect_from_spec(spec: Any, path: Path) -> Effect:
-    if not isinstance(spec, dict) or not isinstance(spec.get("config", {}), dict):
-        raise ProfileError(f"profile {str(path)!r} has an effect entry that is not {{'name', 'config'}}: {spec!r}")
-    if spec.get("name") not in EFFECTS:
-        raise ProfileError(
-            f"profile {str(path)!r} uses effect {spec.get('name')!r}, unknown to camdegrade {__version__} "
-            f"(known: {', '.join(sorted(EFFECTS))}); upgrade camdegrade"
-        )
-    return build_effect(spec["name"], spec.get("config", {}))
+    name = effect_name(spec, path, EFFECTS)
+    return build_effect(name, spec.get("config", {}))
 
 
 _FLOAT_DTYPES = ("F32", "F64")

@@ -10,6 +10,7 @@ References:
 
 from __future__ import annotations
 
+import inspect
 import os
 import platform
 import time
@@ -21,6 +22,7 @@ import torch
 import torch.distributed as dist
 
 from camdegrade._distributed import is_main_process
+from camdegrade._metadata import running_versions
 from camdegrade._threads import torch_threads
 from camdegrade._version import __version__
 from camdegrade.effects import EFFECTS, STAGES, Effect
@@ -28,7 +30,8 @@ from camdegrade.fitting.pairs import UNREADABLE
 from camdegrade.fitting.pairset import PairSet, PairsSource, simulate
 from camdegrade.fitting.training import EpochResult, FitConfig, ImagePair, fit_network
 from camdegrade.metrics import psnr
-from camdegrade.profile import CameraProfile
+from camdegrade.network import DomainShiftNet
+from camdegrade.profile import CameraProfile, as_profile
 
 __all__ = ["DEFAULT_EFFECTS", "fit_profile", "init_distributed_from_env", "is_main_process", "torch_threads"]
 
@@ -56,6 +59,7 @@ def fit_profile(
     strict: bool = False,
     size_mismatch: Literal["skip", "crop"] = "skip",
     effects: Iterable[str] = DEFAULT_EFFECTS,
+    init_from: CameraProfile | str | os.PathLike[str] | None = None,
     device: torch.device | str = "cpu",
     threads: int | None = None,
     checkpoint: str | os.PathLike[str] | None = None,
@@ -79,6 +83,10 @@ def fit_profile(
         align: register every pair (sub-pixel translation) before training; the shifts are logged.
         size_mismatch: pairs whose images differ in size are skipped, or with ``"crop"`` centre-cropped.
         effects: effect stages to fit after the network (names from ``EFFECTS``).
+        init_from: start the network from this profile's network (a :class:`CameraProfile`, a built-in name or a
+            path) instead of a fresh initialisation from ``seed``: a refit on new pairs, usually with fewer epochs
+            and a lower ``lr`` (e.g. 20 and 0.001). Its width must be the fitted network's (64). Recorded in
+            ``fitted['init_from']``.
         checkpoint: training state written after every epoch; with ``resume=True`` the fit continues from it.
         callback: called with an :class:`EpochResult` after every epoch (notebooks, Lightning loggers).
         log: called with human-readable progress lines (pairs found, shifts, effect fits).
@@ -97,6 +105,7 @@ def fit_profile(
         seed=seed,
     )
     effect_names = _check_effect_names(effects)
+    initial, init_label = _initial_network(init_from)
     with torch_threads(threads):
         pair_set = PairSet.load(
             pairs,
@@ -118,11 +127,13 @@ def fit_profile(
             resume=resume,
             progress=progress,
             pair_names=[*train.names, *val.names],
+            initial=initial,
         )
         minutes = (time.perf_counter() - started) / 60
         profile = CameraProfile(network, name=name, description=description)
         profile, effect_notes = _fit_effects(profile, [*val.unit_pairs(), *train.unit_pairs()], effect_names, say)
         profile.fitted = _record(pair_set, train, val, config, history, align, minutes, effect_notes)
+        profile.fitted["init_from"] = init_label
         profile.quality = _quality(profile, val) if len(val) else {}
         return profile
 
@@ -201,6 +212,7 @@ def _record(
 ) -> dict[str, Any]:
     """The ``fitted`` metadata: the data used, the recipe, the best epoch and the machine."""
     best = max(history, key=lambda r: r.val_psnr if len(val) else -r.train_loss)
+    versions = running_versions()  # as `camdegrade info` compares them
     return {
         "pairs": len(pair_set),
         "skipped": len(pair_set.report.skipped) if pair_set.report is not None else 0,
@@ -215,7 +227,33 @@ def _record(
         "effects": effect_notes,
         "machine": f"{platform.machine()}, {torch.get_num_threads()} threads, torch {torch.__version__}",
         "camdegrade": __version__,
+        "torch": versions["torch"] or str(torch.__version__),
+        "torchvision": versions["torchvision"],
     }
+
+
+def _initial_network(
+    init_from: CameraProfile | str | os.PathLike[str] | None,
+) -> tuple[DomainShiftNet | None, str | None]:
+    """The network ``init_from`` names (checked before any pair is loaded) and how the metadata records it: the name
+    or path as given, or a profile object's name."""
+    if init_from is None:
+        return None, None
+    if not isinstance(init_from, (CameraProfile, str, os.PathLike)):
+        raise TypeError(
+            f"init_from must be a CameraProfile, a profile name, a path or None, got {type(init_from).__name__}"
+        )
+    profile = as_profile(init_from)
+    label = (profile.name or "(unnamed profile)") if isinstance(init_from, CameraProfile) else os.fspath(init_from)
+    fitted_width = inspect.signature(DomainShiftNet).parameters["width"].default
+    if profile.network is None:
+        raise ValueError(f"init_from: profile {label!r} has no network to start from (it holds effect stages only)")
+    if profile.network.width != fitted_width:
+        raise ValueError(
+            f"init_from: profile {label!r} has a network of width {profile.network.width}; fit_profile fits width "
+            f"{fitted_width}, so it cannot start from it"
+        )
+    return profile.network, label
 
 
 def _unreadable(pair_set: PairSet) -> list[dict[str, str]]:

@@ -117,6 +117,7 @@ def fit_network(
     resume: bool = False,
     progress: bool = False,
     pair_names: Sequence[str] | None = None,
+    initial: DomainShiftNet | None = None,
 ) -> tuple[DomainShiftNet, list[EpochResult]]:
     """Train a :class:`DomainShiftNet` mapping clean → captured; return the best epoch's weights (by ``val`` PSNR,
     or by training loss when ``val`` is empty) and the per-epoch history.
@@ -128,16 +129,22 @@ def fit_network(
     :class:`~camdegrade.errors.CamdegradeError` says which differs. Ctrl-C raises :class:`FitInterrupted`
     after the last finished epoch's checkpoint is on disk. Under ``torch.distributed`` (e.g. ``torchrun``), each
     rank trains on its share of every batch and only rank 0 writes files.
+
+    ``initial``: start from this network's weights (copied; it is not changed) instead of a fresh initialisation
+    from ``config.seed``, e.g. to refit a profile's network on new pairs. It must have the width of the network
+    trained here (:class:`DomainShiftNet`'s default), else a ``ValueError``. A resumed fit continues from its
+    checkpoint's weights.
     """
     config = config or FitConfig()
     _check_pairs(train, config.crop)
     rank, world = rank_and_world_size()
+    _check_initial(initial)
     if config.batch_size % world:
         raise ValueError(f"batch_size ({config.batch_size}) must be divisible by the number of processes ({world})")
     if checkpoint is not None and rank == 0:
         check_writable(checkpoint)  # before training, not after its first epoch
     fingerprint = pairs_fingerprint(train, val, pair_names)
-    network, optimizer, scheduler, generator = _new_training(config, device)
+    network, optimizer, scheduler, generator = _new_training(config, device, initial)
     state = _initial_state(network, optimizer, scheduler, generator, config, checkpoint, resume, fingerprint)
     model = _distributed(network, device) if world > 1 else network
     epochs = tqdm(
@@ -183,10 +190,22 @@ def fit_network(
     return network.cpu().eval(), [EpochResult(**entry) for entry in state.history]
 
 
-def _new_training(config: FitConfig, device: torch.device | str):
+def _check_initial(initial: DomainShiftNet | None) -> None:
+    if initial is not None and not isinstance(initial, DomainShiftNet):
+        raise TypeError(f"initial must be a DomainShiftNet or None, got {type(initial).__name__}")
+
+
+def _new_training(config: FitConfig, device: torch.device | str, initial: DomainShiftNet | None = None):
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(config.seed)
         network = DomainShiftNet()
+    if initial is not None:
+        if initial.width != network.width:
+            raise ValueError(
+                f"initial must be a DomainShiftNet of width {network.width} (the width fitted here), got "
+                f"width={initial.width}"
+            )
+        network.load_state_dict(initial.state_dict())  # copies the values, from any device
     network.to(device)
     optimizer = torch.optim.Adam(network.parameters(), lr=config.lr)
     scheduler = torch.optim.lr_scheduler.StepLR(optimizer, step_size=config.lr_halving_epochs, gamma=0.5)

@@ -1,0 +1,252 @@
+"""The fast CLI (issue 19): ``--help``, ``--version``, ``list`` and ``info`` without torch; ``import camdegrade``
+imports names on first use; ``info`` shows what the profile says, and warns when torch is another major release."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+
+import camdegrade
+import camdegrade._metadata as metadata_module
+from bad_inputs import one_line_error, profile_file, run_cli
+from camdegrade import ProfileError, load_profile
+from camdegrade._metadata import (
+    DEFAULT_NETWORK_WIDTH,
+    MAX_NETWORK_WIDTH,
+    check_network_config,
+    read_header,
+    running_versions,
+)
+from camdegrade.effects import EFFECTS
+from camdegrade.network import MAX_WIDTH, DomainShiftNet
+from profiles_for_tests import deterministic_profile, stochastic_profile
+
+HEAVY = ("torch", "torchvision")
+
+
+def _python(code: str, *options: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, *options, "-c", code], capture_output=True, text=True, check=False)
+
+
+def test_help_version_list_and_info_import_no_torch() -> None:
+    code = f"""
+import contextlib, io, json, sys
+from camdegrade.__main__ import main
+results = {{}}
+for argv in (["--help"], ["--version"], ["list"], ["info", "city100-iphonex"], ["info", "lowcost-robot-sim"]):
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out):
+        try:
+            status = main(argv)
+        except SystemExit as stop:
+            status = stop.code
+    results[" ".join(argv)] = [status, out.getvalue()]
+print(json.dumps({{"results": results, "heavy": [name for name in {HEAVY!r} if name in sys.modules]}}))
+"""
+    run = _python(code)
+    assert run.returncode == 0, run.stderr
+    report = json.loads(run.stdout)
+    assert report["heavy"] == []
+    results = report["results"]
+    assert all(status == 0 for status, _ in results.values()), results
+    assert "usage:" in results["--help"][1] and "camdegrade 0" in results["--version"][1]
+    assert "city100-iphonex" in results["list"][1] and "lowcost-robot-sim" in results["list"][1]
+    info = results["info city100-iphonex"][1]
+    assert "  0. blur [optics] " in info and "  2. tone [isp] " in info and "sigma_x=0.785541" in info
+    assert "  0. distortion [optics] k1=0.058724" in results["info lowcost-robot-sim"][1]
+
+
+def test_the_entry_point_module_imports_no_torch_for_info() -> None:
+    run = subprocess.run(
+        [sys.executable, "-X", "importtime", "-m", "camdegrade", "info", "city100-iphonex"],
+        capture_output=True,
+        text=True,
+        check=False,
+    )
+    assert run.returncode == 0, run.stderr
+    imported = {line.split("|")[-1].strip() for line in run.stderr.splitlines() if line.startswith("import time:")}
+    assert "camdegrade._metadata" in imported  # the measurement works
+    assert not imported & set(HEAVY)
+
+
+def test_import_camdegrade_imports_torch_only_when_a_name_needs_it() -> None:
+    code = f"""
+import sys
+heavy = lambda: [name for name in {HEAVY!r} if name in sys.modules]
+import camdegrade
+print(heavy())
+camdegrade.ProfileError, camdegrade.__version__, camdegrade.list_profiles()
+print(heavy())
+from camdegrade import CameraDegrade
+print(heavy())
+"""
+    run = _python(code)
+    assert run.returncode == 0, run.stderr
+    assert run.stdout.split("\n")[:3] == ["[]", "[]", "['torch', 'torchvision']"]
+
+
+def test_every_public_name_is_the_object_its_module_defines() -> None:
+    from camdegrade import data, fitting, network, profile, sim, transform
+
+    homes = {
+        "BatchDegrade": data,
+        "DegradedDataset": data,
+        "DegradedIterableDataset": data,
+        "IndexedDataset": data,
+        "fit_profile": fitting,
+        "DomainShiftNet": network,
+        "CameraProfile": profile,
+        "load_profile": profile,
+        "list_profiles": profile,
+        "VirtualCamera": sim,
+        "simulate_pairs": sim,
+        "CameraDegrade": transform,
+    }
+    for name in camdegrade.__all__:
+        value = getattr(camdegrade, name)
+        if name in homes:
+            assert value is getattr(homes[name], name), name
+    assert set(camdegrade.__all__) <= set(dir(camdegrade))
+    namespace: dict[str, object] = {}
+    exec("from camdegrade import *", namespace)
+    assert set(camdegrade.__all__) <= set(namespace)
+    assert camdegrade.engine.__name__ == "camdegrade.engine"  # a module, imported on first access
+    with pytest.raises(AttributeError, match="has no attribute 'no_such_name'"):
+        camdegrade.no_such_name  # noqa: B018
+
+
+def _items(line: str) -> tuple[str, set[str]]:
+    """``("blur [optics]", {"sigma_x=0.5", ...})`` of one effect line; shapes of large tensors left out."""
+    head, _, rest = line.strip().partition("] ")
+    items = {item for item in rest.split(", ") if item and not item.endswith(">")}
+    return head.split(". ", 1)[1] + "]", items
+
+
+@pytest.mark.parametrize("name", ["city100-iphonex", "lowcost-robot-sim", "stochastic"])
+def test_info_shows_what_describe_shows(name: str, tmp_path: Path, capsys) -> None:
+    if name == "stochastic":
+        name = str(stochastic_profile().save(tmp_path / "cam.safetensors"))
+    status, out, err = run_cli(["info", name], capsys)
+    assert status == 0 and err == ""
+    described = load_profile(name).describe().splitlines()
+    shown = out.splitlines()
+    assert shown[:4] == described[:4]  # name, description, network, number of effects
+    chain = [line for line in described if line.startswith("  ") and ". " in line]
+    assert [_items(line) for line in chain] == [_items(line) for line in shown[4 : 4 + len(chain)]]
+    for key in ("fitted:", "quality:", "written by:"):
+        assert [line for line in described if line.startswith(key)] == [line for line in shown if line.startswith(key)]
+    assert any(line.startswith("fitted with: torch ") for line in shown)
+    assert any(line.startswith("running:     torch ") for line in shown)
+
+
+def test_effect_stages_read_from_source_are_the_classes_stages() -> None:
+    registered = {name: cls.stage for name, cls in EFFECTS.items() if cls.__module__.startswith("camdegrade.")}
+    assert dict(metadata_module._stages_in_source()) == registered
+
+
+@pytest.mark.parametrize("width", [0, 1, 64, MAX_WIDTH, MAX_WIDTH + 1, True, 2.0, "8", None])
+def test_the_network_config_check_agrees_with_the_network(width) -> None:
+    with torch.device("meta"):
+        default = DomainShiftNet().width
+    assert (MAX_WIDTH, default) == (MAX_NETWORK_WIDTH, DEFAULT_NETWORK_WIDTH)
+    config = {"width": width}
+    try:
+        with torch.device("meta"):
+            DomainShiftNet(**config)
+    except ValueError as error:
+        with pytest.raises(ValueError) as checked:
+            check_network_config(config)
+        assert str(checked.value) == str(error)
+    else:
+        check_network_config(config)
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        ({"network": {"arch": "DomainShiftNet", "config": {"width": 5000}}}, "width must be an integer from 1 to 1024"),
+        ({"network": {"arch": "ResNet"}}, "metadata 'network' must be null or"),
+        ({"effects": [{"name": "lens_flare", "config": {}}]}, "uses effect 'lens_flare', unknown to camdegrade"),
+        ({"effects": [{"name": ["blur"], "config": {}}]}, "has invalid metadata: unhashable type"),
+        ({"effects": [{"name": "blur", "config": {}}] * 65}, "declares 65 effect stages"),
+        ({"format_version": 7}, "newer than this camdegrade"),
+        ({"format": "other"}, "is not a camdegrade profile"),
+    ],
+)
+def test_info_refuses_what_load_profile_refuses(tmp_path: Path, change, message: str, capsys) -> None:
+    path = profile_file(tmp_path / "bad.safetensors", deterministic_profile(), change)
+    with pytest.raises(ProfileError, match=message):
+        load_profile(path)
+    status, _, err = run_cli(["info", path], capsys)
+    assert status == 1
+    assert message in one_line_error(err)
+
+
+@pytest.mark.parametrize(
+    ("header", "message"),
+    [
+        (b"{not json", "is corrupt or truncated"),
+        (b'{"__metadata__": {"camdegrade": 3}}', "not a safetensors header"),
+        (b'{"__metadata__": {"other": "x"}}', "not a camdegrade profile"),
+        (b'{"x": {"dtype": "F32"}, "__metadata__": {"camdegrade": "{\\"format\\": \\"camdegrade-profile\\", '
+         b'\\"format_version\\": 1}"}}', "lacks its dtype or shape"),
+    ],
+)  # fmt: skip
+def test_info_refuses_damaged_headers_in_one_line(tmp_path: Path, header: bytes, message: str, capsys) -> None:
+    path = tmp_path / "damaged.safetensors"
+    path.write_bytes(len(header).to_bytes(8, "little") + header)
+    status, _, err = run_cli(["info", path], capsys)
+    assert status == 1 and message in one_line_error(err)
+
+
+def test_a_header_longer_than_the_file_is_refused(tmp_path: Path, capsys) -> None:
+    path = tmp_path / "short.safetensors"
+    path.write_bytes((10**6).to_bytes(8, "little") + b'{"__metadata__": {}}')
+    status, _, err = run_cli(["info", path], capsys)
+    assert status == 1 and "not a safetensors file (bad or truncated header)" in one_line_error(err)
+
+
+# --- versions ----------------------------------------------------------------------------------------------------
+
+HERE = {"torch": "2.14.1", "torchvision": "0.29.1"}
+
+
+@pytest.mark.parametrize(
+    ("fitted", "warned"),
+    [
+        ({"torch": "2.3.0", "torchvision": "0.18.0"}, []),
+        ({"torch": "1.13.1+cu117", "torchvision": "0.14.1"}, ["torch"]),
+        ({"torch": "2.14.1", "torchvision": "1.0.0"}, ["torchvision"]),
+        ({"machine": "x86_64, 2 threads, torch 1.12.0+cpu"}, ["torch"]),  # profiles fitted before the keys
+        ({"machine": "x86_64, 2 threads, torch 2.14.1+cu130"}, []),
+        ({}, []),
+    ],
+)
+def test_info_warns_once_per_package_of_another_major_release(tmp_path, monkeypatch, capsys, fitted, warned) -> None:
+    profile = deterministic_profile()
+    profile.fitted = fitted
+    path = profile.save(tmp_path / "old.safetensors")
+    monkeypatch.setattr(metadata_module, "running_versions", lambda: dict(HERE))
+    status, out, err = run_cli(["info", path], capsys)
+    assert status == 0
+    lines = err.strip().splitlines()
+    assert len(lines) == len(warned)
+    for package, line in zip(warned, lines, strict=True):
+        assert line.startswith("camdegrade info: warning: profile 'test-deterministic' was fitted with")
+        assert f"this is {package} {HERE[package]}, another major release" in line
+    recorded = read_header(path).recorded_versions()
+    assert f"fitted with: torch {recorded['torch'] or '(not recorded)'}, torchvision " in out
+    assert "running:     torch 2.14.1, torchvision 0.29.1" in out
+
+
+def test_running_versions_are_the_installed_ones_read_without_importing() -> None:
+    versions = running_versions()
+    assert versions["torch"] is not None and torch.__version__.startswith(versions["torch"])
+    import torchvision
+
+    assert versions["torchvision"] is not None and torchvision.__version__.startswith(versions["torchvision"])
