@@ -12,13 +12,10 @@ metadata (see :meth:`camdegrade.profile.CameraProfile.metadata`).
 
 from __future__ import annotations
 
-import ast
-import functools
 import json
 import math
 import os
 import re
-import sys
 from collections.abc import Collection, Mapping, Sequence
 from dataclasses import dataclass
 from importlib import resources
@@ -231,7 +228,7 @@ class ProfileHeader:
 
     def _effect_lines(self) -> list[str]:
         specs = self.metadata.get("effects") or []
-        stages = effect_stages([spec["name"] for spec in specs])
+        stages = effect_stages(specs)
         buffers = sorted(key for key in self.tensors if key.startswith("effects.") and key.count(".") == 2)
         values = read_small_values(self, buffers)
         lines = [f"effects:     {len(specs)}"]
@@ -310,7 +307,7 @@ def _check_structure(metadata: Mapping[str, Any], path: Path) -> None:
         if spec is not None:
             check_network_config(network_config(spec, path))
         specs = list(specs)
-        stages = effect_stages([spec.get("name") if isinstance(spec, dict) else None for spec in specs])
+        stages = effect_stages(specs)
         for spec in specs:
             effect_name(spec, path, stages)
     except (TypeError, ValueError, AttributeError, KeyError) as error:
@@ -386,73 +383,17 @@ def _major(version: str) -> int | None:
 # --- effect stages, without importing the effects -----------------------------------------------------------------
 
 
-def effect_stages(names: Sequence[object] = ()) -> dict[str, str]:
-    """``{name: stage}`` of the registered effects, holding each of ``names`` that is registered.
+def effect_stages(specs: Sequence[object] = ()) -> dict[str, str]:
+    """``{name: stage}`` for the effect entries ``specs`` of a profile's metadata.
 
-    Asked of the registry (:data:`camdegrade.effects.EFFECTS`) when the effects are imported already, which includes
-    effects registered at run time. Otherwise read from the effect modules' source without importing them (they
-    import torch): the ``name`` and ``stage`` strings each ``@register_effect`` class sets or inherits, so these facts
-    stay on the classes. A name not found there is looked up in the registry after all (importing it).
+    Profiles record each stage's ``stage`` beside its name (written since format version 1 gained the key), so
+    ``info`` shows them without importing the effects (they import torch). For an entry without it (an older
+    profile), the registry (:data:`camdegrade.effects.EFFECTS`) is asked after all, which also refuses unknown names.
     """
-    stages = _registered_stages() if "camdegrade.effects" in sys.modules else dict(_stages_in_source())
-    if any(isinstance(name, str) and name not in stages for name in names):
-        stages = _registered_stages()
-    return stages
-
-
-def _registered_stages() -> dict[str, str]:
+    entries = [spec for spec in specs if isinstance(spec, dict)]
+    recorded = {spec.get("name"): spec.get("stage") for spec in entries}
+    if entries and all(isinstance(name, str) and isinstance(stage, str) for name, stage in recorded.items()):
+        return recorded  # type: ignore[return-value]
     from camdegrade.effects import EFFECTS
 
     return {name: cls.stage for name, cls in EFFECTS.items()}
-
-
-@functools.cache
-def _stages_in_source() -> Mapping[str, str]:
-    classes: dict[str, tuple[list[str], dict[str, str], bool]] = {}  # class → bases, string attributes, registered
-    for path in sorted((Path(__file__).parent / "effects").glob("*.py")):
-        try:
-            tree = ast.parse(path.read_text(encoding="utf-8"))
-        except (OSError, SyntaxError, UnicodeDecodeError):
-            continue
-        for node in tree.body:
-            if isinstance(node, ast.ClassDef):
-                registered = any(_dotted(decorator).endswith("register_effect") for decorator in node.decorator_list)
-                classes[node.name] = ([_dotted(base) for base in node.bases], _string_attributes(node), registered)
-
-    def inherited(cls: str, key: str, seen: frozenset[str] = frozenset()) -> str | None:
-        bases, attributes, _ = classes[cls]
-        if key in attributes:
-            return attributes[key]
-        found = (inherited(base, key, seen | {cls}) for base in bases if base in classes and base not in seen)
-        return next((value for value in found if value is not None), None)
-
-    stages = {}
-    for cls, (_, _, registered) in classes.items():
-        name, stage = inherited(cls, "name"), inherited(cls, "stage")
-        if registered and name and stage:
-            stages[name] = stage
-    return stages
-
-
-def _dotted(node: ast.expr) -> str:
-    """``register_effect`` for ``@register_effect``, ``@base.register_effect`` or ``@register_effect(...)``."""
-    if isinstance(node, ast.Call):
-        return _dotted(node.func)
-    if isinstance(node, ast.Attribute):
-        return f"{_dotted(node.value)}.{node.attr}"
-    return node.id if isinstance(node, ast.Name) else ""
-
-
-def _string_attributes(node: ast.ClassDef) -> dict[str, str]:
-    """The class attributes ``node``'s body sets to a string literal (``name = "blur"``, ``stage: X = "optics"``)."""
-    found = {}
-    for item in node.body:
-        if isinstance(item, ast.Assign) and len(item.targets) == 1:
-            target, value = item.targets[0], item.value
-        elif isinstance(item, ast.AnnAssign) and item.value is not None:
-            target, value = item.target, item.value
-        else:
-            continue
-        if isinstance(target, ast.Name) and isinstance(value, ast.Constant) and isinstance(value.value, str):
-            found[target.id] = value.value
-    return found

@@ -152,7 +152,9 @@ class CameraProfile(nn.Module):
             "description": self.description,
             "package_version": self.package_version,
             "network": network,
-            "effects": [{"name": effect.name, "config": effect.config()} for effect in self.effects],
+            "effects": [
+                {"name": effect.name, "stage": effect.stage, "config": effect.config()} for effect in self.effects
+            ],
             "fitted": self.fitted,
             "quality": self.quality,
         }
