@@ -4,10 +4,11 @@ A camera holds all nine effects at moderate strength. Missing-effect scenarios w
 (plus a motion-blur variant, another parametric form of blur); the other scenarios go the other way: a profile whose
 noise is twice too strong, one with banding the camera lacks, white noise where the camera's is correlated, a
 vignetting stage the camera lacks, and a network whose last layer imprints a checkerboard (the camera has the clean
-network, then only noise and tone: optics after a network would blur its artefacts away). A "nothing different" control checks for false alarms.
-Calibration and held-out pairs have different content (different scikit-image photos, differently seeded generated
-textures and flat walls). Each scenario reports the expected and the accepted change, the held-out gap before and
-after, the noise floor, the fraction of the gap closed, the critic's accuracy before and after, and the parameters.
+network, then only noise and tone: optics after a network would blur its artefacts away). A "nothing different"
+control checks for false alarms. Calibration and held-out pairs have different content (different scikit-image
+photos, differently seeded generated textures and flat walls). Each scenario reports the expected and the accepted
+change, the held-out gap before and after, the noise floor, the fraction of the gap closed, the critic's accuracy
+before and after, and the parameters.
 
 Run from the repo root::
 
