@@ -18,7 +18,10 @@ import pytest
 import torch
 import torch.nn.functional as F
 
+from camdegrade import CameraDegrade, load_profile
+from camdegrade._pixels import as_unit
 from camdegrade.diagnose import DiagnosisReport, diagnose
+from camdegrade.diagnose.critic import critic_test
 from camdegrade.functional.analysis import flat_mask
 
 pytestmark = [pytest.mark.realdata, pytest.mark.slow]
@@ -89,3 +92,21 @@ def test_the_refitted_profile_shows_no_noise_finding(after: DiagnosisReport) -> 
     from the network and the noise's correlation, not a banding stage: the built-in has none)."""
     assert not _where(after)["noise"]["significant"], after.where
     assert not any(label.endswith(" noise") for label in after.accepted), after.accepted
+
+
+def test_the_sampled_profile_is_no_easier_to_tell_apart_than_without_its_noise(crops: list) -> None:
+    """The learned critic, trained on 8 scenes and scored on the other 8: the built-in's samples are no easier to
+    tell from the captures than its deterministic part (its noise adds nothing the critic can use), while the old
+    profile's noise gives every patch away."""
+    current = load_profile("city100-iphonex")
+    cleans = [as_unit(clean) for clean, _ in crops]
+    reals = [as_unit(real) for _, real in crops]
+
+    def accuracy(profile) -> float:
+        sims = [as_unit(CameraDegrade(profile, seed=i)(clean)) for i, (clean, _) in enumerate(crops)]
+        fit, check = slice(0, None, 2), slice(1, None, 2)
+        return critic_test((cleans[fit], reals[fit], sims[fit]), (cleans[check], reals[check], sims[check]), 0).accuracy
+
+    sampled, deterministic = accuracy(current), accuracy(current.without_randomness())
+    assert sampled <= deterministic + 0.05, (sampled, deterministic)
+    assert accuracy(load_profile(FIXTURE)) > 0.95
