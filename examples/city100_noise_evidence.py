@@ -31,7 +31,7 @@ from camdegrade import CameraDegrade, CameraProfile, load_profile
 from camdegrade._pixels import as_unit
 from camdegrade.diagnose.critic import critic_test
 from camdegrade.fitting.pairs import discover_pairs, filter_pairs, load_pair
-from camdegrade.functional.analysis import flat_mask, gradient_energy
+from camdegrade.functional.analysis import flat_mask, flattest_window, gradient_energy
 from camdegrade.functional.noise_stats import NoiseSums
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -158,10 +158,8 @@ def critic_table(data: Path, seed: int = 0) -> list[dict]:
 
 def flattest_crop(clean: Tensor, real: Tensor, side: int = 256) -> tuple[Tensor, Tensor]:
     """Both images cut to the ``side``² window (on the 8-pixel grid) with the most flat pixels."""
-    pooled = F.avg_pool2d(flat_mask(as_unit(clean)).float()[None, None], side, stride=8)[0, 0]
-    top, left = divmod(int(pooled.argmax()), pooled.shape[1])
-    window = (slice(None), slice(top * 8, top * 8 + side), slice(left * 8, left * 8 + side))
-    return clean[window], real[window]
+    window, _ = flattest_window(as_unit(clean), side)
+    return clean[(slice(None), *window)], real[(slice(None), *window)]
 
 
 def main(argv: list[str] | None = None) -> int:

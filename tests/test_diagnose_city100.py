@@ -16,13 +16,12 @@ from pathlib import Path
 
 import pytest
 import torch
-import torch.nn.functional as F
 
 from camdegrade import CameraDegrade, load_profile
 from camdegrade._pixels import as_unit
 from camdegrade.diagnose import DiagnosisReport, diagnose
 from camdegrade.diagnose.critic import critic_test
-from camdegrade.functional.analysis import flat_mask
+from camdegrade.functional.analysis import flattest_window
 
 pytestmark = [pytest.mark.realdata, pytest.mark.slow]
 torch.set_num_threads(1)
@@ -43,11 +42,8 @@ def _example():
 
 
 def _flattest_crop(clean: torch.Tensor, captured: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    flat = flat_mask(clean.float() / 255).float()[None, None]
-    pooled = F.avg_pool2d(flat, SIDE, stride=8)[0, 0]
-    top, left = divmod(int(pooled.argmax()), pooled.shape[1])
-    window = (slice(None), slice(top * 8, top * 8 + SIDE), slice(left * 8, left * 8 + SIDE))
-    return clean[window], captured[window]
+    window, _ = flattest_window(clean.float() / 255, SIDE)
+    return clean[(slice(None), *window)], captured[(slice(None), *window)]
 
 
 @pytest.fixture(scope="module")
@@ -79,6 +75,7 @@ def test_the_old_noise_stage_is_flagged_too_strong_and_banded(before: DiagnosisR
     assert before.accepted and before.accepted[0] in ("refit noise", "remove noise"), before.accepted
     first = next(change for change in before.changes if f"{change['kind']} {change['name']}" == before.accepted[0])
     assert "× the camera's noise and banded" in first["description"], first
+    assert "noise stage is" in before.verdict and "× the camera's noise" in before.verdict, before.verdict
 
 
 def test_the_critic_is_less_sure_once_the_noise_is_fixed(before: DiagnosisReport) -> None:

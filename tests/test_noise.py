@@ -11,7 +11,7 @@ from camdegrade import CameraProfile, load_profile
 from camdegrade.effects import Noise
 from camdegrade.effects._noise_fit import _autocorrelation, _symmetric_taps
 from camdegrade.functional import poisson_gaussian_noise_image
-from camdegrade.functional.analysis import flat_mask
+from camdegrade.functional.analysis import flat_mask, flattest_window
 from camdegrade.functional.noise import correlated_field
 from camdegrade.functional.noise_stats import NoiseSums, measure_set
 from effects_images import patch_chart, photos_for_fitting
@@ -161,3 +161,19 @@ def test_too_few_flat_pixels_is_a_clear_error() -> None:
     photos = photos_for_fitting(96)
     with pytest.raises(ValueError, match=r"too few flat pixels to measure noise: \d+ pixels where the source is flat"):
         Noise.fit(photos, photos)
+
+
+def test_flat_mask_is_absolute_and_the_flattest_window_finds_the_flat_area() -> None:
+    """The threshold is absolute: a ramp of 1 level per pixel is flat (the local mean takes it out), one of 2 levels
+    is not, whatever the rest of the image holds; a flat 96² area in a textured frame is found by the window."""
+    textured = torch.rand(3, 160, 160, generator=torch.Generator().manual_seed(0))
+    textured[:, 40:136, 48:144] = 0.5
+    ramp = (torch.arange(160.0) / 255)[None, None, :].expand(3, 160, 160)
+    assert flat_mask(ramp)[8:-8, 8:-8].all() and not flat_mask(2 * ramp).any()
+    mask = flat_mask(textured)
+    assert mask[60:116, 68:124].all() and not mask[:30].any()
+    (rows, cols), share = flattest_window(textured, 64)
+    assert rows.stop - rows.start == cols.stop - cols.start == 64
+    assert 40 <= rows.start <= 72 and 48 <= cols.start <= 80 and share > 0.5
+    (rows, cols), _ = flattest_window(textured, 400)
+    assert (rows, cols) == (slice(0, 160), slice(0, 160))

@@ -214,12 +214,16 @@ def _add_diagnose_parser(commands: argparse._SubParsersAction) -> None:
     diagnose.add_argument("pairs", type=Path, help="pairs folder or CSV manifest (with --real: clean images folder)")
     diagnose.add_argument("--json", type=Path, default=None, help="write the JSON report here")
     diagnose.add_argument("--html", type=Path, default=None, help="write the one-file HTML report here")
-    diagnose.add_argument("--out-profile", type=Path, default=None, help="write the profile with the added effects")
+    diagnose.add_argument("--out-profile", type=Path, default=None, help="write the profile with the accepted changes")
     diagnose.add_argument("--seed", type=_seed, default=0, help="seeds the split, simulations and bootstrap")
     diagnose.add_argument("--real", type=Path, default=None, help="unpaired mode: a folder of real captures")
     diagnose.add_argument("--calibration-fraction", type=_share(False), default=0.5, help="share of scenes for fitting")
     diagnose.add_argument("--max-pairs", type=_positive_int, default=None, help="use at most this many pairs")
-    diagnose.add_argument("--candidates", nargs="+", default=None, help="effect names to try (default: all)")
+    diagnose.add_argument("--candidates", nargs="+", default=None, help="effect names to try adding (default: all)")
+    diagnose.add_argument(
+        "--kinds", nargs="+", default=None, help="kinds of change to try: add remove refit network (default: all)"
+    )
+    diagnose.add_argument("--no-critic", action="store_true", help="skip the learned critic (faster)")
     diagnose.add_argument("--clean-suffix", default=None)
     diagnose.add_argument("--captured-suffix", default=None)
     _add_threads(diagnose)
@@ -433,6 +437,8 @@ def _run_diagnose(args: argparse.Namespace) -> int:
             args.pairs,
             calibration_fraction=args.calibration_fraction,
             candidates=args.candidates,
+            kinds=args.kinds,
+            critic=not args.no_critic,
             seed=args.seed,
             clean_suffix=args.clean_suffix,
             captured_suffix=args.captured_suffix,
@@ -449,11 +455,11 @@ def _run_diagnose(args: argparse.Namespace) -> int:
     if args.html is not None:
         print(f"wrote {report.write_html(args.html)}")
     if args.out_profile is not None:
-        if report.profile is None or not report.added:
-            print("no effect was added; --out-profile not written", file=sys.stderr)
+        if report.profile is None or not report.accepted:
+            print("no change was accepted; --out-profile not written", file=sys.stderr)
         else:
             report.profile.save(args.out_profile)
-            print(f"wrote {args.out_profile} (added: {', '.join(report.added)})")
+            print(f"wrote {args.out_profile} ({', '.join(report.accepted)})")
     unreadable = [entry for entry in getattr(report, "skipped", []) if entry["reason"].startswith(UNREADABLE)]
     _fail_on_unreadable(unreadable, "the diagnosis used the other pairs")
     return 0

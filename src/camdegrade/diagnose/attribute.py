@@ -5,7 +5,7 @@ top of the profile, every change of four kinds is fitted on the calibration part
 
 - **add** a registered effect the profile lacks (fitted against the profile's deterministic output, its strength
   refined for its place in the chain; noise calibrated by simulating the whole chain);
-- **remove** a stage (the camera may not have it);
+- **remove** a stage whose signature shows (the camera may not have it);
 - **refit** a stage whose signature shows (too strong, too weak, the wrong shape): fitted anew with the stage left
   out, or the stage's own strength rescaled, whichever matches the calibration pairs better;
 - **network**: a short fine-tune of the network through the stages after it, when a signature that no effect
@@ -337,8 +337,8 @@ class Search:
         ]
         axes = self.baseline.significant_axes()
         for index, stage in enumerate(current.effects):
-            plans.append(("remove", stage.name, _remover(index)))
-            if set(stage.explains) & axes:
+            if set(stage.explains) & axes:  # a stage can be wrong only where the gap shows its signature
+                plans.append(("remove", stage.name, _remover(index)))
                 plans.append(("refit", stage.name, _refitter(index)))
         if current.network is not None and axes & set(NETWORK_SIGNATURES):
             plans.append(("network", "network", _network_refit))
@@ -422,7 +422,7 @@ def _remover(index: int) -> Callable[[_Context], tuple[CameraProfile, None, str]
     def make(context: _Context) -> tuple[CameraProfile, None, str]:
         stage = context.current.effects[index]
         chain = [e for i, e in enumerate(context.current.effects) if i != index]
-        if "noise" in stage.explains:  # say what the stage does wrong, measured
+        if _is_noise(type(stage)):  # say what the stage does wrong, measured
             description = _noise_text(stage.name, context.search.held.real, context.stats)
         else:
             description = f"the camera has no {stage.name}"
@@ -489,7 +489,7 @@ def _is_noise(cls: type[Effect]) -> bool:
 def _strength_text(old: Effect, new: Effect, context: _Context) -> str:
     """What was wrong with a refitted stage, in words: for noise, measured on the held-out flat pixels ("noise
     stage is 2.0× the camera's noise and banded"); otherwise from the stage's magnitude."""
-    if "noise" in old.explains:
+    if _is_noise(type(old)):
         return _noise_text(old.name, context.search.held.real, context.stats)
     before, after = old.magnitude(), new.magnitude()
     if after < 0.1 * before:
@@ -537,7 +537,15 @@ def _measured(
     )
 
 
-def _check_candidates(candidates: Iterable[str] | None) -> list[str]:
+def check_kinds(kinds: Iterable[str]) -> list[str]:
+    kinds = [kinds] if isinstance(kinds, str) else list(kinds)
+    unknown = [kind for kind in kinds if kind not in KINDS]
+    if unknown or not kinds:
+        raise ValueError(f"kinds must be one or more of {list(KINDS)}, got {kinds}")
+    return kinds
+
+
+def check_candidates(candidates: Iterable[str] | None) -> list[str]:
     names = list(EFFECTS) if candidates is None else list(candidates)
     unknown = [name for name in names if name not in EFFECTS]
     if unknown:
@@ -585,11 +593,8 @@ def attribute(
     """Rank the changes by held-out gap and accept the ones that close it (see the module docstring); ``kinds``
     says which kinds of change are tried."""
     say = log or (lambda message: None)
-    adds = _check_candidates(candidates)
-    kinds = list(kinds)
-    unknown = [kind for kind in kinds if kind not in KINDS]
-    if unknown:
-        raise ValueError(f"kinds must be among {list(KINDS)}, got {unknown}")
+    adds = check_candidates(candidates)
+    kinds = check_kinds(kinds)
     held = HeldOut.build(held_out, seed, "held-out")
     baseline = Baseline.measure(held, profile)
     say(f"held-out gap {baseline.gap:.2f} ± {baseline.gap_se:.2f} (profile against itself: {baseline.null:.2f})")

@@ -24,7 +24,7 @@ from torch import Tensor
 from camdegrade._files import atomic_path
 from camdegrade._pixels import unit_to_bytes
 from camdegrade.diagnose.stats import BANDS, FAMILIES, INTENSITY_BINS, NOISE_BINS, TILES
-from camdegrade.functional.analysis import flat_mask
+from camdegrade.functional.analysis import flattest_window
 from camdegrade.profile import CameraProfile
 
 #: Keys every JSON report has at the top level (more follow them).
@@ -149,19 +149,13 @@ def flat_crops(
     """One ``side``² crop at 1:1 (real, sim before, sim after) of the held-out pair with the largest flat region,
     where the clean image is flattest: noise and banding show there first."""
     side = min(side, *(min(clean.shape[-2:]) for clean in cleans))
-    best, best_share, best_corner = None, -1.0, (0, 0)
-    for index, clean in enumerate(cleans):
-        flat = flat_mask(clean).float()[None, None]
-        pooled = torch.nn.functional.avg_pool2d(flat, side, stride=max(1, side // 4))[0, 0]
-        share = float(pooled.max())
-        if share > best_share:
-            top, left = divmod(int(pooled.argmax()), pooled.shape[1])
-            best, best_share, best_corner = index, share, (top * max(1, side // 4), left * max(1, side // 4))
-    if best is None:
+    windows = [flattest_window(clean, side, step=max(1, side // 4)) for clean in cleans]
+    if not windows:
         return []
-    top, left = best_corner
-    crop = (slice(None), slice(top, top + side), slice(left, left + side))
-    label = f"held-out pair {best}, {best_share:.0%} flat"
+    best = max(range(len(windows)), key=lambda index: windows[index][1])
+    (rows, cols), share = windows[best]
+    crop = (slice(None), rows, cols)
+    label = f"held-out pair {best}, {share:.0%} flat"
     return [(label, [image[crop] for image in (reals[best], before[best], after[best])])]
 
 

@@ -309,8 +309,8 @@ class Noise(Effect):
             column banding (zero where not kept).
 
         Raises:
-            ValueError: a channel has no intensity bin with enough flat pixels (2,000); the message says how many
-                there were.
+            ValueError: a channel has no intensity bin with enough flat pixels (500,
+                ``_noise_fit.FIT_MIN_PIXELS``); the message says how many there were.
 
         Recovery on synthetic cameras (``tests/test_effects_fit.py``): the std per intensity bin within 10 %, lag
         correlations within 0.05, channel correlations within 0.05, no banding on a camera without it (row σ below

@@ -103,3 +103,14 @@ def flat_mask(clean: Tensor, levels: float = FLAT_LEVELS, sigma: float = FLAT_SI
         inner[1:-1, 1:-1] = mask[1:-1, 1:-1] & mask[:-2, 1:-1] & mask[2:, 1:-1] & mask[1:-1, :-2] & mask[1:-1, 2:]
         mask = inner
     return mask
+
+
+def flattest_window(clean: Tensor, side: int, step: int = 8) -> tuple[tuple[slice, slice], float]:
+    """The ``side × side`` window (corners on a ``step``-pixel grid) of ``clean`` (``(3, H, W)``, float in [0, 1])
+    holding the most :func:`flat_mask` pixels, as ``((rows, cols), share of it that is flat)``. ``side`` is cut to
+    the image; cut a pair with ``image[(slice(None), *window)]``. Noise shows first, and is measurable, there."""
+    side = min(side, *clean.shape[-2:])
+    pooled = F.avg_pool2d(flat_mask(clean).float()[None, None], side, stride=step)[0, 0]
+    top, left = divmod(int(pooled.argmax()), pooled.shape[1])
+    top, left = top * step, left * step
+    return (slice(top, top + side), slice(left, left + side)), float(pooled.max())
