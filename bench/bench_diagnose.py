@@ -113,7 +113,7 @@ KEY_PARAM = {
     "chromatic_aberration": "red",
     "vignetting": "k1",
     "blur": "sigma_x",
-    "noise": "a",
+    "noise": "std",  # the std the stage adds to a flat mid-grey: the fitted stage is a table in sRGB, not a and b
     "color": "matrix",
     "tone": "gamma",
     "jpeg": "quality",
@@ -227,9 +227,13 @@ def scenario(
     return profile, pairs[0], pairs[1], {"expected": expected, "truth": truth}
 
 
-def parameter_error(name: str, truth: dict[str, Any], params: dict[str, Any]) -> float | None:
+def parameter_error(
+    name: str, truth: dict[str, Any], params: dict[str, Any], fitted: Effect | None = None
+) -> float | None:
     """Relative error of the key parameter (absolute for the colour matrix: max entry difference)."""
     key = KEY_PARAM.get(name)
+    if key == "std":
+        return abs(_added_std(fitted) / _added_std(EFFECTS[name](**truth)) - 1.0) if fitted is not None else None
     if key is None or key not in params:
         return None
     if name == "color":
@@ -238,6 +242,18 @@ def parameter_error(name: str, truth: dict[str, Any], params: dict[str, Any]) ->
     true_value = float(truth.get(key, 0.0))
     fitted = params[key][0] if isinstance(params[key], list) else params[key]
     return abs(float(fitted) - true_value) / abs(true_value) if true_value else None
+
+
+def _added_std(stage: Effect, grey: float = 0.5, side: int = 256) -> float:
+    """The std (8-bit levels scale: unit values) a noise stage alone adds to a flat ``grey`` image, sampled."""
+    flat = torch.full((1, 3, side, side), grey)
+    with torch.no_grad():
+        noisy = stage(flat, stage.make_params(flat.shape, torch.Generator().manual_seed(0)))
+    return float((noisy - flat).std())
+
+
+def _stage(profile: CameraProfile | None, name: str) -> Effect | None:
+    return next((effect for effect in profile.effects if effect.name == name), None) if profile is not None else None
 
 
 def run_scenario(
@@ -269,7 +285,11 @@ def run_scenario(
         "gap_after": round(report.gap_after, 3),
         "noise_floor": round(report.noise_floor, 3),
         "fraction_closed": round(report.fraction_closed, 3),
-        "parameter_error": parameter_error(expected[1], info["truth"], params) if expected and info["truth"] else None,
+        "parameter_error": (
+            parameter_error(expected[1], info["truth"], params, _stage(report.profile, expected[1]))
+            if expected and info["truth"]
+            else None
+        ),
         "critic_before": critic.get("before", {}).get("accuracy"),
         "critic_after": critic.get("after", {}).get("accuracy"),
         "params": params,
@@ -343,6 +363,7 @@ def timing(pairs: int = 100, size: int = 256) -> dict[str, Any]:
         "seconds": round(seconds, 1),
         "returncode": result.returncode,
         "accepted": report.get("accepted"),
+        "critic_seconds": {label: critic.get("seconds") for label, critic in report.get("critic", {}).items()},
         "stderr": result.stderr[-400:],
     }
 

@@ -14,6 +14,16 @@ _REAL_PAIRS_ENV = "CAMDEGRADE_REAL_PAIRS"
 os.environ.setdefault("NO_ALBUMENTATIONS_UPDATE", "1")
 
 
+def pytest_configure(config: pytest.Config) -> None:
+    """Under pytest-xdist (``make test`` runs one worker per core) each worker gets its share of the cores, so that
+    two workers of two torch threads each do not fight over two cores."""
+    workers = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
+    if workers > 1:
+        import torch
+
+        torch.set_num_threads(max(1, (os.cpu_count() or 1) // workers))
+
+
 @pytest.fixture(scope="session")
 def real_pairs_dir() -> Path:
     """The shared folder of real (clean, captured) pairs holding ``pairs.csv``; the test is skipped when absent.

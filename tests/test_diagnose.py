@@ -293,3 +293,19 @@ def test_unpaired_mode(tmp_path: Path) -> None:
     data = json.loads(out.read_text())
     assert data["mode"] == "unpaired" and data["added"] == [] and data["effects"] == []
     assert data["where"][0]["axis"] in ("noise", "spectrum", "blocks")
+
+
+def test_a_critic_with_one_answer_scores_chance_and_says_so() -> None:
+    from camdegrade.diagnose.critic import CriticNet, Patches, score
+
+    images = _content(3, 64, seed=5)
+    sims = [image.clamp(0.01, 0.99) for image in images]
+    patches = Patches.sample(images, images, sims, seed=0, stream="test")
+    net = CriticNet().eval()
+    torch.nn.init.zeros_(net.head.weight)
+    torch.nn.init.constant_(net.head.bias, 1.0)  # "real" for everything
+    result = score(net, patches, seed=0)
+    assert result.one_answer and result.accuracy == result.low == result.high == 0.5
+    assert "same answer for every patch" in result.describe()
+    torch.nn.init.normal_(net.head.weight, std=10.0)
+    assert not score(net, patches, seed=0).one_answer

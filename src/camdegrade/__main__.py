@@ -321,25 +321,10 @@ def _run_fit(args: argparse.Namespace) -> int:
     import torch.distributed
 
     from camdegrade._distributed import is_main_process
-    from camdegrade._files import check_writable
     from camdegrade.fitting.fit import DEFAULT_EFFECTS, fit_profile, init_distributed_from_env
     from camdegrade.fitting.training import FitInterrupted
 
-    if args.output.suffix != ".safetensors":
-        raise ValueError(f"--output must end in .safetensors, got {str(args.output)!r}")
-    checkpoint = args.checkpoint or args.output.with_name(args.output.stem + ".ckpt.safetensors")
-    if checkpoint.resolve() == args.output.resolve():
-        raise ValueError(
-            f"--checkpoint must differ from --output, got {str(checkpoint)!r} for both: the checkpoint is deleted "
-            "after a successful fit, which would delete the profile"
-        )
-    for path in (args.output, checkpoint):  # before training, not after it
-        check_writable(path)
-    if args.resume and not checkpoint.is_file():
-        raise FileNotFoundError(
-            f"--resume: checkpoint {str(checkpoint)!r} does not exist; check --checkpoint, or start a new fit "
-            "without --resume"
-        )
+    checkpoint = _fit_checkpoint(args)
     device = init_distributed_from_env(args.device)
     main_process = is_main_process()
     try:
@@ -381,6 +366,28 @@ def _run_fit(args: argparse.Namespace) -> int:
         print(f"wrote {args.output}")
         _fail_on_unreadable(profile.fitted.get("unreadable", []), "the profile was fitted on the other pairs")
     return 0
+
+
+def _fit_checkpoint(args: argparse.Namespace) -> Path:
+    """The checkpoint path of ``fit``, after checking it and ``--output`` before training, not after it."""
+    from camdegrade._files import check_writable
+
+    if args.output.suffix != ".safetensors":
+        raise ValueError(f"--output must end in .safetensors, got {str(args.output)!r}")
+    checkpoint = args.checkpoint or args.output.with_name(args.output.stem + ".ckpt.safetensors")
+    if checkpoint.resolve() == args.output.resolve():
+        raise ValueError(
+            f"--checkpoint must differ from --output, got {str(checkpoint)!r} for both: the checkpoint is deleted "
+            "after a successful fit, which would delete the profile"
+        )
+    for path in (args.output, checkpoint):
+        check_writable(path)
+    if args.resume and not checkpoint.is_file():
+        raise FileNotFoundError(
+            f"--resume: checkpoint {str(checkpoint)!r} does not exist; check --checkpoint, or start a new fit "
+            "without --resume"
+        )
+    return checkpoint
 
 
 def _fail_on_unreadable(unreadable: Sequence[dict[str, str]], outcome: str) -> None:

@@ -157,6 +157,9 @@ class CriticResult:
     by_position: dict[str, dict[str, float]] = field(default_factory=dict)
     by_intensity: dict[str, dict[str, float]] = field(default_factory=dict)
     by_texture: dict[str, dict[str, float]] = field(default_factory=dict)
+    #: Whether it gave the same answer for every held-out patch: it learned nothing that tells them apart, and,
+    #: every pair holding as many real as simulated patches, scores exactly 0.5 with an interval of zero width.
+    one_answer: bool = False
 
     @property
     def distinguishable(self) -> bool:
@@ -170,7 +173,8 @@ class CriticResult:
         return out
 
     def describe(self) -> str:
-        return f"critic accuracy {self.accuracy:.2f} [95 % CI {self.low:.2f}–{self.high:.2f}] on {self.patches} patches"
+        text = f"critic accuracy {self.accuracy:.2f} [95 % CI {self.low:.2f}–{self.high:.2f}] on {self.patches} patches"
+        return text + (" (the same answer for every patch)" if self.one_answer else "")
 
 
 def train_critic(patches: Patches, seed: int, steps: int = STEPS) -> CriticNet:
@@ -194,7 +198,8 @@ def train_critic(patches: Patches, seed: int, steps: int = STEPS) -> CriticNet:
 def score(net: CriticNet, patches: Patches, seed: int, seconds: float = 0.0) -> CriticResult:
     """Held-out accuracy, its bootstrap interval over pairs, and the breakdown by where the patches lie."""
     with torch.no_grad():
-        correct = ((net(patches.inputs) > 0).float() == patches.labels).float()
+        answers = (net(patches.inputs) > 0).float()
+    correct = (answers == patches.labels).float()
     pairs = torch.unique(patches.pair)
     per_pair = torch.stack([correct[patches.pair == pair].mean() for pair in pairs])
     weights = torch.stack([(patches.pair == pair).sum() for pair in pairs]).float()
@@ -212,6 +217,7 @@ def score(net: CriticNet, patches: Patches, seed: int, seconds: float = 0.0) -> 
         by_position=_groups(correct, patches.radius, RADIUS_EDGES, ("centre", "middle", "edge")),
         by_intensity=_groups(correct, patches.intensity, INTENSITY_EDGES, ("dark", "mid", "bright")),
         by_texture=_groups(correct, (~patches.flat).float(), (0.5,), ("flat", "textured")),
+        one_answer=bool((answers == answers[0]).all()),
     )
 
 

@@ -358,18 +358,7 @@ def _critic(report: DiagnosisReport) -> str:
 
 
 def _flat_crops(report: DiagnosisReport) -> str:
-    if not report.flat_crops:
-        return ""
-    return (
-        "<h2>A flat region at 1:1 (real | sim before | sim after)</h2><div class='crops'>"
-        + "".join(
-            f"<div>{html.escape(label)}<br>"
-            + "".join(f"<img src='{_png(image, 1)}' alt=''>" for image in images)
-            + "</div>"
-            for label, images in report.flat_crops
-        )
-        + "</div>"
-    )
+    return _crop_grid("A flat region at 1:1 (real | sim before | sim after)", report.flat_crops, scale=1)
 
 
 def _evidence(report: DiagnosisReport) -> str:
@@ -382,15 +371,17 @@ def _evidence(report: DiagnosisReport) -> str:
 
 
 def _crops(report: DiagnosisReport) -> str:
-    if not report.crops:
+    return _crop_grid("Examples (clean | real | sim before | sim after)", report.crops)
+
+
+def _crop_grid(title: str, crops: Sequence[tuple[str, Sequence[Tensor]]], scale: int = 2) -> str:
+    """An HTML section of labelled rows of images side by side (nothing when there are none)."""
+    if not crops:
         return ""
-    return (
-        "<h2>Examples (clean | real | sim before | sim after)</h2><div class='crops'>"
-        + "".join(
-            f"<div>{html.escape(label)}<br>"
-            + "".join(f"<img src='{_png(image)}' alt=''>" for image in images)
-            + "</div>"
-            for label, images in report.crops
-        )
+    rows = "".join(
+        f"<div>{html.escape(label)}<br>"
+        + "".join(f"<img src='{_png(image, scale)}' alt=''>" for image in images)
         + "</div>"
+        for label, images in crops
     )
+    return f"<h2>{html.escape(title)}</h2><div class='crops'>{rows}</div>"

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import copy
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from typing import Any, Literal
 
 import torch
@@ -195,11 +195,6 @@ class Noise(Effect):
                 if hasattr(out, key):
                     getattr(out, key).mul_(root)
         return out
-
-    @classmethod
-    def fit_options(cls, images: Sequence[Tensor]) -> dict[str, Any]:
-        """The fitter as it is: it measures on flat pixels only and says when too few of them exist."""
-        return {}
 
     # -- drawing and applying ----------------------------------------------------------------------------------------
 
