@@ -307,5 +307,8 @@ def test_a_critic_with_one_answer_scores_chance_and_says_so() -> None:
     result = score(net, patches, seed=0)
     assert result.one_answer and result.accuracy == result.low == result.high == 0.5
     assert "same answer for every patch" in result.describe()
-    torch.nn.init.normal_(net.head.weight, std=10.0)
+    torch.nn.init.ones_(net.head.weight)
+    torch.nn.init.zeros_(net.head.bias)
+    with torch.no_grad():
+        torch.nn.init.constant_(net.head.bias, -float(net(patches.inputs).median()))  # about half each way
     assert not score(net, patches, seed=0).one_answer
