@@ -425,7 +425,7 @@ def _remover(index: int) -> Callable[[_Context], tuple[CameraProfile, None, str]
         if _is_noise(type(stage)):  # say what the stage does wrong, measured
             description = _noise_text(stage.name, context.search.held.real, context.stats)
         else:
-            description = f"the camera has no {stage.name}"
+            description = f"{stage.name} stage is one the camera lacks"
         return context.current.with_chain(chain), None, description
 
     return make

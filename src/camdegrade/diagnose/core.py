@@ -172,10 +172,8 @@ def _finding(change: Change, profile_name: str) -> tuple[str, str]:
     """(what is wrong, what fixes it) for an accepted change, in words."""
     if change.kind == "add":
         return f"the profile is missing {change.name}", f"adding {change.name}"
-    if change.kind == "remove":
-        if change.description.startswith(f"{change.name} stage"):  # measured: "noise stage is 4.0× the camera's"
-            return f"the profile's {change.description}", f"removing the {change.name} stage"
-        return f"the profile has a {change.name} stage the camera lacks", "removing it"
+    if change.kind == "remove":  # "noise stage is 4.0× the camera's noise", "vignetting stage is one the camera lacks"
+        return f"the profile's {change.description}", f"removing the {change.name} stage"
     if change.kind == "refit":
         return f"the profile's {change.description}", f"refitting {change.name}"
     command = NETWORK_COMMAND.format(profile=profile_name or "PROFILE")
