@@ -67,7 +67,8 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--data", type=Path, default=DEFAULT_DATA)
     parser.add_argument("--out", type=Path, default=Path("out/city100-iphonex.safetensors"))
-    parser.add_argument("--epochs", type=int, default=100)
+    parser.add_argument("--recipe", choices=("paper", "fast"), default="paper", help="the built-in used 'paper'")
+    parser.add_argument("--epochs", type=int, default=None, help="default: the recipe's")
     parser.add_argument("--crop", type=int, default=128)
     parser.add_argument("--crops-per-pair", type=int, default=4)
     parser.add_argument("--seed", type=int, default=0)
@@ -79,7 +80,9 @@ def main() -> None:
     train = load(scenes, lambda s: s not in HELD_OUT and s not in VALIDATION)
     val = load(scenes, lambda s: s in VALIDATION)
     held_out = load(scenes, lambda s: s in HELD_OUT)
-    config = FitConfig(epochs=args.epochs, crop=args.crop, crops_per_pair=args.crops_per_pair, seed=args.seed)
+    config = FitConfig.recipe(
+        args.recipe, epochs=args.epochs, crop=args.crop, crops_per_pair=args.crops_per_pair, seed=args.seed
+    )
     print(f"pairs: train {len(train)}, validation {len(val)}, held-out {len(held_out)}; {config}", flush=True)
 
     started = time.perf_counter()

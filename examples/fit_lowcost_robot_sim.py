@@ -3,7 +3,7 @@
 Nothing is downloaded: the clean images are the colour photographs that ship inside scikit-image
 (``skimage.data``). Random crops (with random scale and flips) of the *training* images are captured by the
 ``lowcost-robot`` virtual camera (:func:`camdegrade.sim.simulate_pairs`) and the profile is fitted with
-:func:`camdegrade.fit_profile` (the paper's recipe). Crops of one source image share a scene id (a ``scene``
+:func:`camdegrade.fit_profile` (``recipe="paper"``). Crops of one source image share a scene id (a ``scene``
 column in the manifest), so the validation split never sees a training photograph. The held-out numbers come
 from crops of *other* scikit-image photographs, never used in fitting. Run from the repo root::
 
@@ -145,6 +145,7 @@ def main() -> None:
 
         profile = fit_profile(
             train_manifest,
+            recipe="paper",
             epochs=args.epochs,
             crops_per_pair=args.crops_per_pair,
             seed=args.seed,

@@ -219,6 +219,7 @@ def fit_camera_profile(
     simulate_pairs(camera, sources, work / f"{name}-pairs", seed=seed)
     return fit_profile(
         work / f"{name}-pairs",
+        recipe="paper",
         epochs=settings.fit_epochs,
         crop=settings.fit_crop,
         crops_per_pair=settings.fit_crops_per_pair,

@@ -137,6 +137,17 @@ CASES: dict[str, tuple[Case, int, str]] = {
         1,
         r"--resume: checkpoint '.*x\.ckpt\.safetensors' does not exist",
     ),
+    "distill --width 0": (lambda tmp, p: ["distill", p, "-o", tmp / "f.safetensors", "--width", "0"], 2, r"--width"),
+    "distill a missing images folder": (
+        lambda tmp, p: ["distill", p, "-o", tmp / "f.safetensors", "--images", tmp / "none"],
+        1,
+        r"images must be a folder of images, got '.*none'",
+    ),
+    "distill onto the teacher": (
+        lambda tmp, p: ["distill", p, "-o", p],
+        1,
+        r"is the input file itself",
+    ),
     "diagnose --max-pairs -2": (
         lambda tmp, p: ["diagnose", p, tmp, "--max-pairs", "-2"],
         2,

@@ -79,6 +79,16 @@ def test_union_of_a_with_transform_dataset_counts_and_bytes(hf_dataset, noisy):
     assert not any(torch.equal(a["image"], b) for a, b in zip(items[1::2], next_epoch[1::2]))  # fresh noise
 
 
+def test_set_transform_gives_the_same_union_as_with_transform(hf_dataset, noisy):
+    """The recipe's other spelling: ``set_transform`` formats in place (on a copy here, the fixture is shared)."""
+    in_place = hf_dataset.select(range(ITEMS))
+    in_place.set_transform(to_rgb_tensors)
+    union = DegradedDataset(in_place, noisy, policy=Union(), seed=2)
+    expected = DegradedDataset(hf_dataset.with_transform(to_rgb_tensors), noisy, policy=Union(), seed=2)
+    assert len(union) == len(expected) == 2 * ITEMS
+    assert all(torch.equal(a["image"], b["image"]) for a, b in zip(union, expected))
+
+
 def test_bytes_do_not_depend_on_workers_or_shuffling(hf_dataset, noisy):
     union = DegradedDataset(hf_dataset.with_transform(to_rgb_tensors), noisy, policy="union", seed=3)
     expected = sorted((union[j]["index"], digest(union[j]["image"])) for j in range(len(union)))

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import pytest
 import torch
 import torch.nn.functional as F
@@ -41,14 +43,15 @@ def test_same_seed_same_weights_and_different_seed_differs():
     assert weights_bytes(first) != weights_bytes(other)
 
 
-def test_resume_continues_exactly(tmp_path):
+def test_a_step_schedule_resumes_for_more_epochs_exactly(tmp_path):
     pairs = synthetic_pairs()
-    straight, straight_history = fit_network(pairs[:3], pairs[3:], TINY)
+    stepped = FitConfig(**{**TINY.as_dict(), "schedule": "step", "lr_halving_epochs": 1})
+    straight, straight_history = fit_network(pairs[:3], pairs[3:], stepped)
     checkpoint = tmp_path / "fit.ckpt.safetensors"
-    half = FitConfig(**{**TINY.as_dict(), "epochs": 2})
+    half = FitConfig(**{**stepped.as_dict(), "epochs": 2})
     fit_network(pairs[:3], pairs[3:], half, checkpoint=checkpoint)
     assert load_checkpoint(checkpoint).epoch == 2
-    resumed, history = fit_network(pairs[:3], pairs[3:], TINY, checkpoint=checkpoint, resume=True)
+    resumed, history = fit_network(pairs[:3], pairs[3:], stepped, checkpoint=checkpoint, resume=True)
     assert [r.epoch for r in history] == [1, 2, 3, 4]
     assert [r.train_loss for r in history] == [r.train_loss for r in straight_history]
     assert weights_bytes(resumed) == weights_bytes(straight)
@@ -71,27 +74,85 @@ def test_ctrl_c_keeps_the_last_finished_epoch(tmp_path):
     assert weights_bytes(resumed) == weights_bytes(straight)
 
 
-def test_resume_refuses_a_different_recipe(tmp_path):
+@pytest.mark.parametrize("change", [{"lr": 0.001}, {"epochs": 5}, {"precision": "float32"}])
+def test_resume_refuses_a_different_recipe(tmp_path, change):
+    """Another lr or precision, or another length of a cosine schedule (laid out over the epochs)."""
     pairs = synthetic_pairs()
     checkpoint = tmp_path / "fit.ckpt.safetensors"
-    fit_network(pairs[:3], [], FitConfig(**{**TINY.as_dict(), "epochs": 1}), checkpoint=checkpoint)
+    fit_network(
+        pairs[:3], [], FitConfig(**{**TINY.as_dict(), "epochs": 1, "precision": "bfloat16"}), checkpoint=checkpoint
+    )
     with pytest.raises(ValueError, match="different recipe"):
-        fit_network(pairs[:3], [], FitConfig(**{**TINY.as_dict(), "lr": 0.001}), checkpoint=checkpoint, resume=True)
+        fit_network(
+            pairs[:3],
+            [],
+            FitConfig(**{**TINY.as_dict(), "precision": "bfloat16", **change}),
+            checkpoint=checkpoint,
+            resume=True,
+        )
 
 
 def test_callback_sees_every_epoch():
     seen = []
-    fit_network(
-        synthetic_pairs()[:2], [], FitConfig(epochs=3, crop=16, batch_size=4, crops_per_pair=2), callback=seen.append
-    )
+    config = FitConfig.recipe("paper", epochs=3, crop=16, batch_size=4, crops_per_pair=2)
+    fit_network(synthetic_pairs()[:2], [], config, callback=seen.append)
     assert [r.epoch for r in seen] == [1, 2, 3] and all(r.lr == 0.01 for r in seen)
 
 
-def test_learning_rate_halves_every_30_epochs_by_default():
+def test_the_paper_recipe_halves_the_learning_rate_every_30_epochs():
+    assert FitConfig.recipe("paper") == FitConfig(
+        epochs=100, batch_size=32, lr=0.01, lr_halving_epochs=30, schedule="step", patience=0
+    )
     seen = []
-    config = FitConfig(epochs=31, crop=16, batch_size=8, crops_per_pair=1, lr_halving_epochs=30)
+    config = FitConfig.recipe("paper", epochs=31, crop=16, batch_size=8, crops_per_pair=1)
     fit_network(synthetic_pairs(2, 16), [], config, callback=seen.append)
     assert seen[29].lr == pytest.approx(0.01) and seen[30].lr == pytest.approx(0.005)
+
+
+def test_the_default_recipe_lowers_the_learning_rate_along_a_cosine():
+    seen = []
+    config = FitConfig(epochs=4, crop=16, batch_size=8, crops_per_pair=1, lr=0.004)
+    fit_network(synthetic_pairs(2, 16), [], config, callback=seen.append)
+    expected = [0.004 * (1 + math.cos(math.pi * epoch / 4)) / 2 for epoch in range(4)]
+    assert [r.lr for r in seen] == pytest.approx(expected)
+
+
+def test_early_stopping_keeps_the_best_epoch(monkeypatch):
+    """Scores that stop rising by 0.01 dB after epoch 2: with patience 3 the fit ends after epoch 5 (the best
+    weights are epoch 3's, higher by less than the progress step)."""
+    import camdegrade.fitting.training as training
+
+    scores = iter([20.0, 21.0, 21.005, 20.5, 20.9, 30.0, 30.0])
+    monkeypatch.setattr(training, "evaluate_psnr", lambda network, pairs, device="cpu": next(scores))
+    seen = []
+    pairs = synthetic_pairs()
+    config = FitConfig(**{**TINY.as_dict(), "epochs": 7, "patience": 3})
+    _, history = fit_network(pairs[:3], pairs[3:], config, callback=seen.append)
+    assert [r.epoch for r in history] == [1, 2, 3, 4, 5]
+    assert [r.is_best for r in history] == [True, True, True, False, False]
+    assert [r.epoch for r in seen] == [1, 2, 3, 4, 5]
+
+
+def test_no_early_stopping_without_validation_pairs():
+    config = FitConfig(**{**TINY.as_dict(), "epochs": 3, "patience": 1, "lr": 1e-12})  # the loss barely moves
+    _, history = fit_network(synthetic_pairs()[:3], [], config)
+    assert len(history) == 3
+
+
+def test_bfloat16_training_learns_and_repeats():
+    pairs = synthetic_pairs()
+    config = FitConfig(**{**TINY.as_dict(), "precision": "bfloat16"})
+    first, history = fit_network(pairs[:3], pairs[3:], config)
+    second, _ = fit_network(pairs[:3], pairs[3:], config)
+    assert history[-1].train_loss < history[0].train_loss
+    assert weights_bytes(first) == weights_bytes(second)
+    assert all(p.dtype == torch.float32 for p in first.parameters())
+
+
+def test_the_progress_bar_counts_every_step(capsys):
+    config = FitConfig(**{**TINY.as_dict(), "epochs": 2})  # 3 pairs × 4 crops / batch 4 = 3 steps per epoch
+    fit_network(synthetic_pairs()[:3], [], config, progress=True)
+    assert "6/6" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize(
@@ -101,6 +162,9 @@ def test_learning_rate_halves_every_30_epochs_by_default():
         ("crop", 30, "crop must be a multiple of 4, got crop=30"),
         ("lr", -1.0, "lr must be a positive number, got lr=-1.0"),
         ("batch_size", 2.5, "batch_size must be a positive integer"),
+        ("patience", -1, "patience must be an integer >= 0"),
+        ("schedule", "linear", "schedule must be one of"),
+        ("precision", "float16", "precision must be one of"),
     ],
 )
 def test_config_errors(field, value, message):

@@ -28,6 +28,8 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
     one, never an empty one. Temporary files a killed writer left beside ``path`` are removed once stale.
     """
     path = Path(path)
+    if path.is_dir():  # os.replace would fail only after the whole file was written, naming the temporary
+        raise IsADirectoryError(f"cannot write {str(path)!r}: it is a folder")
     make_parent(path)
     _remove_stale_temporaries(path)
     # A fresh name rather than mkstemp: the writer creates the file, so it gets the usual umask permissions.
@@ -39,6 +41,12 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
         os.replace(temporary, path)
         with suppress(OSError):  # some file systems cannot sync a folder; the rename itself is still atomic
             _fsync(path.parent, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0))
+    except OSError as error:
+        # Failures on the temporary (no permission, read-only or full file system) are named by the target: the
+        # temporary's name means nothing to the caller, and it is gone.
+        if str(temporary) in (str(error.filename), str(error.filename2)):
+            raise type(error)(f"cannot write {str(path)!r}: {error.strerror or error}") from error
+        raise
     finally:
         temporary.unlink(missing_ok=True)
 
@@ -49,7 +57,11 @@ def make_parent(path: str | os.PathLike[str]) -> None:
     blocker = _file_in_the_way(parent)
     if blocker is not None:
         raise NotADirectoryError(f"cannot write {str(path)!r}: {str(blocker)!r} is a file, not a folder")
-    parent.mkdir(parents=True, exist_ok=True)
+    try:
+        parent.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        reason = error.strerror or error
+        raise type(error)(f"cannot write {str(path)!r}: cannot create folder {str(parent)!r}: {reason}") from error
 
 
 def check_writable(path: str | os.PathLike[str]) -> None:
@@ -117,7 +129,12 @@ def _temporary_name(path: Path) -> Path:
 
 
 def _kept_name(path: Path) -> str:
-    return path.name.encode()[:_KEPT_NAME_BYTES].decode(errors="ignore")
+    """At most :data:`_KEPT_NAME_BYTES` bytes of ``path``'s name. A name that is not valid UTF-8 arrives with
+    surrogate escapes, which ``str.encode`` refuses: it is cut as the file system's bytes."""
+    try:
+        return path.name.encode()[:_KEPT_NAME_BYTES].decode(errors="ignore")
+    except UnicodeEncodeError:
+        return os.fsdecode(os.fsencode(path.name)[:_KEPT_NAME_BYTES])
 
 
 def _remove_stale_temporaries(path: Path) -> None:

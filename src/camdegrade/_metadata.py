@@ -84,9 +84,12 @@ def resolve_profile_path(name_or_path: str | os.PathLike[str]) -> Path:
 
 def refuse_non_safetensors(path: Path) -> None:
     """Refuse anything but a safetensors file, and name pickled checkpoints as such; never unpickle."""
-    with path.open("rb") as handle:
-        head = handle.read(9)
-    size = path.stat().st_size
+    try:
+        with path.open("rb") as handle:
+            head = handle.read(9)
+        size = path.stat().st_size
+    except OSError as error:  # no permission, an I/O error: a ProfileError naming the file, like the rest
+        raise ProfileError(f"cannot read profile {str(path)!r}: {error.strerror or error}") from None
     header_length = int.from_bytes(head[:8], "little") if len(head) == 9 else -1
     looks_like_safetensors = 0 < header_length <= min(size - 8, MAX_HEADER_BYTES) and head[8:9] == b"{"
     if looks_like_safetensors and path.suffix.lower() not in PICKLE_SUFFIXES:
@@ -128,7 +131,42 @@ def parse_metadata(raw: Mapping[str, str], path: Path) -> dict[str, Any]:
             f"profile {str(path)!r} has format version {version}, newer than this camdegrade ({__version__}) reads "
             f"(up to {FORMAT_VERSION}); upgrade camdegrade"
         )
+    _check_field_types(metadata, path)
     return metadata
+
+
+#: Metadata entries and the JSON type each must have when present (``fitted`` and ``quality`` may also be null).
+_FIELD_TYPES = {
+    "name": (str, "a string"),
+    "description": (str, "a string"),
+    "package_version": (str, "a string"),
+    "fitted": ((dict, type(None)), "an object"),
+    "quality": ((dict, type(None)), "an object"),
+    "effects": (list, "a list of {'name', 'config'} entries"),
+}
+
+
+def _check_field_types(metadata: Mapping[str, Any], path: Path) -> None:
+    """Refuse metadata entries of the wrong JSON type, which would otherwise be turned into something else silently
+    (a name ``["a"]`` into the text ``"['a']"``) or fail later with a message naming neither entry nor file."""
+    for key, (types, expected) in _FIELD_TYPES.items():
+        if key in metadata and not isinstance(metadata[key], types):
+            value = metadata[key]
+            shown = repr(value) if len(repr(value)) <= 80 else repr(value)[:77] + "..."
+            kind = _JSON_TYPES.get(type(value), type(value).__name__)
+            got = kind if value is None else f"{kind} {shown}"
+            raise ProfileError(f"profile {str(path)!r} has invalid metadata: {key!r} must be {expected}, got {got}")
+
+
+_JSON_TYPES: dict[type, str] = {
+    dict: "an object",
+    list: "a list",
+    str: "a string",
+    int: "a number",
+    float: "a number",
+    bool: "a boolean",
+    type(None): "null",
+}
 
 
 def _json(text: str | bytes, invalid: str, part: str, path: Path) -> Any:
@@ -293,8 +331,18 @@ def read_header(name_or_path: str | os.PathLike[str]) -> ProfileHeader:
             key: TensorEntry(str(entry["dtype"]), tuple(int(size) for size in entry["shape"]))
             for key, entry in header.items()
         }
-    except (TypeError, KeyError, ValueError):
-        raise ProfileError(f"{corrupt} (a tensor entry lacks its dtype or shape); fit or copy it again") from None
+        data_end = max((int(entry["data_offsets"][1]) for entry in header.values()), default=0)
+    except (TypeError, KeyError, ValueError, IndexError):
+        raise ProfileError(
+            f"{corrupt} (a tensor entry lacks its dtype or shape, or its data offsets); fit or copy it again"
+        ) from None
+    size = path.stat().st_size
+    if size != 8 + length + data_end:  # load_profile refuses such a file too (safetensors checks the same)
+        found = "is cut short" if size < 8 + length + data_end else "has bytes after its data"
+        raise ProfileError(
+            f"{corrupt} (its header places {data_end} bytes of tensor data after it, but the file {found}: "
+            f"{size} bytes, expected {8 + length + data_end}); fit or copy it again"
+        )
     _check_structure(metadata, path)
     return ProfileHeader(path, metadata, tensors)
 

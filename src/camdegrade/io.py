@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import os
 import struct
 import warnings
@@ -9,7 +10,7 @@ import zlib
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import IO
+from typing import IO, Any
 
 import numpy as np
 import torch
@@ -38,15 +39,26 @@ def is_image_path(path: str | os.PathLike[str]) -> bool:
 
 
 def iter_images(folder: str | os.PathLike[str]) -> Iterator[Path]:
-    """Image files under ``folder``, recursively, in sorted order (hidden files skipped)."""
+    """Image files under ``folder``, recursively, in sorted order (hidden files and folders skipped; symbolic links
+    to folders are not followed).
+
+    Entries that cannot be read are yielded too, so that reading them names the problem instead of a batch leaving
+    them out silently: an entry with an image extension that is not a regular file (a dangling symbolic link, a
+    link loop, a FIFO) and a folder that cannot be listed (no permission)."""
     root = Path(folder)
-    for path in sorted(root.rglob("*")):
-        if (
-            path.is_file()
-            and is_image_path(path)
-            and not any(part.startswith(".") for part in path.relative_to(root).parts)
-        ):
-            yield path
+    found: list[Path] = []
+    unlisted: list[Path] = []
+
+    def unreadable(error: OSError) -> None:  # a folder that exists but cannot be listed
+        if error.filename is not None and Path(os.fsdecode(error.filename)).is_dir():
+            unlisted.append(Path(os.fsdecode(error.filename)))
+
+    # os.walk lists links to folders among the folders and does not enter them; dangling links and link loops are
+    # listed among the files, as are FIFOs, sockets and devices.
+    for current, folders, files in os.walk(root, onerror=unreadable):
+        folders[:] = [name for name in folders if not name.startswith(".")]
+        found += [Path(current, name) for name in files if not name.startswith(".") and is_image_path(name)]
+    yield from sorted([*found, *unlisted])
 
 
 def to_rgb(image: Image.Image, *, source: str = "image") -> Image.Image:
@@ -102,14 +114,47 @@ def read_image_size(path: str | os.PathLike[str]) -> tuple[int, int]:
         with _open(path) as image:
             _check_still(image, path)
             width, height = image.size
-            # A PNG's EXIF may sit after the pixel data; asking for it would decode the whole image.
-            has_exif = image.format != "PNG" or "exif" in image.info
-            orientation = image.getexif().get(_ORIENTATION_TAG, 1) if has_exif else 1
+            # A PNG's EXIF may sit after the pixel data, where Pillow finds it only by decoding the whole image:
+            # its chunks are walked instead (as read_image, which decodes, applies that EXIF too).
+            if image.format == "PNG" and "exif" not in image.info:
+                orientation = _png_late_orientation(path)
+            else:
+                orientation = image.getexif().get(_ORIENTATION_TAG, 1)
+            if _oriented_on_open(image):  # the size Pillow reports already has the orientation applied
+                orientation = 1
     except ImageError:
         raise
     except _DECODER_ERRORS as error:
         raise ImageError(f"cannot read image {str(path)!r}: {error or type(error).__name__}") from error
     return (width, height) if orientation in _TRANSPOSED_ORIENTATIONS else (height, width)
+
+
+def _oriented_on_open(image: Image.Image) -> bool:
+    """Whether Pillow reports ``image.size`` with its EXIF orientation already applied: recent Pillow releases open
+    TIFF files so (their header's width and height swapped for orientations 5 to 8), and apply it when loading."""
+    tags = getattr(image, "tag_v2", None)
+    if tags is None:
+        return False
+    return image.size != (tags.get(256), tags.get(257))  # ImageWidth, ImageLength as stored
+
+
+def _png_late_orientation(path: Path) -> int:
+    """The EXIF orientation of a PNG file from an ``eXIf`` chunk anywhere in it (1 when it has none), found by
+    walking the chunk headers without inflating the pixel data."""
+    with path.open("rb") as handle:
+        handle.seek(8)  # the signature
+        while True:
+            head = handle.read(8)
+            if len(head) < 8:
+                return 1
+            length, kind = struct.unpack(">I4s", head)
+            if kind == b"IEND":
+                return 1
+            if kind == b"eXIf":
+                exif = Image.Exif()
+                exif.load(handle.read(length))
+                return exif.get(_ORIENTATION_TAG, 1)
+            handle.seek(length + 4, os.SEEK_CUR)
 
 
 def _check_regular_file(path: Path) -> None:
@@ -123,9 +168,16 @@ def _check_regular_file(path: Path) -> None:
                 raise ImageError(f"cannot read image {str(path)!r}: {str(ancestor)!r} is a file, not a folder")
             break
     if not path.exists():
+        if path.is_symlink():
+            raise ImageError(
+                f"cannot read image {str(path)!r}: it is a symbolic link that leads to no file (dangling, or a loop)"
+            )
         raise ImageError(f"cannot read image {str(path)!r}: no such file")
-    kind = "a folder" if path.is_dir() else "not a regular file"
-    raise ImageError(f"cannot read image {str(path)!r}: it is {kind}")
+    if path.is_dir():
+        if not os.access(path, os.R_OK | os.X_OK):
+            raise ImageError(f"cannot read image {str(path)!r}: it is a folder that cannot be listed (no permission)")
+        raise ImageError(f"cannot read image {str(path)!r}: it is a folder")
+    raise ImageError(f"cannot read image {str(path)!r}: it is not a regular file (a device, FIFO or socket)")
 
 
 @contextmanager
@@ -232,17 +284,71 @@ def _inflated_idat_bytes(handle: IO[bytes], enough: int) -> int:
     return total
 
 
+#: Float images may stray this far outside [0, 1] and are clamped when written (as
+#: ``camdegrade.engine.UNIT_TOLERANCE``, which this module cannot import); further out they are on another scale.
+_WRITE_TOLERANCE = 0.1
+#: The largest width or height each format's encoder writes (larger ones fail inside the encoder, and libjpeg
+#: prints its own line on stderr before it does).
+_MAX_SIDE = {"JPEG": 65_500, "WEBP": 16_383}
+
+
 def write_image(image: Tensor, path: str | os.PathLike[str]) -> None:
-    """Write a ``(3, H, W)`` uint8 or float-in-[0,1] tensor atomically; format from the suffix (JPEG at quality 95)."""
+    """Write a ``(3, H, W)`` uint8 or float-in-[0,1] tensor atomically; format from the suffix (JPEG at quality 95).
+
+    The suffix must be one camdegrade reads back (:data:`IMAGE_EXTENSIONS`). Refused before anything is written,
+    naming what was expected: a non-tensor, another shape, an integer dtype other than uint8, NaN or infinite values,
+    floats on another scale than [0, 1] (further than 0.1 outside it), an image without pixels or larger than the
+    format stores (an :class:`~camdegrade.errors.ImageError`, like an encoder's failure).
+    """
     path = Path(path)
-    if image.ndim != 3 or image.shape[0] != 3:
-        raise ValueError(f"image must have shape (3, H, W), got shape {tuple(image.shape)}")
-    if image.dtype != torch.uint8:
-        image = unit_to_bytes(as_unit(image.detach()))
-    pil = Image.fromarray(image.permute(1, 2, 0).cpu().numpy())
+    _check_writable_image(image, path)
     image_format = Image.registered_extensions().get(path.suffix.lower())
-    if image_format is None:
-        raise ValueError(f"path must end in an image extension such as .png or .jpg, got {str(path)!r}")
+    if image.dtype != torch.uint8:
+        image = unit_to_bytes(as_unit(image.detach(), clamp=True))
+    pil = Image.fromarray(image.permute(1, 2, 0).cpu().numpy())
     options = {"quality": 95} if image_format == "JPEG" else {}
-    with atomic_path(path) as temporary:
-        pil.save(temporary, format=image_format, **options)
+    with atomic_path(path) as temporary:  # names file-system errors by the target
+        try:
+            pil.save(temporary, format=image_format, **options)
+        except (ValueError, struct.error) as error:  # Pillow's encoders raise these besides OSError
+            raise ImageError(f"cannot write image {str(path)!r}: {error}") from error
+        except OSError as error:
+            if error.filename is not None:
+                raise  # the file system's, not the encoder's
+            raise ImageError(f"cannot write image {str(path)!r}: {error}") from error
+
+
+def _check_writable_image(image: Any, path: Path) -> None:
+    """Refuse, naming ``path``, what :func:`write_image` cannot write faithfully (see there)."""
+    if not isinstance(image, Tensor):
+        raise TypeError(f"image must be a torch.Tensor shaped (3, H, W), got {type(image).__name__} for {str(path)!r}")
+    if image.ndim != 3 or image.shape[0] != 3:
+        raise ValueError(f"image must have shape (3, H, W), got shape {tuple(image.shape)} for {str(path)!r}")
+    if image.is_meta or image.layout != torch.strided:
+        kind = "meta" if image.is_meta else "sparse"
+        raise TypeError(f"image must be a dense tensor holding data, got a {kind} tensor for {str(path)!r}")
+    if image.dtype != torch.uint8 and not image.is_floating_point():
+        raise TypeError(f"image must be uint8 or floating point in [0, 1], got dtype={image.dtype} for {str(path)!r}")
+    if path.suffix.lower() not in IMAGE_EXTENSIONS:
+        known = ", ".join(sorted(IMAGE_EXTENSIONS))
+        raise ValueError(f"path must end in an image extension camdegrade reads ({known}), got {str(path)!r}")
+    height, width = image.shape[1:]
+    image_format = Image.registered_extensions()[path.suffix.lower()]
+    limit = _MAX_SIDE.get(image_format)
+    if height == 0 or width == 0:
+        raise ValueError(f"cannot write an image without pixels (shape {tuple(image.shape)}) to {str(path)!r}")
+    if limit is not None and max(height, width) > limit:  # an ImageError: a batch lists it and goes on
+        raise ImageError(
+            f"cannot write image {str(path)!r}: {image_format} stores at most {limit} px a side, got height {height} "
+            f"and width {width}; write it as .png or .tif, or resize it"
+        )
+    if image.dtype == torch.uint8:
+        return
+    low, high = torch.stack(torch.aminmax(image.detach())).tolist()  # NaN propagates to both
+    if not (math.isfinite(low) and math.isfinite(high)):
+        raise ValueError(f"image to write to {str(path)!r} contains NaN or infinite values")
+    if low < -_WRITE_TOLERANCE or high > 1.0 + _WRITE_TOLERANCE:
+        raise ValueError(
+            f"float images are written from [0, 1], got values in [{low:.4g}, {high:.4g}] for {str(path)!r}; scale "
+            "0..255 images by 1/255 (or pass uint8) and map [-1, 1] images with (x + 1) / 2"
+        )

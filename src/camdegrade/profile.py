@@ -75,6 +75,12 @@ class CameraProfile(nn.Module):
         for index, effect in enumerate(effects):
             if not isinstance(effect, Effect):
                 raise TypeError(f"effects[{index}] must be a camdegrade Effect, got {type(effect).__name__}")
+        for label, text in (("name", name), ("description", description), ("package_version", package_version)):
+            if not isinstance(text, str):  # a profile file stores text; None would come back as 'None'
+                raise TypeError(f"{label} must be a str, got {label}={text!r} ({type(text).__name__})")
+        for label, record in (("fitted", fitted), ("quality", quality)):
+            if record is not None and not isinstance(record, Mapping):
+                raise TypeError(f"{label} must be a mapping (JSON object) or None, got {type(record).__name__}")
         self.network = network
         self.effects = nn.ModuleList(effects)
         self.name = name
@@ -164,13 +170,25 @@ class CameraProfile(nn.Module):
         path = Path(path)
         if path.suffix != ".safetensors":
             raise ValueError(f"path must end in '.safetensors', got {str(path)!r}")
+        label = f"cannot save profile {self.name or '(unnamed)'!r}"
+        meta = [key for key, value in self.state_dict().items() if value.is_meta]
+        if meta:
+            raise ValueError(f"{label}: tensors on the meta device hold no values ({_listing(meta)})")
         try:
             check_profile_values(self)
+            metadata = serialize_metadata(self.metadata())  # before anything is written
         except ValueError as error:
-            raise ValueError(f"cannot save profile {self.name or '(unnamed)'!r}: {error}") from None
+            raise ValueError(f"{label}: {error}") from None
+        except TypeError as error:  # json: a set, a tensor, ... in fitted or quality
+            raise TypeError(f"{label}: its metadata (fitted, quality) must be JSON-serialisable: {error}") from None
+        except RecursionError:
+            raise ValueError(f"{label}: its metadata (fitted, quality) is nested too deeply to store") from None
         tensors = {key: _storable(value) for key, value in self.state_dict().items()}
-        with atomic_path(path) as temporary:
-            save_file(tensors, str(temporary), metadata=serialize_metadata(self.metadata()))
+        try:
+            with atomic_path(path) as temporary:
+                save_file(tensors, str(temporary), metadata=metadata)
+        except SafetensorError as error:  # safetensors' own I/O errors (e.g. a folder nothing can be created in)
+            raise OSError(f"cannot write {str(path)!r}: {error}") from error
         return path
 
     def describe(self) -> str:

@@ -17,6 +17,13 @@ PARAMS_STREAM = 2
 
 #: The public name of the key function (``camdegrade.data.stable_key``).
 stable_key = derive_seed
+#: The largest epoch: :class:`SharedEpoch` holds it in an int64.
+MAX_EPOCH = 2**63 - 1
+
+
+def check_epoch(epoch: object) -> int:
+    """``epoch`` itself when it is an int from 0 to :data:`MAX_EPOCH`, else a ``TypeError``/``ValueError`` naming it."""
+    return check_int("epoch", epoch, minimum=0, maximum=MAX_EPOCH)
 
 
 def item_uniform(seed: int, epoch: int, index: int) -> float:
@@ -45,4 +52,4 @@ class SharedEpoch:
         return int(self._value.item())
 
     def set(self, epoch: int) -> None:
-        self._value.fill_(check_int("epoch", epoch, minimum=0))
+        self._value.fill_(check_epoch(epoch))

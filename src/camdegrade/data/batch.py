@@ -7,8 +7,7 @@ from collections.abc import Sequence
 import torch
 from torch import Tensor, nn
 
-from camdegrade._checks import check_int
-from camdegrade.data._keys import SharedEpoch, item_generator
+from camdegrade.data._keys import SharedEpoch, check_epoch, item_generator
 from camdegrade.data.datasets import DegradeLike, as_camera_degrade, resolve_seed
 from camdegrade.data.policies import Bernoulli, MixPolicy
 from camdegrade.engine import check_image_shape, check_image_tensor, degrade_frames
@@ -86,7 +85,7 @@ class BatchDegrade(nn.Module):
         """
         _check_batch(images)
         batch = images.shape[0]
-        epoch = self._epoch.get() if epoch is None else check_int("epoch", epoch, minimum=0)
+        epoch = self._epoch.get() if epoch is None else check_epoch(epoch)
         index_list = self._index_list(indices, batch)
         if images.numel() == 0:  # empty in, empty out
             return images

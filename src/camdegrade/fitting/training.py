@@ -11,8 +11,9 @@ import hashlib
 import math
 import os
 from collections.abc import Callable, Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
+from typing import Any
 
 import torch
 import torch.distributed as dist
@@ -24,10 +25,12 @@ from camdegrade._checks import check_seed
 from camdegrade._distributed import rank_and_world_size
 from camdegrade._files import check_writable
 from camdegrade._pixels import as_unit
+from camdegrade._recipes import FAST, RECIPES
 from camdegrade.errors import CamdegradeError
 from camdegrade.fitting.checkpoint import TrainingState, capture_state, load_checkpoint, save_checkpoint
+from camdegrade.inference import native_bfloat16, run_network
 from camdegrade.metrics import psnr
-from camdegrade.network import SIZE_MULTIPLE, DomainShiftNet
+from camdegrade.network import MAX_WIDTH, SIZE_MULTIPLE, DomainShiftNet
 
 #: One aligned pair: (clean, captured), ``(3, H, W)`` each, same size: uint8 (as read), or float in [0, 1].
 ImagePair = tuple[Tensor, Tensor]
@@ -37,35 +40,81 @@ class FitInterrupted(CamdegradeError):
     """The fit was interrupted (Ctrl-C); the checkpoint of the last finished epoch is kept for ``resume``."""
 
 
+#: How the learning rate moves: ``"step"`` halves it every ``lr_halving_epochs`` epochs (the paper's schedule);
+#: ``"cosine"`` lowers it from ``lr`` to 0 along a half cosine over ``epochs``, one step per epoch.
+SCHEDULES: tuple[str, ...] = ("step", "cosine")
+#: Arithmetic of the forward and backward passes: ``"bfloat16"`` autocasts the convolutions (float32 weights,
+#: optimizer and loss); ``"auto"`` does so where the device computes bfloat16 natively, else float32.
+TRAIN_PRECISIONS: tuple[str, ...] = ("auto", "float32", "bfloat16")
+
+
 @dataclass(frozen=True)
 class FitConfig:
-    """Training recipe. Defaults are the paper's: L2 loss, Adam at lr 0.01 halved every 30 epochs, 100 epochs,
-    batch 32 — on random ``crop``×``crop`` windows of the full-resolution pairs instead of squashed resizes.
+    """Training recipe: L2 loss and Adam on random ``crop``×``crop`` windows of the full-resolution pairs (instead of
+    the paper's squashed resizes); an epoch draws ``crops_per_pair`` windows from every training pair.
 
-    An epoch draws ``crops_per_pair`` random windows from every training pair.
+    The defaults are camdegrade's fast recipe (``RECIPES["fast"]``, :mod:`camdegrade._recipes`): Adam on a cosine
+    schedule, batch 32, stopping early once the validation PSNR has not risen for ``patience`` epochs.
+    ``FitConfig.recipe("paper")`` is the paper's: 100 epochs, Adam at lr 0.01 halved every 30 epochs, batch 32,
+    no early stopping. Either trains in bfloat16 where the device computes it natively (``precision="auto"``).
+
+    Args:
+        patience: stop after this many epochs without a better validation PSNR (by at least 0.01 dB); 0 never
+            stops early. The best epoch's weights are returned either way.
+        schedule: one of :data:`SCHEDULES`; ``lr_halving_epochs`` is used by ``"step"`` only.
+        precision: one of :data:`TRAIN_PRECISIONS`.
+        width: the network's width (:class:`DomainShiftNet`; the paper's 64).
     """
 
-    epochs: int = 100
-    crop: int = 128
-    batch_size: int = 32
-    lr: float = 0.01
-    lr_halving_epochs: int = 30
-    crops_per_pair: int = 8
-    seed: int = 0
+    epochs: int = FAST["epochs"]
+    crop: int = FAST["crop"]
+    batch_size: int = FAST["batch_size"]
+    lr: float = FAST["lr"]
+    lr_halving_epochs: int = FAST["lr_halving_epochs"]
+    crops_per_pair: int = FAST["crops_per_pair"]
+    seed: int = FAST["seed"]
+    schedule: str = FAST["schedule"]
+    patience: int = FAST["patience"]
+    precision: str = FAST["precision"]
+    width: int = FAST["width"]
 
     def __post_init__(self) -> None:
-        for name in ("epochs", "crop", "batch_size", "lr_halving_epochs", "crops_per_pair"):
+        for name in ("epochs", "crop", "batch_size", "lr_halving_epochs", "crops_per_pair", "width"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 raise ValueError(f"{name} must be a positive integer, got {name}={value!r}")
+        if self.width > MAX_WIDTH:
+            raise ValueError(f"width must be at most {MAX_WIDTH}, got width={self.width}")
+        if isinstance(self.patience, bool) or not isinstance(self.patience, int) or self.patience < 0:
+            raise ValueError(f"patience must be an integer >= 0 (0: no early stopping), got patience={self.patience!r}")
         if self.crop % SIZE_MULTIPLE:
             raise ValueError(f"crop must be a multiple of {SIZE_MULTIPLE}, got crop={self.crop}")
         if not (isinstance(self.lr, (int, float)) and math.isfinite(self.lr) and self.lr > 0):
             raise ValueError(f"lr must be a positive number, got lr={self.lr!r}")
+        for name, allowed in (("schedule", SCHEDULES), ("precision", TRAIN_PRECISIONS)):
+            if getattr(self, name) not in allowed:
+                raise ValueError(f"{name} must be one of {allowed}, got {name}={getattr(self, name)!r}")
         check_seed(self.seed)
 
-    def as_dict(self) -> dict[str, int | float]:
+    @classmethod
+    def recipe(cls, name: str = "fast", **overrides: Any) -> FitConfig:
+        """The named recipe of :data:`RECIPES`, with ``overrides`` (``None`` values keep the recipe's)."""
+        if name not in RECIPES:
+            raise ValueError(f"recipe must be one of {tuple(RECIPES)}, got recipe={name!r}")
+        values = {**RECIPES[name], **{key: value for key, value in overrides.items() if value is not None}}
+        return cls(**values)
+
+    def as_dict(self) -> dict[str, Any]:
         return asdict(self)
+
+
+def resolve_recipe(recipe: str | FitConfig, **changes: Any) -> FitConfig:
+    """``recipe`` (a name of ``RECIPES`` or a :class:`FitConfig`) with the ``changes`` that are not ``None``."""
+    if isinstance(recipe, FitConfig):
+        return replace(recipe, **{key: value for key, value in changes.items() if value is not None})
+    if not isinstance(recipe, str):
+        raise TypeError(f"recipe must be a recipe name {tuple(RECIPES)} or a FitConfig, got {type(recipe).__name__}")
+    return FitConfig.recipe(recipe, **changes)
 
 
 @dataclass(frozen=True)
@@ -101,7 +150,7 @@ def evaluate_psnr(network: DomainShiftNet, pairs: Sequence[ImagePair], device: t
     scores = []
     with torch.no_grad():
         for clean, captured in pairs:
-            output = network(as_unit(clean.to(device)[None]))
+            output = run_network(network, as_unit(clean.to(device)[None]), "float32")
             scores.append(psnr(output, captured.to(device)[None]))
     return sum(scores) / len(scores)
 
@@ -123,22 +172,24 @@ def fit_network(
     or by training loss when ``val`` is empty) and the per-epoch history.
 
     Same pairs, config and machine → identical weights: initialisation and crops come from ``config.seed``.
-    With ``checkpoint``, the full training state is written there after every epoch (atomically); ``resume=True``
-    continues from it, giving the same weights as an uninterrupted fit; the checkpoint must exist and hold the same
-    recipe and pairs (:func:`pairs_fingerprint` of ``train``, ``val`` and ``pair_names``), otherwise a
-    :class:`~camdegrade.errors.CamdegradeError` says which differs. Ctrl-C raises :class:`FitInterrupted`
-    after the last finished epoch's checkpoint is on disk. Under ``torch.distributed`` (e.g. ``torchrun``), each
-    rank trains on its share of every batch and only rank 0 writes files.
+    With ``config.patience``, the fit stops once the validation PSNR has not risen by 0.01 dB for that many
+    epochs (never without ``val``). With ``checkpoint``, the full training state is written there after every
+    epoch (atomically); ``resume=True`` continues from it, giving the same weights as an uninterrupted fit; the
+    checkpoint must exist and hold the same recipe and pairs (:func:`pairs_fingerprint` of ``train``, ``val`` and
+    ``pair_names``), otherwise a :class:`~camdegrade.errors.CamdegradeError` says which differs. Ctrl-C raises
+    :class:`FitInterrupted` after the last finished epoch's checkpoint is on disk. Under ``torch.distributed``
+    (e.g. ``torchrun``), each rank trains on its share of every batch and only rank 0 writes files.
+    ``progress`` shows a bar over the fit's steps with the time left.
 
     ``initial``: start from this network's weights (copied; it is not changed) instead of a fresh initialisation
     from ``config.seed``, e.g. to refit a profile's network on new pairs. It must have the width of the network
-    trained here (:class:`DomainShiftNet`'s default), else a ``ValueError``. A resumed fit continues from its
+    trained here (``config.width``), else a ``ValueError``. A resumed fit continues from its
     checkpoint's weights.
     """
     config = config or FitConfig()
     _check_pairs(train, config.crop)
-    rank, world = rank_and_world_size()
     _check_initial(initial)
+    rank, world = rank_and_world_size()
     if config.batch_size % world:
         raise ValueError(f"batch_size ({config.batch_size}) must be divisible by the number of processes ({world})")
     if checkpoint is not None and rank == 0:
@@ -146,48 +197,75 @@ def fit_network(
     fingerprint = pairs_fingerprint(train, val, pair_names)
     network, optimizer, scheduler, generator = _new_training(config, device, initial)
     state = _initial_state(network, optimizer, scheduler, generator, config, checkpoint, resume, fingerprint)
-    model = _distributed(network, device) if world > 1 else network
-    epochs = tqdm(
-        range(state.epoch, config.epochs),
-        initial=state.epoch,
-        total=config.epochs,
-        desc="fit",
-        unit="epoch",
-        disable=not progress or rank != 0,
-    )
+    step = _TrainStep(_distributed(network, device) if world > 1 else network, optimizer, config, device, world)
+    bar = _progress_bar(config, len(train), state.epoch, enabled=progress and rank == 0)
     try:
-        for epoch in epochs:
-            lr = optimizer.param_groups[0]["lr"]
-            loss = _train_one_epoch(model, optimizer, train, config, generator, device, rank, world)
-            scheduler.step()
-            score = evaluate_psnr(network, val, device) if val else -loss
-            is_best = score > state.best_score
-            result = EpochResult(epoch + 1, loss, score if val else float("nan"), lr, is_best)
-            state = capture_state(
-                network,
-                optimizer,
-                scheduler,
-                generator,
-                epoch=epoch + 1,
-                best_score=max(score, state.best_score),
-                best_network={k: v.detach().clone() for k, v in network.state_dict().items()}
-                if is_best
-                else state.best_network,
-                history=[*state.history, asdict(result)],
-                config=config.as_dict(),
-                data=fingerprint,
-            )
+        while state.epoch < config.epochs and not (val and _patience_spent(state.history, config.patience)):
+            loss = _train_one_epoch(step, train, generator, rank, bar)
+            state = _end_epoch(state, network, optimizer, scheduler, generator, val, loss, device)
             if checkpoint is not None and rank == 0:
                 save_checkpoint(state, checkpoint)
-            epochs.set_postfix(loss=f"{loss:.5f}", val_psnr=f"{result.val_psnr:.2f}")
+            result = EpochResult(**state.history[-1])
+            bar.set_postfix(epoch=result.epoch, loss=f"{loss:.5f}", val_psnr=f"{result.val_psnr:.2f}")
             if callback is not None:
                 callback(result)
     except KeyboardInterrupt:
         where = f"; resume with the same checkpoint ({checkpoint})" if checkpoint else ""
         raise FitInterrupted(f"fit interrupted after epoch {state.epoch} of {config.epochs}{where}") from None
+    finally:
+        bar.close()
     if state.best_network is not None:
         network.load_state_dict(state.best_network)
     return network.cpu().eval(), [EpochResult(**entry) for entry in state.history]
+
+
+#: A validation PSNR must rise by this much (dB) to count as progress for early stopping.
+MIN_PROGRESS_DB = 0.01
+
+
+def _patience_spent(history: Sequence[dict[str, Any]], patience: int) -> bool:
+    """Whether the last ``patience`` epochs of ``history`` brought no progress (:data:`MIN_PROGRESS_DB`)."""
+    if patience <= 0:
+        return False
+    reference, last_progress = -math.inf, 0
+    for entry in history:
+        if entry["val_psnr"] > reference + MIN_PROGRESS_DB:
+            reference, last_progress = entry["val_psnr"], entry["epoch"]
+    return len(history) - last_progress >= patience
+
+
+def _end_epoch(state, network, optimizer, scheduler, generator, val, loss: float, device) -> TrainingState:
+    """The state after an epoch: the schedule's step, the validation score, the best weights so far."""
+    lr = optimizer.param_groups[0]["lr"]
+    scheduler.step()
+    score = evaluate_psnr(network, val, device) if val else -loss
+    is_best = score > state.best_score
+    result = EpochResult(state.epoch + 1, loss, score if val else float("nan"), lr, is_best)
+    best = {k: v.detach().clone() for k, v in network.state_dict().items()} if is_best else state.best_network
+    return capture_state(
+        network,
+        optimizer,
+        scheduler,
+        generator,
+        epoch=state.epoch + 1,
+        best_score=max(score, state.best_score),
+        best_network=best,
+        history=[*state.history, asdict(result)],
+        config=state.config,
+        data=state.data,
+    )
+
+
+def _progress_bar(config: FitConfig, pairs: int, done_epochs: int, *, enabled: bool) -> tqdm:
+    """A bar over every step of the fit (so its time left is right from the first epoch on)."""
+    per_epoch = -(-config.crops_per_pair * pairs // config.batch_size)
+    return tqdm(
+        total=per_epoch * config.epochs,
+        initial=per_epoch * done_epochs,
+        desc="fit",
+        unit="step",
+        disable=not enabled,
+    )
 
 
 def _check_initial(initial: DomainShiftNet | None) -> None:
@@ -198,17 +276,22 @@ def _check_initial(initial: DomainShiftNet | None) -> None:
 def _new_training(config: FitConfig, device: torch.device | str, initial: DomainShiftNet | None = None):
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(config.seed)
-        network = DomainShiftNet()
+        network = DomainShiftNet(config.width)
     if initial is not None:
         if initial.width != network.width:
             raise ValueError(
-                f"initial must be a DomainShiftNet of width {network.width} (the width fitted here), got "
+                f"initial must be a DomainShiftNet of width {network.width} (the recipe's width), got "
                 f"width={initial.width}"
             )
         network.load_state_dict(initial.state_dict())  # copies the values, from any device
     network.to(device)
     optimizer = torch.optim.Adam(network.parameters(), lr=config.lr)
-    scheduler = torch.optim.lr_scheduler.StepLR(optimizer, step_size=config.lr_halving_epochs, gamma=0.5)
+    if config.schedule == "cosine":
+        scheduler: torch.optim.lr_scheduler.LRScheduler = torch.optim.lr_scheduler.CosineAnnealingLR(
+            optimizer, T_max=config.epochs
+        )
+    else:
+        scheduler = torch.optim.lr_scheduler.StepLR(optimizer, step_size=config.lr_halving_epochs, gamma=0.5)
     return network, optimizer, scheduler, torch.Generator().manual_seed(config.seed)
 
 
@@ -254,8 +337,10 @@ def _initial_state(
             f"resume: checkpoint {str(checkpoint)!r} does not exist; check its path, or start a new fit without resume"
         )
     state = load_checkpoint(checkpoint)
-    recipe = {k: v for k, v in config.as_dict().items() if k != "epochs"}
-    saved = {k: v for k, v in state.config.items() if k != "epochs"}
+    # A resume may change how long the fit runs, unless the schedule is laid out over its length (cosine).
+    free = ("patience",) if config.schedule == "cosine" else ("epochs", "patience")
+    recipe = {k: v for k, v in config.as_dict().items() if k not in free}
+    saved = {k: v for k, v in state.config.items() if k not in free}
     if recipe != saved:
         raise ValueError(f"checkpoint {str(checkpoint)!r} was written with a different recipe: {saved}, now {recipe}")
     if state.data != fingerprint:
@@ -271,19 +356,47 @@ def _initial_state(
     return state
 
 
-def _train_one_epoch(model, optimizer, train, config, generator, device, rank: int, world: int) -> float:
-    model.train()
+class _TrainStep:
+    """One optimizer step on a batch of crops: channels-last input (oneDNN's fastest convolutions on the CPU),
+    bfloat16 autocast where the recipe asks for it, loss and optimizer in float32."""
+
+    def __init__(self, model: torch.nn.Module, optimizer, config: FitConfig, device, world: int) -> None:
+        self.model, self.optimizer, self.config, self.world = model, optimizer, config, world
+        self.device = torch.device(device)
+        self.autocast = training_dtype(config.precision, self.device) == torch.bfloat16
+
+    def __call__(self, clean: Tensor, captured: Tensor, count: int) -> Tensor:
+        clean = clean.to(self.device).contiguous(memory_format=torch.channels_last)
+        captured = captured.to(self.device)
+        self.optimizer.zero_grad(set_to_none=True)
+        with torch.autocast(self.device.type, dtype=torch.bfloat16, enabled=self.autocast):
+            output = self.model(clean)
+        loss = F.mse_loss(output.float(), captured, reduction="sum") / (count * clean[0].numel() / self.world)
+        loss.backward()
+        self.optimizer.step()
+        return loss.detach()
+
+
+def training_dtype(precision: str, device: torch.device) -> torch.dtype:
+    """The dtype the convolutions of a fit run in: bfloat16 when asked, or for ``"auto"`` where ``device``
+    computes it natively (:func:`camdegrade.inference.native_bfloat16`); float32 otherwise."""
+    if precision not in TRAIN_PRECISIONS:
+        raise ValueError(f"precision must be one of {TRAIN_PRECISIONS}, got precision={precision!r}")
+    native = precision == "auto" and native_bfloat16(device)
+    return torch.bfloat16 if precision == "bfloat16" or native else torch.float32
+
+
+def _train_one_epoch(step: _TrainStep, train, generator, rank: int, bar: tqdm) -> float:
+    step.model.train()
+    config, world = step.config, step.world
     total_crops = config.crops_per_pair * len(train)
     loss_sum = 0.0
     for start in range(0, total_crops, config.batch_size):
         count = min(config.batch_size, total_crops - start)
         clean, captured = random_crop_batch(train, config.crop, count, generator)  # same crops on every rank
-        clean, captured = clean[rank::world].to(device), captured[rank::world].to(device)
-        optimizer.zero_grad(set_to_none=True)
-        loss = F.mse_loss(model(clean), captured, reduction="sum") / (count * clean[0].numel() / world)
-        loss.backward()
-        optimizer.step()
-        loss_sum += _global_sum(loss.detach() * count / world)  # this rank's squared error per crop element
+        loss = step(clean[rank::world], captured[rank::world], count)
+        loss_sum += _global_sum(loss * count / world)  # this rank's squared error per crop element
+        bar.update()
     return loss_sum / total_crops
 
 

@@ -1,0 +1,31 @@
+"""The fitting recipes' values, in one place and without torch (the CLI's help text reads them)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+#: camdegrade's default recipe: small batches (more steps for the same arithmetic), Adam on a cosine schedule over
+#: 15 epochs, stopping early once the validation PSNR stops rising (``patience`` epochs without 0.01 dB of
+#: progress). Chosen on City100 and a simulated camera (``examples/recipe_comparison.py``, docs/fitting.md).
+FAST: dict[str, Any] = {
+    "epochs": 15,
+    "crop": 128,
+    "batch_size": 4,
+    "lr": 0.004,
+    "lr_halving_epochs": 30,
+    "crops_per_pair": 8,
+    "seed": 0,
+    "schedule": "cosine",
+    "patience": 4,
+    "precision": "auto",
+    "width": 64,
+}
+#: The paper's schedule (Hegde et al.): 100 epochs, Adam at lr 0.01 halved every 30 epochs, batch 32, no early stop.
+PAPER: dict[str, Any] = {**FAST, "epochs": 100, "batch_size": 32, "lr": 0.01, "schedule": "step", "patience": 0}
+RECIPES: dict[str, dict[str, Any]] = {"fast": FAST, "paper": PAPER}
+
+
+def recipe_default(key: str) -> str:
+    """``key``'s value in each recipe, for help text: ``"30 (paper: 100)"``, or one value where they agree."""
+    fast, paper = FAST[key], PAPER[key]
+    return f"{fast}" if fast == paper else f"{fast}; paper: {paper}"
