@@ -290,3 +290,184 @@ def test_an_epoch_too_large_to_store_is_named() -> None:
     ):
         with pytest.raises(ValueError, match=rf"^epoch must be an integer <= {2**63 - 1}, got epoch={2**70}$"):
             call()
+
+
+# --- found by the red team in the command line, the engine and fitting (fixed outside its files) ----------------
+
+
+def _profile(tmp_path: Path) -> Path:
+    return stochastic_profile().save(tmp_path / "cam.safetensors")
+
+
+def _pairs(tmp_path: Path) -> Path:
+    from test_fit import make_pairs_folder
+
+    return make_pairs_folder(tmp_path / "pairs", count=4)
+
+
+def test_a_huge_thread_count_is_an_option_error_not_a_crash(tmp_path: Path, capsys) -> None:
+    """--threads 100000 made OpenMP fail to allocate its pool: a MemoryError traceback, then a segfault."""
+    image = good_image(tmp_path / "a.png")
+    code, _, err = run_cli(["apply", _profile(tmp_path), image, tmp_path / "o.png", "--threads", "100000"], capsys)
+    assert code == 2 and "--threads: must be an integer from 1 to" in one_line_error(err)
+
+
+def test_a_device_whose_backend_is_not_built_in_is_an_option_error(tmp_path: Path, capsys) -> None:
+    """--device privateuseone printed a ModuleNotFoundError traceback."""
+    image = good_image(tmp_path / "a.png")
+    code, _, err = run_cli(
+        ["apply", _profile(tmp_path), image, tmp_path / "o.png", "--device", "privateuseone"], capsys
+    )
+    assert code == 2 and "--device 'privateuseone' cannot be used here" in one_line_error(err)
+
+
+def test_fit_never_writes_its_checkpoint_or_profile_over_a_pair_image(tmp_path: Path, capsys) -> None:
+    """`fit pairs --checkpoint pairs/clean/img0.png` overwrote that image with the checkpoint, then deleted it."""
+    from test_fit import QUICK
+
+    pairs = _pairs(tmp_path)
+    image = pairs / "clean" / "img0.png"
+    before = image.read_bytes()
+    code, _, err = run_cli(["fit", pairs, "-o", tmp_path / "p.safetensors", "--checkpoint", image, *QUICK], capsys)
+    assert code == 1 and "is the input file itself" in one_line_error(err)
+    assert image.read_bytes() == before and not (tmp_path / "p.safetensors").exists()
+
+
+def test_diagnose_never_writes_its_reports_over_an_input_or_over_each_other(tmp_path: Path, capsys) -> None:
+    """--json pairs/m.csv or --html pairs/clean/x.png overwrote the inputs; --json X --html X replaced one report
+    with the other."""
+    pairs = _pairs(tmp_path)
+    manifest = tmp_path / "m.csv"
+    manifest.write_text(
+        "clean,captured\n" + "".join(f"pairs/clean/img{i}.png,pairs/captured/img{i}.png\n" for i in range(4))
+    )
+    profile = _profile(tmp_path)
+    for argv in (
+        ["diagnose", profile, manifest, "--json", manifest],
+        ["diagnose", profile, pairs, "--html", pairs / "clean" / "img1.png"],
+    ):
+        before = Path(argv[-1]).read_bytes()
+        code, _, err = run_cli(argv, capsys)
+        assert code == 1 and "is the input file itself" in one_line_error(err)
+        assert Path(argv[-1]).read_bytes() == before
+    code, _, err = run_cli(["diagnose", profile, pairs, "--json", tmp_path / "r", "--html", tmp_path / "r"], capsys)
+    assert code == 1 and "--json and --html name the same file" in one_line_error(err)
+
+
+def test_a_long_pairs_error_is_one_line_on_stderr_with_the_report_on_stdout(tmp_path: Path, capsys) -> None:
+    """`fit pairs --clean-suffix _x` printed the whole pair report on stderr."""
+    from test_fit import QUICK
+
+    code, out, err = run_cli(
+        ["fit", _pairs(tmp_path), "-o", tmp_path / "p.safetensors", "--clean-suffix", "_x", *QUICK], capsys
+    )
+    assert code == 1 and "no usable (clean, captured) pairs found" in one_line_error(err)
+    assert "found in" in out  # the report's first line
+
+
+def test_unpaired_diagnosis_skips_a_truncated_image_and_reports_it(tmp_path: Path, capsys) -> None:
+    """`diagnose --real` stopped the whole run at one truncated capture."""
+    from bad_inputs import cut_image
+
+    clean, real = tmp_path / "clean", tmp_path / "real"
+    for index in range(4):
+        good_image(clean / f"{index}.png", (48, 48), seed=index)
+        good_image(real / f"{index}.png", (48, 48), seed=10 + index)
+    cut_image(real / "broken.png", size=(48, 48))
+    code, out, err = run_cli(
+        ["diagnose", _profile(tmp_path), clean, "--real", real, "--json", tmp_path / "r.json"], capsys
+    )
+    assert code == 1 and "broken.png" in out and "could not be read" in one_line_error(err)
+    assert (tmp_path / "r.json").exists()
+
+
+def test_file_names_that_are_not_utf8_are_printed_escaped(tmp_path: Path) -> None:
+    """Under PYTHONIOENCODING=utf-8 the progress line of such a name raised UnicodeEncodeError and stopped apply."""
+    import subprocess
+
+    folder = tmp_path / "in"
+    good_image(folder / "a.png")
+    name = os.fsdecode(b"caf\xe9.png")
+    good_image(folder / name)
+    env = {**os.environ, "PYTHONIOENCODING": "utf-8"}
+    command = [
+        sys.executable,
+        "-m",
+        "camdegrade",
+        "apply",
+        "lowcost-robot-sim",
+        str(folder),
+        str(tmp_path / "o"),
+    ]
+    result = subprocess.run(command, capture_output=True, env=env, check=False)
+    assert result.returncode == 0, result.stderr
+    assert len(list((tmp_path / "o").iterdir())) == 2
+
+
+def test_a_nested_tensor_is_refused_with_a_type_error() -> None:
+    """A nested tensor gave `RuntimeError: Internal error`."""
+    import warnings
+
+    from camdegrade import CameraDegrade
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # torch's "prototype stage" notice for strided nested tensors
+        nested = torch.nested.nested_tensor([torch.rand(3, 4, 4), torch.rand(3, 5, 5)])
+    with pytest.raises(TypeError, match="got a nested tensor"):
+        CameraDegrade(deterministic_profile())(nested)
+
+
+@pytest.mark.parametrize(
+    "options, error, message",
+    [
+        ({"device": "bogus"}, ValueError, r"device must be a torch device usable here, got device='bogus'"),
+        ({"device": "meta"}, ValueError, r"device 'meta' holds no data"),
+        ({"name": 5}, TypeError, r"name must be a str, got name=5"),
+        ({"effects": "tonne"}, ValueError, r"effects must be effect names .* got unknown \['tonne'\]"),
+    ],
+)
+def test_fit_profile_refuses_bad_arguments_before_training(tmp_path: Path, options: dict, error, message: str) -> None:
+    """Raw torch errors, a failure only after training (name=5), and 'tone' split into letters."""
+    from camdegrade import fit_profile
+
+    with pytest.raises(error, match=message):
+        fit_profile(tmp_path / "never-read", **options)
+    with pytest.raises(TypeError, match="pairs must be a folder"):
+        fit_profile(None)  # type: ignore[arg-type]
+
+
+def test_fit_lists_manifest_rows_naming_missing_files_and_exits_1(tmp_path: Path, capsys) -> None:
+    """The profile was fitted on the other rows and fit exited 0, the missing files said only in the report."""
+    from test_fit import QUICK
+
+    pairs = _pairs(tmp_path)
+    manifest = pairs / "m.csv"
+    rows = "".join(f"clean/img{i}.png,captured/img{i}.png\n" for i in range(4))
+    manifest.write_text("clean,captured\n" + rows + "clean/gone.png,captured/gone.png\n")
+    code, _, err = run_cli(["fit", manifest, "-o", tmp_path / "p.safetensors", *QUICK], capsys)
+    assert code == 1 and "could not be read" in one_line_error(err)
+    assert (tmp_path / "p.safetensors").exists()
+
+
+def test_manifest_rows_naming_one_file_twice_or_a_folder_are_reported(tmp_path: Path) -> None:
+    from camdegrade.fitting.pairs import discover_pairs
+
+    pairs = _pairs(tmp_path)
+    manifest = pairs / "m.csv"
+    manifest.write_text(
+        "clean,captured\nclean/img0.png,captured/img0.png\nclean/img1.png,clean/img1.png\nclean,captured/img2.png\n"
+    )
+    report = discover_pairs(manifest)
+    reasons = [reason for _, reason in report.skipped]
+    assert len(report.pairs) == 1
+    assert any("clean and captured are the same file" in reason for reason in reasons)
+    assert any("not a regular file" in reason for reason in reasons)
+
+
+def test_info_piped_into_a_reader_that_stops_early_is_quiet(tmp_path: Path) -> None:
+    """`camdegrade info ... | head -1` printed a BrokenPipeError."""
+    import subprocess
+
+    command = f"{sys.executable} -m camdegrade info city100-iphonex | head -1"
+    result = subprocess.run(command, shell=True, capture_output=True, text=True, check=False)
+    assert result.stdout.count("\n") == 1 and "Error" not in result.stderr and "Traceback" not in result.stderr

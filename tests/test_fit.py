@@ -60,7 +60,7 @@ def test_fit_profile_threads_apply_during_the_fit_and_are_restored(tmp_path):
     )
     assert seen == [before + 1]
     assert torch.get_num_threads() == before
-    with pytest.raises(ValueError, match="threads must be a positive integer or None, got threads=0"):
+    with pytest.raises(ValueError, match=r"threads must be an integer from 1 to \d+ or None, got threads=0"):
         fit_profile(make_pairs_folder(tmp_path / "other"), threads=0)
 
 
@@ -74,7 +74,7 @@ def test_fit_profile_same_seed_same_bytes(tmp_path):
 
 
 def test_fit_profile_rejects_unknown_effects(tmp_path):
-    with pytest.raises(ValueError, match=r"effects must be names from .*unknown \['lens_flare'\]"):
+    with pytest.raises(ValueError, match=r"effects must be effect names from .*unknown \['lens_flare'\]"):
         fit_profile(make_pairs_folder(tmp_path / "pairs"), effects=["lens_flare"])
 
 

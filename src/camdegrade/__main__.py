@@ -113,9 +113,18 @@ def main_parser(prog: str | None = None) -> argparse.ArgumentParser:
     return parser
 
 
+def _thread_count(text: str) -> int:
+    from camdegrade._threads import MAX_THREADS
+
+    value = _positive_int(text)
+    if value > MAX_THREADS:
+        raise argparse.ArgumentTypeError(f"must be an integer from 1 to {MAX_THREADS}, got {value}")
+    return value
+
+
 def _add_threads(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
-        "--threads", type=_positive_int, default=None, help="torch CPU threads (default: torch's choice)"
+        "--threads", type=_thread_count, default=None, help="torch CPU threads (default: torch's choice)"
     )
 
 
@@ -385,6 +394,7 @@ def _run_fit(args: argparse.Namespace) -> int:
     from camdegrade.fitting.training import FitInterrupted
 
     checkpoint = _fit_checkpoint(args)
+    _check_outputs({"--output": args.output, "--checkpoint": checkpoint}, _pair_files(args.pairs, args))
     device = init_distributed_from_env(args.device)
     main_process = is_main_process()
     try:
@@ -453,6 +463,43 @@ def _fit_checkpoint(args: argparse.Namespace) -> Path:
     return checkpoint
 
 
+def _pair_files(pairs: Path, args: argparse.Namespace) -> list[Path]:
+    """Every file a pairs source names (the manifest itself too), to keep outputs off them; none when the source
+    cannot be read (the command then reports that)."""
+    from camdegrade.errors import PairsError
+    from camdegrade.fitting.pairs import discover_pairs
+
+    try:
+        report = discover_pairs(
+            pairs, clean_suffix=args.clean_suffix, captured_suffix=args.captured_suffix, check_images=False
+        )
+    except (PairsError, OSError, ValueError):
+        return [pairs] if pairs.is_file() else []
+    files = [path for pair in report.pairs for path in (pair.clean, pair.captured)]
+    return [*files, pairs] if pairs.is_file() else files
+
+
+def _image_files(folder: Path | None) -> list[Path]:
+    from camdegrade.io import iter_images
+
+    return list(iter_images(folder)) if folder is not None and folder.is_dir() else []
+
+
+def _check_outputs(outputs: dict[str, Path | None], inputs: Sequence[Path]) -> None:
+    """Before any work: no output is an input file, no two outputs are one file, and each can be written."""
+    from camdegrade._files import check_outputs_spare_inputs, check_writable, same_file
+
+    given = {option: path for option, path in outputs.items() if path is not None}
+    check_outputs_spare_inputs([(source, path) for source in inputs for path in given.values()])
+    options = list(given)
+    for index, first in enumerate(options):
+        for second in options[index + 1 :]:
+            if same_file(given[first], given[second]):
+                raise ValueError(f"{first} and {second} name the same file ({str(given[first])!r}); give each its own")
+    for path in given.values():
+        check_writable(path)
+
+
 def _fail_on_unreadable(unreadable: Sequence[dict[str, str]], outcome: str) -> None:
     """After a run over pairs: list the files that could not be read and end with status 1 (the outputs stand)."""
     if unreadable:
@@ -483,7 +530,6 @@ def _run_simulate(args: argparse.Namespace) -> int:
 
 
 def _run_diagnose(args: argparse.Namespace) -> int:
-    from camdegrade._files import check_outputs_spare_inputs, check_writable
     from camdegrade.diagnose import diagnose
     from camdegrade.diagnose.unpaired import diagnose_unpaired
     from camdegrade.fitting.pairs import UNREADABLE
@@ -491,11 +537,9 @@ def _run_diagnose(args: argparse.Namespace) -> int:
 
     if args.out_profile is not None and args.out_profile.suffix != ".safetensors":
         raise ValueError(f"--out-profile must end in .safetensors, got {str(args.out_profile)!r}")
-    if args.out_profile is not None:
-        check_outputs_spare_inputs([(resolve_profile_path(args.profile), args.out_profile)])
-    for path in (args.json, args.html, args.out_profile):  # before diagnosing, not after it
-        if path is not None:
-            check_writable(path)
+    outputs = {"--json": args.json, "--html": args.html, "--out-profile": args.out_profile}
+    inputs = [resolve_profile_path(args.profile), *_pair_files(args.pairs, args), *_image_files(args.real)]
+    _check_outputs(outputs, inputs)
     log = None if args.quiet else print
     if args.real is not None:
         if args.out_profile is not None:
@@ -585,7 +629,7 @@ def _check_device(parser: argparse.ArgumentParser, name: str) -> None:
         parser.error("--device 'meta' holds no data, so nothing can be computed on it; use 'cpu' or 'cuda'")
     try:
         torch.empty(1, device=device)
-    except (RuntimeError, AssertionError) as error:  # not built in, or no such device here
+    except Exception as error:  # a backend that is not built in may raise anything (ImportError, ...)
         reason = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
         parser.error(f"--device {name!r} cannot be used here ({reason})")
 
@@ -604,6 +648,7 @@ def _threads(threads: int | None) -> Iterator[None]:
 
 def main(cli_args: Sequence[str] | None = None, prog: str | None = None) -> int:
     """Run the CLI with ``cli_args`` (default: ``sys.argv[1:]``); return the exit status."""
+    _tolerant_output()
     parser = main_parser(prog)
     args = parser.parse_args(cli_args)
     if getattr(args, "device", None) is not None:
@@ -611,12 +656,30 @@ def main(cli_args: Sequence[str] | None = None, prog: str | None = None) -> int:
     try:
         with _threads(getattr(args, "threads", None)):
             return _COMMANDS[args.command](args)
+    except BrokenPipeError:  # `camdegrade info ... | head`: the reader has what it wanted
+        sys.stderr.close()  # nothing more can reach it; keep Python's exit from complaining
+        return 0
     except (CamdegradeError, OSError, ValueError) as error:
-        print(f"{parser.prog}: error: {error}", file=sys.stderr)
+        _print_error(parser.prog, error)
         return 1
     except KeyboardInterrupt:  # Ctrl-C: what was written is whole (every write is atomic)
         print(f"{parser.prog}: interrupted", file=sys.stderr)
         return 130
+
+
+def _print_error(prog: str, error: BaseException) -> None:
+    """One line on stderr; a longer message (a pair report) sends its details to stdout first."""
+    first, _, details = str(error).partition("\n")
+    if details:
+        print(details)
+    print(f"{prog}: error: {first}", file=sys.stderr)
+
+
+def _tolerant_output() -> None:
+    """File names that are not valid UTF-8 reach stdout and stderr escaped instead of stopping a batch."""
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(AttributeError, ValueError):  # a replaced stream (tests) may not reconfigure
+            stream.reconfigure(errors="backslashreplace")
 
 
 def entrypoint() -> None:

@@ -108,6 +108,14 @@ def check_outputs_spare_inputs(jobs: list[tuple[Path, Path]]) -> None:
             )
 
 
+def same_file(first: Path, second: Path) -> bool:
+    """Whether two paths name one file: the same path once resolved, or (when they exist) the same inode."""
+    if Path(first).resolve() == Path(second).resolve():
+        return True
+    identity = _identity(Path(first))
+    return identity is not None and identity == _identity(Path(second))
+
+
 def _identity(path: Path) -> tuple[int, int] | None:
     try:
         status = path.stat()

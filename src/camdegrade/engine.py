@@ -32,6 +32,10 @@ UNIT_TOLERANCE = 0.1
 def check_image_shape(image: Tensor, who: str = "CameraDegrade()") -> None:
     """Raise a clear error unless ``image`` is a dense ``[..., 3, H, W]`` uint8 or floating-point tensor holding
     data (not on the meta device). Reads no values."""
+    if image.is_nested:
+        raise TypeError(
+            f"{who} supports dense tensors, got a nested tensor; pass its images one by one (nested.unbind())"
+        )
     if image.layout != torch.strided:
         raise TypeError(f"{who} supports dense tensors, got layout={image.layout}; convert it with .to_dense()")
     if image.is_meta:

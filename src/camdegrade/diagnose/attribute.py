@@ -36,7 +36,7 @@ from camdegrade.diagnose.stats import (
     gap_spread,
     measurement_scale,
 )
-from camdegrade.effects import EFFECTS, Effect
+from camdegrade.effects import EFFECTS, Effect, check_effect_names
 from camdegrade.errors import CamdegradeError
 from camdegrade.fitting.finetune import finetune_network
 from camdegrade.fitting.noise import fit_noise_stage
@@ -545,12 +545,8 @@ def check_kinds(kinds: Iterable[str]) -> list[str]:
     return kinds
 
 
-def check_candidates(candidates: Iterable[str] | None) -> list[str]:
-    names = list(EFFECTS) if candidates is None else list(candidates)
-    unknown = [name for name in names if name not in EFFECTS]
-    if unknown:
-        raise ValueError(f"candidates must be effect names from {sorted(EFFECTS)}, got unknown {unknown}")
-    return names
+def check_candidates(candidates: Iterable[str] | str | None) -> list[str]:
+    return list(EFFECTS) if candidates is None else check_effect_names(candidates, "candidates")
 
 
 def _grow(

@@ -19,6 +19,8 @@ from torch import Tensor
 from camdegrade._pixels import as_unit
 from camdegrade.diagnose.report import DiagnosisReport
 from camdegrade.diagnose.stats import BANDS, _band_index, _blocks
+from camdegrade.errors import ImageError
+from camdegrade.fitting.pairs import UNREADABLE
 from camdegrade.fitting.pairset import simulate
 from camdegrade.functional import relative_radius
 from camdegrade.functional.analysis import hann2d, high_pass, luma, relative_flat_mask
@@ -82,11 +84,20 @@ def _scores(a: dict[str, Tensor], b: dict[str, Tensor]) -> dict[str, float]:
     return out
 
 
-def _load(folder: Path, max_images: int | None) -> list[Tensor]:
+def _load(folder: Path, max_images: int | None, skipped: list[dict[str, str]]) -> list[Tensor]:
+    """The first ``max_images`` readable images of ``folder`` as unit floats; the others go to ``skipped``."""
     paths = sorted(iter_images(folder)) if folder.is_dir() else []
     if not paths:
         raise ValueError(f"{str(folder)!r} must be a folder holding images")
-    return [as_unit(read_image(path)) for path in paths[:max_images]]
+    images: list[Tensor] = []
+    for path in paths:
+        if max_images is not None and len(images) >= max_images:
+            break
+        try:
+            images.append(as_unit(read_image(path)))
+        except ImageError as error:  # one bad file never stops the run: it is reported
+            skipped.append({"path": str(path), "reason": f"{UNREADABLE}: {error}"})
+    return images
 
 
 def diagnose_unpaired(
@@ -99,7 +110,8 @@ def diagnose_unpaired(
 ) -> DiagnosisReport:
     """Compare the profile's simulations of the ``clean`` folder with the captures in ``real`` (other scenes)."""
     base = as_profile(profile)
-    cleans, reals = _load(Path(clean), max_images), _load(Path(real), max_images)
+    skipped: list[dict[str, str]] = []
+    cleans, reals = _load(Path(clean), max_images, skipped), _load(Path(real), max_images, skipped)
     if len(cleans) < 4 or len(reals) < 4:
         raise ValueError(f"unpaired mode needs at least 4 clean and 4 real images, got {len(cleans)} and {len(reals)}")
     sims = simulate(base, cleans, seed)
@@ -126,7 +138,7 @@ def diagnose_unpaired(
         f"Unpaired: gap {gap_value:.2f} (split-half floor {floor:.2f}); differences in "
         f"{', '.join(significant) or 'nothing beyond the spread of the images'}. Attribution needs paired data."
     )
-    return DiagnosisReport(
+    report = DiagnosisReport(
         gap_before=gap_value,
         gap_after=gap_value,
         noise_floor=floor,
@@ -142,3 +154,5 @@ def diagnose_unpaired(
         profile_name=base.name,
         mode="unpaired",
     )
+    report.skipped = skipped
+    return report

@@ -1,13 +1,21 @@
 """Camera effects: one ``nn.Module`` per effect, registered by name in :data:`EFFECTS`.
 
-The registered names are the diagnosis vocabulary, in physical order of their stages (optics → sensor → ISP →
-codec): ``misalignment``, ``distortion``, ``chromatic_aberration``, ``vignetting``, ``blur`` (optics),
-``noise`` (sensor), ``color``, ``tone`` (ISP) and ``jpeg`` (codec). Each has a ``fit(source, target)``
-classmethod that estimates it from aligned pairs.
+The registered names are the diagnosis vocabulary; each effect sits at a stage of a camera (optics → sensor → ISP
+→ codec) and has a ``fit(source, target)`` classmethod that estimates it from aligned pairs. The contract every
+effect follows is in :mod:`camdegrade.effects.base`; ``docs/effects.md`` describes each one.
 """
 
 from camdegrade.effects._noise_levels import NoiseLevels, noise_level_function
-from camdegrade.effects.base import EFFECTS, SIGNATURES, STAGES, Effect, Pairs, build_effect, register_effect
+from camdegrade.effects.base import (
+    EFFECTS,
+    SIGNATURES,
+    STAGES,
+    Effect,
+    Pairs,
+    build_effect,
+    check_effect_names,
+    register_effect,
+)
 from camdegrade.effects.blur import Blur
 from camdegrade.effects.codec import JPEG
 from camdegrade.effects.color import Color, Tone
@@ -31,6 +39,7 @@ __all__ = [
     "Tone",
     "Vignetting",
     "build_effect",
+    "check_effect_names",
     "noise_level_function",
     "register_effect",
 ]

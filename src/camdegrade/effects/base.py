@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import copy
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from typing import Any, ClassVar, Literal, TypeAlias
 
 import torch
@@ -201,6 +201,16 @@ def register_effect(cls: type[Effect]) -> type[Effect]:
         raise ValueError(f"an effect named {cls.name!r} is already registered ({EFFECTS[cls.name].__qualname__})")
     EFFECTS[cls.name] = cls
     return cls
+
+
+def check_effect_names(names: Iterable[str] | str, what: str = "effects") -> list[str]:
+    """``names`` as a list, each a registered effect name; else a ``ValueError`` naming ``what`` and the unknown
+    names (a single name given as a string is one name, not its letters)."""
+    listed = [names] if isinstance(names, str) else list(names)
+    unknown = [name for name in listed if name not in EFFECTS]
+    if unknown:
+        raise ValueError(f"{what} must be effect names from {sorted(EFFECTS)}, got unknown {unknown}")
+    return listed
 
 
 def build_effect(name: str, config: Mapping[str, Any] | None = None) -> Effect:

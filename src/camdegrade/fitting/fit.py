@@ -23,8 +23,8 @@ from camdegrade._distributed import is_main_process
 from camdegrade._metadata import running_versions
 from camdegrade._threads import torch_threads
 from camdegrade._version import __version__
-from camdegrade.effects import EFFECTS, STAGES, Effect
-from camdegrade.fitting.pairs import UNREADABLE
+from camdegrade.effects import EFFECTS, STAGES, Effect, check_effect_names
+from camdegrade.fitting.pairs import MISSING, UNREADABLE
 from camdegrade.fitting.pairset import PairSet, PairsSource, simulate
 from camdegrade.fitting.training import EpochResult, FitConfig, ImagePair, fit_network, resolve_recipe
 from camdegrade.metrics import psnr
@@ -102,7 +102,8 @@ def fit_profile(
     changes = dict(epochs=epochs, crop=crop, batch_size=batch_size, lr=lr, lr_halving_epochs=lr_halving_epochs)
     changes.update(crops_per_pair=crops_per_pair, patience=patience, width=width, seed=seed)
     config = resolve_recipe(recipe, **changes)
-    effect_names = _check_effect_names(effects)
+    _check_arguments(pairs, device, name, description)
+    effect_names = check_effect_names(effects)
     initial, init_label = _initial_network(init_from, config.width)
     with torch_threads(threads):
         pair_set = PairSet.load(
@@ -136,12 +137,22 @@ def fit_profile(
         return profile
 
 
-def _check_effect_names(effects: Iterable[str]) -> list[str]:
-    names = list(effects)
-    unknown = [name for name in names if name not in EFFECTS]
-    if unknown:
-        raise ValueError(f"effects must be names from {sorted(EFFECTS)}, got unknown {unknown}")
-    return names
+def _check_arguments(pairs: Any, device: Any, name: Any, description: Any) -> None:
+    """What can be refused before any pair is read or any epoch trained."""
+    if pairs is None:
+        raise TypeError(
+            "pairs must be a folder, a CSV manifest, a list of pairs or of (clean, captured) tensors, got None"
+        )
+    for label, text in (("name", name), ("description", description)):
+        if not isinstance(text, str):
+            raise TypeError(f"{label} must be a str, got {label}={text!r} ({type(text).__name__})")
+    try:
+        torch.empty(1, device=device)
+    except Exception as error:  # a backend that is not built in may raise anything
+        reason = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
+        raise ValueError(f"device must be a torch device usable here, got device={device!r} ({reason})") from None
+    if torch.device(device).type == "meta":
+        raise ValueError("device 'meta' holds no data, so nothing can be trained on it; use 'cpu' or 'cuda'")
 
 
 def _split(pair_set: PairSet, val_fraction: float, seed: int, align: bool, say: Log) -> tuple[PairSet, PairSet]:
@@ -247,9 +258,11 @@ def _initial_network(
 
 
 def _unreadable(pair_set: PairSet) -> list[dict[str, str]]:
-    """The files skipped because they could not be read (truncated, too large, ...): ``{"path", "reason"}``."""
+    """The files skipped because they could not be read (truncated, too large, ...) or because a manifest names a
+    file that does not exist: ``{"path", "reason"}`` (the CLI lists them and exits with status 1)."""
     skipped = pair_set.report.skipped if pair_set.report is not None else []
-    return [{"path": str(path), "reason": reason} for path, reason in skipped if reason.startswith(UNREADABLE)]
+    failed = (UNREADABLE, MISSING)
+    return [{"path": str(path), "reason": reason} for path, reason in skipped if reason.startswith(failed)]
 
 
 def _mean_squared_error(predictions: Sequence[torch.Tensor], targets: Sequence[torch.Tensor]) -> float:

@@ -356,10 +356,16 @@ def _manifest_pair(base: Path, cells: dict[str, str], where: str, skipped: _Skip
         skipped.append((where, f"{BAD_ROW}: empty {' and '.join(empty)} cell"))
         return None
     clean, captured = base / cells["clean"], base / cells["captured"]
-    missing = [path for path in (clean, captured) if not path.is_file()]
-    for path in missing:
-        skipped.append((path, f"{MISSING}: listed on {where}"))
-    if missing:
+    unusable = [path for path in (clean, captured) if not path.is_file()]
+    for path in unusable:
+        problem = f"{MISSING}: listed on {where}"
+        if path.exists():  # a folder, FIFO or device where an image was expected
+            problem = f"{UNREADABLE}: listed on {where} but not a regular file"
+        skipped.append((path, problem))
+    if unusable:
+        return None
+    if os.path.samefile(clean, captured):
+        skipped.append((where, f"{BAD_ROW}: clean and captured are the same file ({cells['clean']})"))
         return None
     scene = cells.get("scene") or _scene_id(clean.stem, captured.stem)
     meta = {key: value for key, value in cells.items() if key not in ("clean", "captured")}
