@@ -9,7 +9,7 @@ from camdegrade import CameraProfile, load_profile
 from camdegrade.__main__ import main
 from camdegrade.effects import Blur, Tone
 from camdegrade.fitting.distill import distill_profile
-from camdegrade.fitting.synthetic import dead_leaves_image, dead_leaves_images
+from camdegrade.synthetic import dead_leaves_image, dead_leaves_images
 from camdegrade.fitting.training import FitConfig
 from camdegrade.io import write_image
 from profiles_for_tests import seeded_network

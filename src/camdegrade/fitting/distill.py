@@ -31,7 +31,7 @@ from camdegrade._seeds import derived_generator
 from camdegrade._threads import torch_threads
 from camdegrade._version import __version__
 from camdegrade.errors import ImageError
-from camdegrade.fitting.synthetic import dead_leaves_images
+from camdegrade.synthetic import dead_leaves_images
 from camdegrade.fitting.training import EpochResult, FitConfig, ImagePair, fit_network, resolve_recipe
 from camdegrade.inference import run_network
 from camdegrade.io import iter_images, read_image
@@ -67,7 +67,7 @@ def distill_profile(
         profile: the teacher: a :class:`CameraProfile`, a built-in name or a path; it must have a network.
         images: clean images like those the profile will degrade: a folder (read recursively; files that cannot
             be read are skipped and logged), or ``(3, H, W)`` tensors (uint8, or float in [0, 1]). ``None``:
-            :data:`SYNTHETIC_IMAGES` generated dead-leaves images (:mod:`camdegrade.fitting.synthetic`).
+            :data:`SYNTHETIC_IMAGES` generated dead-leaves images (:mod:`camdegrade.synthetic`).
         width: the student network's width (:class:`~camdegrade.network.DomainShiftNet`).
         recipe, epochs: the training recipe (:class:`FitConfig` or a name of its recipes) and its epochs.
         seed: the split, the generated images, the student's initialisation and crops.

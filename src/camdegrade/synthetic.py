@@ -1,4 +1,5 @@
-"""Generated clean images for fits that need no captures (distillation): the dead-leaves model, seeded.
+"""Generated clean images, seeded: the dead-leaves model (distillation trains on them; the CPU inference plan probes
+a network with them).
 
 Occluding discs whose radii follow ``p(r) ∝ r⁻³`` (scale invariance, as in natural images) give sharp edges at
 every scale, flat regions and a natural power spectrum; with random colours (mostly muted, some dark, some
