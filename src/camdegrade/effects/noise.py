@@ -16,7 +16,7 @@ from camdegrade._random import standard_normal
 from camdegrade.effects._common import batch_shape, resolve_params, vector
 from camdegrade.effects.base import Effect, Encoding, Pairs, check_range, register_effect
 from camdegrade.functional import linear_to_srgb, srgb_to_linear
-from camdegrade.functional.noise import add_noise_, correlated_field, noise_std
+from camdegrade.functional.noise import add_noise_, correlated_field, mix_channels, noise_std
 
 
 @register_effect
@@ -213,6 +213,9 @@ class Noise(Effect):
             params["column_normal"] = torch.randn(n, channels, 1, width, generator=generator)
         return params
 
+    def _banded(self, key: str) -> bool:
+        return hasattr(self, key) and bool((getattr(self, key) > 0).any())
+
     def forward(self, image: Tensor, params: Mapping[str, Tensor] | None = None) -> Tensor:
         x = srgb_to_linear(image) if self.linear else image.clone()
         noisy = self.forward_encoded(x, params) if not x.requires_grad else self._add(x, params, in_place=False)
@@ -229,8 +232,10 @@ class Noise(Effect):
         terms = self._terms(x, drawn)
         std = noise_std(x, terms["a"], terms["b"], terms.get("levels"))
         field = self._field(drawn["normal"], x.dtype)
-        rows = drawn["row_normal"] if bool((self.row_sigma > 0).any()) else None
-        columns = drawn.get("column_normal")
+        # Lines without banding cost no pass over the image (their normals are drawn all the same, so that a seed
+        # gives the same stream whatever the banding).
+        rows = drawn["row_normal"] if self._banded("row_sigma") else None
+        columns = drawn.get("column_normal") if self._banded("column_sigma") else None
         if in_place:
             return add_noise_(x, std, field, terms["row_sigma"], rows, terms.get("column_sigma"), columns)
         noisy = x + std * field
@@ -261,7 +266,7 @@ class Noise(Effect):
         if self.taps:
             return correlated_field(normal, self.across, self.down, mixing)
         if mixing is not None:
-            return torch.einsum("ck,...khw->...chw", mixing.to(normal), normal)
+            return mix_channels(normal, mixing)
         return normal
 
     # -- fitting -----------------------------------------------------------------------------------------------------

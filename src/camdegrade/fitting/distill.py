@@ -31,12 +31,12 @@ from camdegrade._seeds import derived_generator
 from camdegrade._threads import torch_threads
 from camdegrade._version import __version__
 from camdegrade.errors import ImageError
-from camdegrade.synthetic import dead_leaves_images
 from camdegrade.fitting.training import EpochResult, FitConfig, ImagePair, fit_network, resolve_recipe
 from camdegrade.inference import run_network
 from camdegrade.io import iter_images, read_image
 from camdegrade.metrics import psnr
 from camdegrade.profile import CameraProfile, as_profile
+from camdegrade.synthetic import dead_leaves_images
 
 Log = Callable[[str], None]
 #: Images a distillation generates when it is given none (dead leaves, 256²).

@@ -112,9 +112,25 @@ def correlated_field(normal: Tensor, across: Tensor, down: Tensor, mixing: Tenso
     height, width = normal.shape[-2] - 2 * radius, normal.shape[-1] - 2 * radius
     field = _channel_taps(normal, across.to(normal), dim=-1, size=width)
     field = _channel_taps(field, down.to(normal), dim=-2, size=height)
-    if mixing is not None:
-        field = torch.einsum("ck,...khw->...chw", mixing.to(field), field)
-    return field
+    return field if mixing is None else mix_channels(field, mixing)
+
+
+def mix_channels(planes: Tensor, mixing: Tensor) -> Tensor:
+    """``out_c = Σ_k mixing[c, k] · planes_k`` over the channels of ``[..., 3, H, W]``, in a new tensor.
+
+    Nine scaled plane additions with the matrix's entries as Python numbers (zeros skipped): on the CPU several times
+    faster than ``einsum``, which runs a batched matrix product with 3×3 blocks (kept for autograd)."""
+    if planes.requires_grad or mixing.requires_grad:
+        return torch.einsum("ck,...khw->...chw", mixing.to(planes), planes)
+    weights = mixing.tolist()
+    out = torch.empty_like(planes)
+    for row, weight_row in enumerate(weights):
+        target = out.select(-3, row)
+        torch.mul(planes.select(-3, 0), weight_row[0], out=target)
+        for column in (1, 2):
+            if weight_row[column] != 0.0:
+                target.add_(planes.select(-3, column), alpha=weight_row[column])
+    return out
 
 
 def _channel_taps(planes: Tensor, taps: Tensor, dim: int, size: int) -> Tensor:
@@ -141,16 +157,21 @@ def noise_std(x: Tensor, a: Tensor, b: Tensor, levels: Tensor | None = None) -> 
 
 
 def interpolate_levels(x: Tensor, levels: Tensor) -> Tensor:
-    """``levels`` ``(..., 3, K)`` read at each value of ``x`` ``[..., 3, H, W]`` (see :func:`noise_std`)."""
+    """``levels`` ``(..., 3, K)`` read at each value of ``x`` ``[..., 3, H, W]`` (see :func:`noise_std`).
+
+    Computed as a sum of hinges, ``levels[0] + Σ_k (levels[k+1] − levels[k]) · clamp(u − k, 0, 1)`` with
+    ``u = x·K − ½`` the position in knot units: elementwise passes are several times faster on the CPU than a gather
+    from the table, and the sum is the same piecewise-linear curve (up to float rounding)."""
     knots = levels.shape[-1]
-    table = levels.to(x.dtype).expand(*x.shape[:-2], knots) if levels.ndim < x.ndim - 1 else levels.to(x.dtype)
-    position = (x * knots - 0.5).clamp_(0.0, knots - 1.0)
-    index = position.floor().clamp_(max=max(knots - 2, 0))
-    fraction = position.sub_(index)
-    flat_index = index.long().flatten(-2)
-    low = table.gather(-1, flat_index).view_as(x)
-    high = table.gather(-1, (flat_index + 1).clamp_(max=knots - 1)).view_as(x)
-    return low.lerp_(high, fraction)
+    table = levels.to(x.dtype)[..., None, None]  # (..., 3, K, 1, 1): broadcasts against [..., 3, H, W]
+    out = table[..., 0, :, :].expand(x.shape).clone()
+    if knots == 1:
+        return out
+    steps = table[..., 1:, :, :] - table[..., :-1, :, :]
+    position = x * knots - 0.5
+    for knot in range(knots - 1):
+        out.addcmul_(torch.sub(position, knot).clamp_(0.0, 1.0), steps[..., knot, :, :])
+    return out
 
 
 def add_noise_(
