@@ -12,11 +12,18 @@ all cases alike and the ratios compare like with like. Cases (uint8 224² RGB in
 - ``torchvision_chain``: v2 ColorJitter + GaussianBlur + GaussianNoise + JPEG;
 - ``kornia_chain`` (single and batch 32): ColorJitter + RandomGaussianBlur + RandomGaussianNoise + RandomJPEG;
 - ``albumentations_chain``: ColorJitter + GaussianBlur + ISONoise + ImageCompression;
-- ``fit_pairs_per_s``: training pairs (224² crops) per second (forward + backward + Adam step, batch 8);
-- ``float32_gemm_gflops``: this CPU's float32 matrix-product rate on the shape of the network's largest layer
-  (3136×576 by 576×128, GFLOP/s), timed in the same rounds, and ``network_images_per_s_at_gemm_rate``: the
-  network's 0.73 GFLOP per 224² image at that rate, about what any float32 arrangement of the network can reach;
-- ``diagnose_seconds_100_pairs_256``: wall time of ``camdegrade diagnose`` on 100 pairs of 256² (the CLI).
+- ``float32_gemm`` (and ``bfloat16_gemm`` where native): this CPU's matrix-product rate on the shape of the network's
+  largest layer (3136×576 by 576×128, GFLOP/s), timed in the same rounds: at that rate the network's 0.73 GFLOP per
+  224² image is about what any arrangement of the network in that precision can reach;
+- ``diagnose_seconds_100_pairs_256``: wall time of ``camdegrade diagnose`` on 100 pairs of 256² (the CLI);
+- ``camdegrade_fast_single``: the built-in fast profile (``city100-iphonex-fast``, width 32), one image per call;
+- ``network_plan``: the profile's network alone as the transform runs it (uint8 in, float32 out), beside the
+  matrix-product line of the precision it runs in (``bfloat16_gemm`` where bfloat16 is native, else float32);
+- ``fit_step_before`` / ``fit_step``: training crops per second at 128², batch 32, forward + backward + Adam step:
+  the module in float32 on NCHW crops (how fits ran before) and the fit's own step (channels-last crops, bfloat16
+  autocast where native).
+
+The end of the output is a table of targets (issue 18), each a ratio measured in this run, with PASS or FAIL.
 
 Peer libraries come from the ``bench`` extra and are skipped when missing. Run from the repo root::
 
@@ -44,7 +51,7 @@ os.environ.setdefault("NO_ALBUMENTATIONS_UPDATE", "1")  # albumentations would l
 import torch
 import torch.nn.functional as F
 
-from camdegrade import CameraDegrade, load_profile
+from camdegrade import CameraDegrade, list_profiles, load_profile
 from camdegrade.effects.chain import apply_effects
 from camdegrade.inference import native_bfloat16, resolve_precision, run_network
 
@@ -101,12 +108,35 @@ def network_gflop(size: int = SIZE) -> float:
     return 2 * (conv1 + conv2 + deconv1 + deconv2) / 1e9
 
 
-def gemm_case() -> tuple[Case, float]:
-    """A float32 matrix product shaped like the network's second convolution, and its GFLOP per call."""
+def gemm_case(dtype: torch.dtype = torch.float32) -> tuple[Case, float]:
+    """A matrix product shaped like the network's second convolution in ``dtype``, and its GFLOP per call."""
     generator = torch.Generator().manual_seed(0)
-    left, right = torch.rand(56 * 56, 576, generator=generator), torch.rand(576, 128, generator=generator)
-    out = torch.empty(56 * 56, 128)
+    left = torch.rand(56 * 56, 576, generator=generator).to(dtype)
+    right = torch.rand(576, 128, generator=generator).to(dtype)
+    out = torch.empty(56 * 56, 128, dtype=dtype)
     return Case(lambda: torch.mm(left, right, out=out)), 2 * left.shape[0] * left.shape[1] * right.shape[1] / 1e9
+
+
+def fit_step_cases() -> dict[str, Case]:
+    """Training at 128², batch 32: the module in float32 on NCHW crops (before) and the fit's own step."""
+    from camdegrade.fitting.training import FitConfig, _TrainStep
+    from camdegrade.network import DomainShiftNet
+
+    generator = torch.Generator().manual_seed(0)
+    clean, captured = torch.rand(32, 3, 128, 128, generator=generator), torch.rand(32, 3, 128, 128, generator=generator)
+    before_net, new_net = DomainShiftNet(), DomainShiftNet()
+    before_optimizer = torch.optim.Adam(before_net.parameters(), lr=0.001)
+    step = _TrainStep(new_net, torch.optim.Adam(new_net.parameters(), lr=0.001), FitConfig(), "cpu", 1)
+
+    def before() -> None:
+        before_optimizer.zero_grad(set_to_none=True)
+        F.mse_loss(before_net(clean), captured).backward()
+        before_optimizer.step()
+
+    return {
+        "fit_step_before": Case(before, images_per_call=32, calls=2),
+        "fit_step": Case(lambda: step(clean, captured, 32), images_per_call=32, calls=2),
+    }
 
 
 def cpu_description() -> str:
@@ -181,21 +211,6 @@ def albumentations_chain() -> Callable[[Any], Any] | None:
     return lambda array: chain(image=array)["image"]
 
 
-def fit_pairs_per_second(repeats: int) -> float:
-    from camdegrade.network import DomainShiftNet
-
-    network = DomainShiftNet()
-    optimizer = torch.optim.Adam(network.parameters(), lr=0.01)
-    clean, captured = torch.rand(8, 3, SIZE, SIZE), torch.rand(8, 3, SIZE, SIZE)
-
-    def step() -> None:
-        optimizer.zero_grad(set_to_none=True)
-        F.mse_loss(network.forward_aligned(clean), captured).backward()
-        optimizer.step()
-
-    return interleaved_rates({"fit": Case(step, images_per_call=8, calls=2)}, repeats, warmup=1)["fit"]
-
-
 def time_split(degrade: CameraDegrade, image: torch.Tensor, repeats: int) -> dict[str, float]:
     """Milliseconds (medians) of the parts of one single-image call: drawing the params, the network, the effect
     stages, and the whole call (the rest is conversion and the transform's own work). Needs a network."""
@@ -230,6 +245,102 @@ def diagnose_time(threads: int) -> float | None:
     return result["seconds"]
 
 
+#: The profile of width 32 distilled from the default one (``examples/distill_city100.py``).
+FAST_PROFILE = "city100-iphonex-fast"
+
+
+@dataclass
+class Target:
+    """One target of issue 18: a ratio measured in this run against its bound."""
+
+    name: str
+    measured: float | None
+    bound: float
+    at_most: bool = False  # the measured value must not exceed the bound (else: reach it)
+
+    @property
+    def passed(self) -> bool | None:
+        if self.measured is None:
+            return None
+        return self.measured <= self.bound if self.at_most else self.measured >= self.bound
+
+    def row(self) -> str:
+        verdict = {True: "PASS", False: "FAIL", None: "n/a"}[self.passed]
+        shown = "not measured" if self.measured is None else f"{self.measured:.3f}"
+        return f"{self.name:64s} {shown:>12s}   {'<=' if self.at_most else '>='} {self.bound:<6g} {verdict}"
+
+
+def transform_cases(args: argparse.Namespace, image: torch.Tensor, calls: int) -> tuple[dict[str, Case], Any]:
+    """CameraDegrade (full and fast profile), its network alone, and the peer chains, one image per call."""
+    batch = image.expand(32, -1, -1, -1).contiguous()
+    degrade = CameraDegrade(args.profile, seed=0)
+    exact = CameraDegrade(args.profile, seed=0, precision="float32")
+    reference = reference_network(args.profile)
+    network = degrade.profile.network
+    plain = image[None]
+    cases = {
+        "reference_network_fp32": Case(lambda: reference(image), calls=calls),
+        "network_plan": Case(lambda: run_network(network, plain, degrade.precision), calls=calls),
+        "camdegrade_single": Case(lambda: degrade(image), calls=calls),
+        "camdegrade_batch32": Case(lambda: degrade(batch), images_per_call=32, calls=max(1, calls // 8)),
+        "camdegrade_single_fp32": Case(lambda: exact(image), calls=calls),
+        "camdegrade_single_32px": Case(lambda: degrade(natural_image(32)), calls=calls),
+    }
+    if FAST_PROFILE in list_profiles():
+        fast = CameraDegrade(FAST_PROFILE, seed=0)
+        cases["camdegrade_fast_single"] = Case(lambda: fast(image), calls=calls)
+    tv = torchvision_chain()
+    cases["torchvision_chain"] = Case(lambda: tv(image), calls=calls)
+    kornia = kornia_chain()
+    if kornia is not None:
+        cases["kornia_chain"] = Case(lambda: kornia(image), calls=calls)
+    album = albumentations_chain()
+    if album is not None:
+        array = image.permute(1, 2, 0).numpy().copy()
+        cases["albumentations_chain"] = Case(lambda: album(array), calls=calls)
+    return cases, degrade
+
+
+def line_cases() -> tuple[dict[str, Case], dict[str, float]]:
+    """The matrix-product lines (float32, and bfloat16 where native) and their GFLOP per call."""
+    cases, gflop = {}, {}
+    cases["float32_gemm"], gflop["float32_gemm"] = gemm_case(torch.float32)
+    if native_bfloat16(torch.device("cpu")):
+        cases["bfloat16_gemm"], gflop["bfloat16_gemm"] = gemm_case(torch.bfloat16)
+    return cases, gflop
+
+
+def fast_profile_quality() -> float | None:
+    """How far the fast profile's held-out City100 mean PSNR lies below the full one's (dB), as recorded when it was
+    made (``examples/distill_city100.py``)."""
+    if FAST_PROFILE not in list_profiles():
+        return None
+    quality = load_profile(FAST_PROFILE).quality
+    if "full_profile_psnr_mean_db" not in quality:
+        return None
+    return quality["full_profile_psnr_mean_db"] - quality["profile_psnr_mean_db"]
+
+
+def targets(rates: dict[str, float], lines: dict[str, float], diagnose_seconds: float | None) -> list[Target]:
+    """Issue 18's targets from this run's rates (images/s, crops/s) and lines (GFLOP/s)."""
+    network_ms, call_ms = 1000 / rates["network_plan"], 1000 / rates["camdegrade_single"]
+    line = lines.get("bfloat16_gemm", lines["float32_gemm"])
+    plan_share = rates["network_plan"] / (line / network_gflop())
+    fast = rates.get("camdegrade_fast_single")
+    tv = rates["torchvision_chain"]
+    return [
+        Target("1. everything beyond the network, share of a single 224² call", 1 - network_ms / call_ms, 0.20, True),
+        Target("1. network plan, share of its matrix-product line", plan_share, 0.85),
+        Target("1. CameraDegrade single 224² / torchvision chain", rates["camdegrade_single"] / tv, 1.0),
+        Target("2. fast profile single 224² / torchvision chain", None if fast is None else fast / tv, 2.0),
+        Target("2. fast profile held-out City100 mean PSNR below the full (dB)", fast_profile_quality(), 0.3, True),
+        Target(
+            "3. training crops/s at 128²: the fit's step / before", rates["fit_step"] / rates["fit_step_before"], 2.0
+        ),
+        Target("diagnose, 100 pairs of 256² (s)", diagnose_seconds, 120.0, True),
+    ]
+
+
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--profile", default="city100-iphonex")
@@ -243,64 +354,45 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     print(f"cpu: {cpu_description()}; {args.threads} torch threads", flush=True)
     repeats, calls = (3, 5) if args.quick else (11, 30)
     image = natural_image()
-    batch = image.expand(32, -1, -1, -1).contiguous()
-    small = natural_image(32)
-    degrade = CameraDegrade(args.profile, seed=0)
-    exact = CameraDegrade(args.profile, seed=0, precision="float32")
-    batch_calls = max(1, calls // 8)
-    reference = reference_network(args.profile)
-    cases = {
-        "reference_network_fp32": Case(lambda: reference(image), calls=calls),
-        "camdegrade_single": Case(lambda: degrade(image), calls=calls),
-        "camdegrade_batch32": Case(lambda: degrade(batch), images_per_call=32, calls=batch_calls),
-        "camdegrade_single_fp32": Case(lambda: exact(image), calls=calls),
-        "camdegrade_single_32px": Case(lambda: degrade(small), calls=calls),
-    }
-    tv = torchvision_chain()
-    cases["torchvision_chain"] = Case(lambda: tv(image), calls=calls)
-    kornia = kornia_chain()
-    if kornia is not None:
-        cases["kornia_chain"] = Case(lambda: kornia(image), calls=calls)
-        cases["kornia_chain_batch32"] = Case(lambda: kornia(batch), images_per_call=32, calls=batch_calls)
-    album = albumentations_chain()
-    if album is not None:
-        array = image.permute(1, 2, 0).numpy().copy()
-        cases["albumentations_chain"] = Case(lambda: album(array), calls=calls)
-    cases["float32_gemm"], gemm_gflop = gemm_case()
-    rates = interleaved_rates(cases, repeats)
-    gemm_gflops = rates.pop("float32_gemm") * gemm_gflop
-    results: dict[str, float | None] = {name: round(rate, 1) for name, rate in rates.items()}
-    for name, rate in results.items():
-        print(f"{name:28s} {rate:9.1f} images/s", flush=True)
-    at_gemm_rate = gemm_gflops / network_gflop()
-    print(
-        f"float32 matrix products run at {gemm_gflops:.0f} GFLOP/s here; at that rate the network's "
-        f"{network_gflop():.2f} GFLOP per image take {1000 / at_gemm_rate:.1f} ms ({at_gemm_rate:.0f} images/s), "
-        "before effects and conversions"
-    )
+    cases, degrade = transform_cases(args, image, calls)
+    gemms, gemm_gflop = line_cases()
+    rates = interleaved_rates({**cases, **gemms, **fit_step_cases()}, repeats)
+    lines = {name: rates.pop(name) * gemm_gflop[name] for name in gemms}
+    for name, rate in rates.items():
+        unit = "crops/s" if name.startswith("fit_step") else "images/s"
+        print(f"{name:28s} {rate:9.1f} {unit}", flush=True)
+    for name, gflops in lines.items():
+        print(
+            f"{name:28s} {gflops:9.1f} GFLOP/s: the network's {network_gflop():.2f} GFLOP per 224² image would take "
+            f"{1000 * network_gflop() / gflops:.2f} ms at this rate",
+            flush=True,
+        )
     split = time_split(degrade, image, repeats) if degrade.profile.network is not None else None
-    results["fit_pairs_per_s"] = round(fit_pairs_per_second(repeats), 2)
-    print(f"{'fit_pairs_per_s':28s} {results['fit_pairs_per_s']:9.2f} pairs/s (224² crops, batch 8)")
     diagnose_seconds = None if args.skip_diagnose else diagnose_time(args.threads)
-
-    single = results["camdegrade_single"]
+    checks = targets(rates, lines, diagnose_seconds)
+    print("\ntargets (issue 18; ratios measured in this run):")
+    for check in checks:
+        print("  " + check.row())
+    single = rates["camdegrade_single"]
     ratios = {
-        "single_vs_reference_network": single / results["reference_network_fp32"],
-        "single_vs_torchvision_chain": single / results["torchvision_chain"],
-        "batch32_vs_single": results["camdegrade_batch32"] / single,
+        "single_vs_reference_network": single / rates["reference_network_fp32"],
+        "single_vs_torchvision_chain": single / rates["torchvision_chain"],
+        "batch32_vs_single": rates["camdegrade_batch32"] / single,
     }
-    if album is not None:
-        ratios["single_vs_albumentations_chain"] = single / results["albumentations_chain"]
-    if kornia is not None:
-        ratios["single_vs_kornia_chain"] = single / results["kornia_chain"]
+    for peer in ("albumentations_chain", "kornia_chain"):
+        if peer in rates:
+            ratios[f"single_vs_{peer}"] = single / rates[peer]
     print("ratios: " + ", ".join(f"{k} {v:.2f}x" for k, v in ratios.items()))
     record = {
-        "images_per_s": results,
+        "images_per_s": {name: round(rate, 1) for name, rate in rates.items()},
+        "gemm_gflops": {name: round(value, 1) for name, value in lines.items()},
+        "targets": [
+            {"name": c.name, "measured": c.measured, "bound": c.bound, "at_most": c.at_most, "passed": c.passed}
+            for c in checks
+        ],
         "diagnose_seconds_100_pairs_256": diagnose_seconds,
         "single_call_split_ms": split,
-        "float32_gemm_gflops": round(gemm_gflops, 1),
         "network_gflop_per_image": round(network_gflop(), 3),
-        "network_images_per_s_at_gemm_rate": round(at_gemm_rate, 1),
         "ratios": {k: round(v, 3) for k, v in ratios.items()},
         "profile": args.profile,
         "effects": load_profile(args.profile).effect_names,

@@ -37,9 +37,10 @@ from camdegrade.diagnose.stats import (
     measurement_scale,
 )
 from camdegrade.effects import EFFECTS, Effect, check_effect_names
+from camdegrade.effects.base import evenly_spaced
 from camdegrade.errors import CamdegradeError
 from camdegrade.fitting.finetune import finetune_network
-from camdegrade.fitting.noise import fit_noise_stage
+from camdegrade.fitting.noise import fit_stage_in_chain, replace_stage
 from camdegrade.fitting.pairset import simulate
 from camdegrade.functional.analysis import flat_mask
 from camdegrade.profile import CameraProfile
@@ -57,7 +58,9 @@ REFINE_PAIRS = 12
 NOISE_PAIRS = 32
 NOISE_PIXELS = 1 << 20
 MIN_NOISE_PAIRS = 8
-#: Signatures no effect explains, which send the network to a fine-tune when significant.
+#: Signatures the network's own artifacts leave (the stride-2 transposed convolutions' 4-pixel pattern, its
+#: high-frequency transfer), which send the network to a fine-tune when significant. Effects explain them too
+#: (JPEG blocks, blur), so their candidates are tried beside it.
 NETWORK_SIGNATURES = ("blocks", "frequency")
 STRENGTHS = (0.6, 1.0, 1.6)
 
@@ -111,25 +114,13 @@ def effect_params(effect: Effect) -> dict[str, Any]:
 def add_effect(profile: CameraProfile, effect: Effect) -> CameraProfile:
     """``profile`` with ``effect`` inserted at its stage. A candidate is fitted against the profile's deterministic
     part, so where the profile has a stage of the same kind that this part leaves out (pure noise), the fitted
-    effect is the whole of it and replaces that stage instead of adding to it."""
-    chain = [e for e in profile.effects if not (type(e) is type(effect) and e.without_randomness() is None)]
-    return profile.with_chain(chain).with_effects(effect)
-
-
-def _every(items: Sequence[Any], limit: int) -> list[Any]:
-    if len(items) <= limit:
-        return list(items)
-    step = len(items) / limit
-    return [items[int(i * step)] for i in range(limit)]
+    effect is the whole of it and replaces that stage instead of adding to it (:func:`replace_stage`)."""
+    return replace_stage(profile, effect)
 
 
 def fit_candidate(name: str, sources: Sequence[Tensor], targets: Sequence[Tensor]) -> Effect:
-    """Fit effect ``name`` so that ``targets ≈ effect(sources)``, on the pairs its fitter affords
-    (:attr:`~camdegrade.effects.Effect.fit_budget`) with its options for such images."""
-    cls = EFFECTS[name]
-    if cls.fit_budget is not None:
-        sources, targets = _every(sources, cls.fit_budget), _every(targets, cls.fit_budget)
-    return cls.fit(list(sources), list(targets), **cls.fit_options(sources))
+    """Fit effect ``name`` so that ``targets ≈ effect(sources)`` (:meth:`Effect.fit_within_budget`)."""
+    return EFFECTS[name].fit_within_budget(sources, targets)
 
 
 def refine_strength(
@@ -302,7 +293,7 @@ class Search:
         self.held = held
         self.baseline = baseline
         self.seed = seed
-        self.check = HeldOut.build(_every(calibration, REFINE_PAIRS), seed, "strength-check")
+        self.check = HeldOut.build(evenly_spaced(calibration, REFINE_PAIRS), seed, "strength-check")
         self.check.calibrate(profile)
         pixels = sum(clean.shape[-1] * clean.shape[-2] for clean in self.cleans) / len(self.cleans)
         self.noise_pairs = min(NOISE_PAIRS, max(MIN_NOISE_PAIRS, round(NOISE_PIXELS / pixels)))
@@ -344,8 +335,10 @@ class Search:
             plans.append(("network", "network", _network_refit))
         return plans
 
-    def fit_noise(self, profile: CameraProfile) -> Effect:
-        return fit_noise_stage(profile, self.cleans, self.reals, seed=self.seed, calibration_pairs=self.noise_pairs)
+    def fit_in_chain(self, profile: CameraProfile, kind: type[Effect]) -> Effect:
+        """A stage of ``kind`` fitted at its place in ``profile`` (:meth:`Effect.fit_in_chain`)."""
+        pairs = self.noise_pairs
+        return fit_stage_in_chain(profile, kind, self.cleans, self.reals, seed=self.seed, calibration_pairs=pairs)
 
 
 @dataclass
@@ -409,8 +402,8 @@ class _Context:
 def _adder(name: str) -> Callable[[_Context], tuple[CameraProfile, Effect, str]]:
     def make(context: _Context) -> tuple[CameraProfile, Effect, str]:
         cls = EFFECTS[name]
-        if _is_noise(cls):
-            effect = context.search.fit_noise(context.current)
+        if cls.draws_only_noise():
+            effect = context.search.fit_in_chain(context.current, cls)
         else:
             effect, _ = context.refined(fit_candidate(name, context.sources(), context.search.reals), context.current)
         return add_effect(context.current, effect), effect, f"adds {name}"
@@ -422,7 +415,7 @@ def _remover(index: int) -> Callable[[_Context], tuple[CameraProfile, None, str]
     def make(context: _Context) -> tuple[CameraProfile, None, str]:
         stage = context.current.effects[index]
         chain = [e for i, e in enumerate(context.current.effects) if i != index]
-        if _is_noise(type(stage)):  # say what the stage does wrong, measured
+        if _describes_noise(stage):  # say what the stage does wrong, measured
             description = _noise_text(stage.name, context.search.held.real, context.stats)
         else:
             description = f"{stage.name} stage is one the camera lacks"
@@ -438,8 +431,8 @@ def _refitter(index: int) -> Callable[[_Context], tuple[CameraProfile, Effect, s
     def make(context: _Context) -> tuple[CameraProfile, Effect, str]:
         stage = context.current.effects[index]
         rest = context.current.with_chain([e for i, e in enumerate(context.current.effects) if i != index])
-        if _is_noise(type(stage)):
-            options = [context.search.fit_noise(rest)]
+        if type(stage).draws_only_noise():
+            options = [context.search.fit_in_chain(rest, type(stage))]
         else:
             options = [context.refined(fit_candidate(stage.name, context.sources(rest), context.search.reals), rest)[0]]
         options += [context.refined(version, rest, explore=True)[0] for version in [stage, *stage.simplified()]]
@@ -481,15 +474,19 @@ def _prefer_simpler(ranked: list[Change]) -> list[Change]:
     return [simpler, *[change for change in ranked if change is not simpler]]
 
 
-def _is_noise(cls: type[Effect]) -> bool:
-    """Whether stages of this kind are pure noise (left out of the deterministic part; fitted by simulation)."""
-    return cls.neutral().without_randomness() is None
+#: The statistics family (``where`` axis) of the noise level on flat pixels; a signature, not an effect name.
+NOISE_AXIS = "noise"
+
+
+def _describes_noise(stage: Effect) -> bool:
+    """Whether the noise statistics say what this stage does (it explains the noise signature)."""
+    return NOISE_AXIS in type(stage).explains
 
 
 def _strength_text(old: Effect, new: Effect, context: _Context) -> str:
     """What was wrong with a refitted stage, in words: for noise, measured on the held-out flat pixels ("noise
     stage is 2.0× the camera's noise and banded"); otherwise from the stage's magnitude."""
-    if _is_noise(type(old)):
+    if _describes_noise(old):
         return _noise_text(old.name, context.search.held.real, context.stats)
     before, after = old.magnitude(), new.magnitude()
     if after < 0.1 * before:

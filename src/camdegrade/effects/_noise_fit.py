@@ -111,6 +111,19 @@ def initial_noise(cls: type[Noise], real: NoiseSums, base: NoiseSums, taps: int)
     )
 
 
+def flat_noise_sums(cleans: Sequence[Tensor]) -> Measure:
+    """A measure of images (one per clean image, in order): their noise sums on the flat pixels of ``cleans``."""
+    masks = [flat_mask(clean) for clean in cleans]
+
+    def measure(images: Sequence[Tensor]) -> NoiseSums:
+        total = NoiseSums.zeros()
+        for image, clean, mask in zip(images, cleans, masks, strict=True):
+            total = total + NoiseSums.measure(image, clean, mask)
+        return total
+
+    return measure
+
+
 def calibrate(
     noise: Noise,
     simulate: Simulate,

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import copy
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from typing import Any, ClassVar, Literal, TypeAlias
 
 import torch
@@ -54,9 +54,10 @@ class Effect(nn.Module):
     Everything the rest of the package needs to know about an effect is asked of its class, never looked up by
     name elsewhere: :meth:`neutral` (the identity), :meth:`without_randomness` (its deterministic centre, or
     ``None`` for pure noise), :meth:`scaled` (its strength), :attr:`fit_budget` and :meth:`fit_options` (what its
-    fitter affords), :attr:`explains` (the gap signatures it can cause), :attr:`position_dependent` and
-    :meth:`check_values` (the valid ranges of its values, checked when a profile is loaded or saved). The
-    registry-wide tests in ``tests/test_effects.py`` hold every registered effect to this contract.
+    fitter affords), :meth:`fit_in_chain` (how it is fitted at its place in a profile), :attr:`explains` (the gap
+    signatures it can cause), :attr:`position_dependent` and :meth:`check_values` (the valid ranges of its values,
+    checked when a profile is loaded or saved). The registry-wide tests in ``tests/test_effects.py`` and
+    ``tests/test_architecture.py`` hold every registered effect to this contract.
     """
 
     name: ClassVar[str] = ""
@@ -153,6 +154,43 @@ class Effect(nn.Module):
         """
         raise NotImplementedError(f"effect {cls.name!r} ({cls.__qualname__}) has no fitter")
 
+    @classmethod
+    def fit_in_chain(
+        cls,
+        cleans: Sequence[Tensor],
+        sources: Sequence[Tensor],
+        captures: Sequence[Tensor],
+        simulate_with: Callable[[Effect, Sequence[int]], list[Tensor]],
+        *,
+        seed: int = 0,
+        calibration_pairs: int | None = None,
+    ) -> Effect:
+        """Fit this effect where it sits in a profile.
+
+        ``sources`` are the profile's deterministic output on the clean images ``cleans``, ``captures`` the real
+        captures; ``simulate_with(effect, indices)`` simulates the profile with ``effect`` in place of its stages of
+        this kind on the clean images at ``indices`` (fixed seeds: the same effect gives the same images).
+        ``calibration_pairs`` bounds how many pairs a fit that simulates may use. Default: :meth:`fit` on the pairs
+        its fitter affords (:attr:`fit_budget`) with its :meth:`fit_options`. An effect whose look depends on the
+        stages after it (noise, through a tone curve and a codec) overrides this to calibrate through
+        ``simulate_with``.
+        """
+        return cls.fit_within_budget(sources, captures)
+
+    @classmethod
+    def fit_within_budget(cls, sources: Sequence[Tensor], targets: Sequence[Tensor]) -> Effect:
+        """:meth:`fit` on at most :attr:`fit_budget` evenly spaced pairs, with the :meth:`fit_options` for them."""
+        if cls.fit_budget is not None:
+            sources, targets = evenly_spaced(sources, cls.fit_budget), evenly_spaced(targets, cls.fit_budget)
+        return cls.fit(list(sources), list(targets), **cls.fit_options(list(sources)))
+
+    @classmethod
+    def draws_only_noise(cls) -> bool:
+        """Whether stages of this kind only add zero-mean noise: their deterministic centre is nothing
+        (:meth:`without_randomness` is ``None``), so they are fitted through the chain (:meth:`fit_in_chain`) and a
+        fitted one replaces the profile's rather than adding to it."""
+        return cls.neutral().without_randomness() is None
+
     def check_values(self) -> None:
         """Raise ``ValueError`` naming the first value outside its valid range: profiles are checked when they are
         loaded (values come from a file) and saved. Default: every floating-point buffer is finite. Effects add
@@ -168,6 +206,14 @@ class Effect(nn.Module):
                 rounded = [round(v, 6) for v in value.flatten().tolist()]
                 items.append(f"{key}={rounded[0] if value.ndim == 0 else rounded}")
         return ", ".join(items)
+
+
+def evenly_spaced(items: Sequence[Any], limit: int) -> list[Any]:
+    """At most ``limit`` of ``items``, evenly spaced (all of them when there are no more)."""
+    if len(items) <= limit:
+        return list(items)
+    step = len(items) / limit
+    return [items[int(i * step)] for i in range(limit)]
 
 
 def check_range(name: str, value: Tensor | float, low: float, high: float, *, low_open: bool = False) -> None:

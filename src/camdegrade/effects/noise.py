@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import copy
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any, Literal
 
 import torch
@@ -319,6 +319,34 @@ class Noise(Effect):
         from camdegrade.effects._noise_fit import fit_noise
 
         return fit_noise(cls, source, target, estimator=estimator, taps=taps, banding=banding, rounds=rounds, seed=seed)
+
+    @classmethod
+    def fit_in_chain(
+        cls,
+        cleans: Sequence[Tensor],
+        sources: Sequence[Tensor],
+        captures: Sequence[Tensor],
+        simulate_with: Callable[[Effect, Sequence[int]], list[Tensor]],
+        *,
+        seed: int = 0,
+        calibration_pairs: int | None = None,
+    ) -> Noise:
+        """The noise stage of a profile, calibrated by simulated moments through the stages after it.
+
+        :meth:`fit` (``estimator="excess"``, no rounds, no banding) against the deterministic ``sources`` gives the
+        start; then the profile with the stage is simulated on at most ``calibration_pairs`` evenly spaced pairs,
+        the noise statistics of the flat pixels are measured on the simulations and on the captures, and the level
+        table, kernels and banding are corrected (two rounds, then the levels once more, then banding against a
+        simulated no-banding null). What the tone curve and the codec do to the noise is measured, not assumed.
+        """
+        from camdegrade.effects._noise_fit import calibrate, flat_noise_sums
+
+        start = cls.fit(list(sources), list(captures), estimator="excess", rounds=0, banding=False, seed=seed)
+        step = max(1, len(cleans) // calibration_pairs) if calibration_pairs else 1
+        chosen = list(range(0, len(cleans), step))
+        measure = flat_noise_sums([cleans[i] for i in chosen])
+        real, base = measure([captures[i] for i in chosen]), measure([sources[i] for i in chosen])
+        return calibrate(start, lambda noise: simulate_with(noise, chosen), measure, real, base)
 
     def magnitude(self) -> float:
         """How strong this stage is: the noise std it adds to a mid-grey pixel (sRGB 0.5), mean over channels, in

@@ -24,6 +24,7 @@ from camdegrade._metadata import running_versions
 from camdegrade._threads import torch_threads
 from camdegrade._version import __version__
 from camdegrade.effects import EFFECTS, STAGES, Effect, check_effect_names
+from camdegrade.fitting.noise import fit_stage_in_chain
 from camdegrade.fitting.pairs import MISSING, UNREADABLE
 from camdegrade.fitting.pairset import PairSet, PairsSource, simulate
 from camdegrade.fitting.training import EpochResult, FitConfig, ImagePair, fit_network, resolve_recipe
@@ -37,6 +38,8 @@ __all__ = ["DEFAULT_EFFECTS", "fit_profile", "init_distributed_from_env", "is_ma
 #: never the noise); position-dependent stages are kept only where they lower the validation error.
 DEFAULT_EFFECTS: tuple[str, ...] = ("noise", "vignetting")
 _MIN_RELATIVE_GAIN = 0.01
+#: A noise stage is calibrated on at most this many pairs (about 1 Mpixel of flat and textured pixels at 256²).
+NOISE_PAIRS = 32
 Log = Callable[[str], None]
 
 
@@ -174,14 +177,19 @@ def _fit_effects(
 ) -> tuple[CameraProfile, dict[str, Any]]:
     """Fit each requested effect on (the profile's deterministic output, capture) over all pairs (noise needs many
     pixels; the network's residuals on its training crops are close to its validation residuals at 109k
-    parameters), in the order light meets them; keep position-dependent stages only where they lower the error."""
+    parameters), in the order light meets them; keep position-dependent stages only where they lower the error.
+    A stage that only adds noise is calibrated through the stages already in the profile (:meth:`fit_in_chain`)."""
     notes: dict[str, Any] = {}
     cleans = [clean for clean, _ in pairs]
     captured = [target for _, target in pairs]
     for name in sorted(names, key=lambda n: STAGES.index(EFFECTS[n].stage)):
+        kind = EFFECTS[name]
         simulated = simulate(profile, cleans, seed=0, deterministic=True)
         try:
-            effect: Effect = EFFECTS[name].fit(simulated, captured)
+            if kind.draws_only_noise():
+                effect: Effect = fit_stage_in_chain(profile, kind, cleans, captured, calibration_pairs=NOISE_PAIRS)
+            else:
+                effect = kind.fit(simulated, captured, **kind.fit_options(simulated))
         except ValueError as error:  # e.g. too few pixels to estimate it
             notes[name] = {"kept": False, "reason": str(error)}
             say(f"effect {name}: not fitted ({error})")

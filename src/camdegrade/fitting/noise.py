@@ -1,6 +1,6 @@
-"""The noise stage of a profile, fitted where it sits in the chain: :meth:`Noise.fit` against the profile's
-deterministic output, then calibrated by simulating the whole profile with it (the stages after the sensor —
-tone, codec — change the noise the captures show)."""
+"""A stage fitted where it sits in a profile's chain (:meth:`Effect.fit_in_chain`): the profile's deterministic
+output is the source, and the profile with the stage in place is simulated on demand, so that a stage whose look
+depends on the stages after it (noise, through the tone curve and the codec) is calibrated through them."""
 
 from __future__ import annotations
 
@@ -8,12 +8,31 @@ from collections.abc import Sequence
 
 from torch import Tensor
 
-from camdegrade.effects import Noise
-from camdegrade.effects._noise_fit import calibrate
+from camdegrade.effects import Effect, Noise
 from camdegrade.fitting.pairset import simulate
-from camdegrade.functional.analysis import flat_mask
-from camdegrade.functional.noise_stats import NoiseSums
 from camdegrade.profile import CameraProfile
+
+
+def fit_stage_in_chain(
+    profile: CameraProfile,
+    kind: type[Effect],
+    cleans: Sequence[Tensor],
+    captures: Sequence[Tensor],
+    *,
+    seed: int = 0,
+    calibration_pairs: int | None = None,
+) -> Effect:
+    """A stage of ``kind`` for ``profile`` (its stages of that kind that draw only noise are replaced), fitted by
+    ``kind.fit_in_chain`` on ``(profile's deterministic output, capture)`` pairs."""
+    sources = simulate(profile.without_randomness(), cleans, seed, stream="noise-sources")
+
+    def simulate_with(effect: Effect, indices: Sequence[int]) -> list[Tensor]:
+        chosen = [cleans[index] for index in indices]
+        return simulate(replace_stage(profile, effect), chosen, seed, stream="noise-calibration")
+
+    return kind.fit_in_chain(
+        list(cleans), sources, list(captures), simulate_with, seed=seed, calibration_pairs=calibration_pairs
+    )
 
 
 def fit_noise_stage(
@@ -22,34 +41,15 @@ def fit_noise_stage(
     captures: Sequence[Tensor],
     *,
     seed: int = 0,
-    rounds: int = 2,
-    banding: bool = True,
     calibration_pairs: int | None = None,
-) -> Noise:
-    """A noise stage for ``profile`` (any noise stage it has is replaced): fitted on ``(profile's deterministic
-    output, capture)`` pairs, then corrected until the profile with it reproduces the captures' noise statistics
-    on flat pixels (measured on at most ``calibration_pairs`` evenly spaced pairs; all by default)."""
-    centre = profile.without_randomness()
-    sources = simulate(centre, cleans, seed, stream="noise-sources")
-    start = Noise.fit(sources, list(captures), estimator="excess", rounds=0, banding=False, seed=seed)
-    step = max(1, len(cleans) // calibration_pairs) if calibration_pairs else 1
-    cleans, captures, sources = list(cleans)[::step], list(captures)[::step], sources[::step]
-    masks = [flat_mask(clean) for clean in cleans]
-
-    def measure(images: list[Tensor]) -> NoiseSums:
-        total = NoiseSums.zeros()
-        for image, clean, mask in zip(images, cleans, masks, strict=True):
-            total = total + NoiseSums.measure(image, clean, mask)
-        return total
-
-    def with_noise(noise: Noise) -> list[Tensor]:
-        return simulate(replace_noise(profile, noise), cleans, seed, stream="noise-calibration")
-
-    return calibrate(
-        start, with_noise, measure, measure(list(captures)), measure(sources), rounds=rounds, banding=banding
-    )
+) -> Effect:
+    """The noise stage for ``profile`` (any it has is replaced), calibrated through the stages after it on at most
+    ``calibration_pairs`` evenly spaced pairs (:meth:`Noise.fit_in_chain`)."""
+    return fit_stage_in_chain(profile, Noise, cleans, captures, seed=seed, calibration_pairs=calibration_pairs)
 
 
-def replace_noise(profile: CameraProfile, noise: Noise) -> CameraProfile:
-    """``profile`` with ``noise`` in place of its noise stages (inserted at the sensor stage)."""
-    return profile.with_chain([e for e in profile.effects if not isinstance(e, Noise)]).with_effects(noise)
+def replace_stage(profile: CameraProfile, effect: Effect) -> CameraProfile:
+    """``profile`` with ``effect`` at its stage, in place of the stages of its kind that draw only noise (a fitted
+    noise stage is the whole of the noise, not an addition to it)."""
+    chain = [e for e in profile.effects if not (type(e) is type(effect) and type(e).draws_only_noise())]
+    return profile.with_chain(chain).with_effects(effect)
