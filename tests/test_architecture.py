@@ -35,15 +35,25 @@ def test_every_effect_states_its_facts(name: str) -> None:
 
 @pytest.mark.parametrize("name", REGISTERED)
 def test_strength_scales_between_neutral_and_fitted(name: str) -> None:
+    """Strength 0 is the neutral effect (its values, or images left unchanged: a blur of zero width keeps its
+    angle), strength 1 is the effect as it is, and strength grows with ``scaled`` (what the diagnosis's strength
+    refinement and 'too strong' texts rely on)."""
     from test_effects import strong
 
     effect = strong(name)
+    centre = effect.without_randomness() or effect  # per-sample jitter is not strength
+    image = photo_batch()
+    zero = centre.scaled(0.0)
     neutral = type(effect).neutral().state_dict()
-    for strength, expected in ((0.0, neutral), (1.0, effect.state_dict())):
-        scaled = effect.scaled(strength).state_dict()
-        for key, value in scaled.items():
-            assert torch.allclose(value, expected[key].to(value.dtype)), (name, strength, key)
+    params = zero.make_params(image.shape, torch.Generator().manual_seed(0))
+    neutral_values = all(
+        torch.allclose(v, neutral[k].to(v.dtype)) for k, v in zero.state_dict().items() if k in neutral
+    )
+    assert neutral_values or (zero(image, params) - image).abs().max() <= 1 / 255, name
+    for key, value in effect.scaled(1.0).state_dict().items():
+        assert torch.allclose(value, effect.state_dict()[key]), (name, key)
     assert type(effect.scaled(0.5)) is type(effect)
+    assert centre.scaled(0.5).magnitude() < centre.magnitude() < centre.scaled(1.5).magnitude()
 
 
 @pytest.mark.parametrize("name", REGISTERED)

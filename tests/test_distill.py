@@ -9,9 +9,9 @@ from camdegrade import CameraProfile, load_profile
 from camdegrade.__main__ import main
 from camdegrade.effects import Blur, Tone
 from camdegrade.fitting.distill import distill_profile
-from camdegrade.synthetic import dead_leaves_image, dead_leaves_images
 from camdegrade.fitting.training import FitConfig
 from camdegrade.io import write_image
+from camdegrade.synthetic import dead_leaves_image, dead_leaves_images
 from profiles_for_tests import seeded_network
 
 TINY = FitConfig(epochs=2, crop=32, batch_size=4, crops_per_pair=2, patience=0)

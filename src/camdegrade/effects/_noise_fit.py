@@ -17,7 +17,7 @@ from camdegrade._seeds import derived_generator
 from camdegrade.effects._fitting import as_pairs
 from camdegrade.effects.base import Pairs
 from camdegrade.functional.analysis import flat_mask
-from camdegrade.functional.noise_stats import BINS, HIGH_PASS, NoiseSums
+from camdegrade.functional.noise_stats import BINS, HIGH_PASS, NoiseSums, measure_set
 
 if TYPE_CHECKING:
     from camdegrade.effects.noise import Noise
@@ -114,14 +114,7 @@ def initial_noise(cls: type[Noise], real: NoiseSums, base: NoiseSums, taps: int)
 def flat_noise_sums(cleans: Sequence[Tensor]) -> Measure:
     """A measure of images (one per clean image, in order): their noise sums on the flat pixels of ``cleans``."""
     masks = [flat_mask(clean) for clean in cleans]
-
-    def measure(images: Sequence[Tensor]) -> NoiseSums:
-        total = NoiseSums.zeros()
-        for image, clean, mask in zip(images, cleans, masks, strict=True):
-            total = total + NoiseSums.measure(image, clean, mask)
-        return total
-
-    return measure
+    return lambda images: measure_set(list(images), list(cleans), masks)
 
 
 def calibrate(

@@ -86,6 +86,22 @@ class Blur(Effect):
         check_range("motion_length", self.motion_length, 0.0, self.MAX_MOTION)
         check_range("sigma_jitter", self.sigma_jitter, 0.0, self.MAX_SIGMA_JITTER)
 
+    #: The buffers that say how strong the PSF is; the angles only say which way it points.
+    STRENGTHS: ClassVar[tuple[str, ...]] = ("sigma_x", "sigma_y", "motion_length")
+
+    def scaled(self, strength: float) -> Blur:
+        """A copy whose sigmas and motion length are ``strength`` times these (its angles kept: a weaker blur is
+        not a rotated one)."""
+        out = copy.deepcopy(self)
+        with torch.no_grad():
+            for key in self.STRENGTHS:
+                getattr(out, key).mul_(max(float(strength), 0.0))
+        return out
+
+    def magnitude(self) -> float:
+        """How strong this PSF is: the L2 norm of its sigmas and motion length, in pixels (angles aside)."""
+        return math.sqrt(sum(float(getattr(self, key)) ** 2 for key in self.STRENGTHS))
+
     def without_randomness(self) -> Blur:
         centre = copy.deepcopy(self)
         centre.sigma_jitter = 0.0
