@@ -389,7 +389,7 @@ def _run_list(args: argparse.Namespace) -> int:
 def _run_fit(args: argparse.Namespace) -> int:
     import torch.distributed
 
-    from camdegrade._distributed import is_main_process
+    from camdegrade._distributed import is_distributed, is_main_process
     from camdegrade.fitting.fit import DEFAULT_EFFECTS, fit_profile, init_distributed_from_env
     from camdegrade.fitting.training import FitInterrupted
 
@@ -430,7 +430,7 @@ def _run_fit(args: argparse.Namespace) -> int:
         print(f"camdegrade fit: {interrupted}; run again with --resume", file=sys.stderr)
         return 130
     finally:
-        if torch.distributed.is_available() and torch.distributed.is_initialized():
+        if is_distributed():
             torch.distributed.destroy_process_group()
     if main_process:
         profile.save(args.output)

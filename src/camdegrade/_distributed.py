@@ -5,9 +5,14 @@ from __future__ import annotations
 import torch.distributed as dist
 
 
+def is_distributed() -> bool:
+    """Whether this process is part of an initialised process group."""
+    return dist.is_available() and dist.is_initialized()
+
+
 def rank_and_world_size() -> tuple[int, int]:
     """``(rank, world size)`` of the initialised process group, or ``(0, 1)``."""
-    if dist.is_available() and dist.is_initialized():
+    if is_distributed():
         return dist.get_rank(), dist.get_world_size()
     return 0, 1
 

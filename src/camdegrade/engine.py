@@ -90,6 +90,25 @@ def _degrade_chunk(profile: CameraProfile, frames: Tensor, params: EffectParams,
         return unit_to_bytes(degraded, overwrite=True) if frames.dtype == torch.uint8 else degraded.to(frames.dtype)
 
 
+def degrade_selected(
+    profile: CameraProfile, frames: Tensor, apply: Tensor, params: EffectParams, precision: Precision
+) -> Tensor:
+    """``frames`` ``(N, 3, H, W)`` with those where ``apply`` ``(N,)`` is true degraded (``params`` drawn for all
+    ``N``, on any device). On the CPU only those frames are computed; elsewhere every frame is and ``torch.where``
+    picks, which spares the device a synchronisation."""
+    params = params_on(params, frames.device)
+    apply = apply.to(frames.device)
+    if frames.device.type != "cpu":
+        degraded = degrade_frames(profile, frames, params, precision)
+        return torch.where(apply.view(-1, 1, 1, 1), degraded, frames)
+    if bool(apply.all()):
+        return degrade_frames(profile, frames, params, precision)
+    selected = apply.nonzero().squeeze(1)
+    out = frames.clone()
+    out[selected] = degrade_frames(profile, frames[selected], select_params(params, selected), precision)
+    return out
+
+
 def select_params(params: EffectParams, index: slice | Tensor) -> EffectParams:
     """The params of the frames ``index`` selects (every param is indexed along its batch dimension)."""
     return [{key: value[index] for key, value in stage.items()} for stage in params]

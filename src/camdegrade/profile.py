@@ -27,7 +27,7 @@ from camdegrade._metadata import serialize_metadata as serialize_metadata
 from camdegrade._pixels import bytes_to_unit
 from camdegrade._version import __version__
 from camdegrade.effects import EFFECTS, STAGES, Effect, build_effect
-from camdegrade.effects.chain import apply_effects
+from camdegrade.effects.chain import apply_effects, check_chain, check_params
 from camdegrade.errors import ProfileError
 from camdegrade.inference import Precision, run_network
 from camdegrade.network import DomainShiftNet
@@ -72,9 +72,7 @@ class CameraProfile(nn.Module):
         super().__init__()
         if network is not None and not isinstance(network, DomainShiftNet):
             raise TypeError(f"network must be a DomainShiftNet or None, got {type(network).__name__}")
-        for index, effect in enumerate(effects):
-            if not isinstance(effect, Effect):
-                raise TypeError(f"effects[{index}] must be a camdegrade Effect, got {type(effect).__name__}")
+        check_chain(effects)
         for label, text in (("name", name), ("description", description), ("package_version", package_version)):
             if not isinstance(text, str):  # a profile file stores text; None would come back as 'None'
                 raise TypeError(f"{label} must be a str, got {label}={text!r} ({type(text).__name__})")
@@ -106,8 +104,7 @@ class CameraProfile(nn.Module):
         ``precision`` of the network (see :func:`camdegrade.inference.run_network`)."""
         if params is None:
             params = self.make_params(image.shape)
-        if len(params) != len(self.effects):
-            raise ValueError(f"params must hold one entry per effect ({len(self.effects)}), got {len(params)}")
+        check_params(self.effects, params)
         if image.numel() == 0:  # empty in, empty out (the network cannot pad an image without pixels)
             return torch.zeros(image.shape, dtype=torch.float32, device=image.device)
         owned = False  # whether ``image`` is a tensor this call made, which it may overwrite

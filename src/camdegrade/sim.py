@@ -22,7 +22,7 @@ from camdegrade._files import atomic_path, check_outputs_spare_inputs, folder_re
 from camdegrade._pixels import as_unit, bytes_to_unit, unit_to_bytes
 from camdegrade._seeds import derived_generator
 from camdegrade.effects import EFFECTS, STAGES, Effect
-from camdegrade.effects.chain import apply_effects
+from camdegrade.effects.chain import apply_effects, check_chain, check_params
 from camdegrade.errors import BatchError, UnknownPresetError
 from camdegrade.io import is_image_path, iter_images, read_image, write_image
 
@@ -110,20 +110,14 @@ class VirtualCamera(nn.Module):
 
     def __init__(self, effects: Sequence[Effect], *, scale: float = 1.0, name: str = "") -> None:
         super().__init__()
-        ranks = []
-        for index, effect in enumerate(effects):
-            if not isinstance(effect, Effect):
-                raise TypeError(f"effects[{index}] must be a camdegrade Effect, got {type(effect).__name__}")
-            ranks.append(STAGES.index(effect.stage))
-        if ranks != sorted(ranks):
-            order = ", ".join(f"{effect.name} ({effect.stage})" for effect in effects)
-            raise ValueError(f"effects must be in physical stage order {' → '.join(STAGES)}, got {order}")
+        check_chain(effects, ordered=True)
         if not 0.0 < float(scale) <= 1.0:
             raise ValueError(f"scale must be in (0, 1], got scale={scale!r}")
         self.effects = nn.ModuleList(effects)
         self.scale = float(scale)
         self.name = name
         # The sensor samples after the last optics stage.
+        ranks = [STAGES.index(effect.stage) for effect in effects]
         self._sensor_index = next((i for i, rank in enumerate(ranks) if rank > 0), len(ranks))
 
     @classmethod
@@ -163,8 +157,7 @@ class VirtualCamera(nn.Module):
         batch = image[None] if image.ndim == 3 else image
         x = as_unit(batch)
         params = self.make_params(x.shape, generator) if params is None else params
-        if len(params) != len(self.effects):
-            raise ValueError(f"params must hold one entry per effect ({len(self.effects)}), got {len(params)}")
+        check_params(self.effects, params)
         height, width = x.shape[-2:]
         sensor = self._sensor_index
         # The profile's chain runner, on both sides of the sensor's sampling (sRGB decoded once per run of stages).

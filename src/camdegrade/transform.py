@@ -17,14 +17,7 @@ from torchvision.transforms.v2 import functional as TF
 
 from camdegrade._checks import check_probability, check_seed
 from camdegrade._seeds import derive_seed
-from camdegrade.engine import (
-    DeviceCopies,
-    check_image_shape,
-    check_image_tensor,
-    degrade_frames,
-    params_on,
-    select_params,
-)
+from camdegrade.engine import DeviceCopies, check_image_shape, check_image_tensor, degrade_selected
 from camdegrade.inference import Precision, resolve_precision
 from camdegrade.profile import CameraProfile, EffectParams, as_profile
 
@@ -170,16 +163,7 @@ class CameraDegrade(Transform):
         return tv_tensors.wrap(out, like=image) if isinstance(image, tv_tensors.TVTensor) else out
 
     def _degrade_frames(self, batch: Tensor, apply: Tensor, effect_params: EffectParams) -> Tensor:
-        profile = self.profile_on(batch.device)
-        if bool(apply.all()):
-            return degrade_frames(profile, batch, params_on(effect_params, batch.device), self.precision)
-        selected = apply.nonzero().squeeze(1)
-        subset_params = select_params(effect_params, selected)
-        selected = selected.to(batch.device)
-        result = degrade_frames(profile, batch[selected], params_on(subset_params, batch.device), self.precision)
-        out = batch.clone()
-        out[selected] = result
-        return out
+        return degrade_selected(self.profile_on(batch.device), batch, apply, effect_params, self.precision)
 
     def profile_on(self, device: torch.device) -> CameraProfile:
         """The profile as float32 on ``device``: the profile itself when it already is, else a cached copy.

@@ -10,7 +10,7 @@ from torch import Tensor, nn
 from camdegrade.data._keys import SharedEpoch, check_epoch, item_generator
 from camdegrade.data.datasets import DegradeLike, as_camera_degrade, resolve_seed
 from camdegrade.data.policies import Bernoulli, MixPolicy
-from camdegrade.engine import check_image_shape, check_image_tensor, degrade_frames
+from camdegrade.engine import check_image_shape, check_image_tensor, degrade_selected
 from camdegrade.profile import EffectParams
 
 
@@ -89,15 +89,10 @@ class BatchDegrade(nn.Module):
         index_list = self._index_list(indices, batch)
         if images.numel() == 0:  # empty in, empty out
             return images
-        device = images.device
-        apply = self.decisions(index_list, epoch).to(device, non_blocking=True)
-        params = [
-            {key: value.to(device, non_blocking=True) for key, value in stage.items()}
-            for stage in self.make_params(tuple(images.shape[1:]), index_list, epoch)
-        ]
-        profile = self.degrade.profile_on(device)
-        degraded = degrade_frames(profile, images, params, self.degrade.precision)
-        return torch.where(apply.view(batch, 1, 1, 1), degraded, images)
+        apply = self.decisions(index_list, epoch)
+        params = self.make_params(tuple(images.shape[1:]), index_list, epoch)
+        profile = self.degrade.profile_on(images.device)
+        return degrade_selected(profile, images, apply, params, self.degrade.precision)
 
     def _index_list(self, indices: Tensor | Sequence[int] | None, batch: int) -> list[int]:
         if indices is None:
@@ -120,7 +115,7 @@ def _one_view_policy(p: float | MixPolicy) -> MixPolicy:
         if p.copies != 1 or isinstance(p.decide(0, 0, 0, 0), tuple):
             raise ValueError(
                 f"p must be a probability or a one-view policy (Bernoulli, Ratio, Alternate, Schedule), got {p!r}; "
-                "Union and Pair change which images a batch holds, so use them with DegradedDataset"
+                "Union and PairedViews change which images a batch holds, so use them with DegradedDataset"
             )
         return p
     return Bernoulli(p)

@@ -6,8 +6,26 @@ from collections.abc import Mapping, Sequence
 
 from torch import Tensor
 
-from camdegrade.effects.base import Effect, Encoding
+from camdegrade.effects.base import STAGES, Effect, Encoding
 from camdegrade.functional.color import linear_to_srgb_, srgb_to_linear_
+
+
+def check_chain(effects: Sequence[Effect], *, ordered: bool = False) -> None:
+    """Raise unless every item of ``effects`` is an :class:`Effect` (a ``TypeError`` naming the first that is not)
+    and, with ``ordered``, they come in physical stage order (a ``ValueError``)."""
+    for index, effect in enumerate(effects):
+        if not isinstance(effect, Effect):
+            raise TypeError(f"effects[{index}] must be a camdegrade Effect, got {type(effect).__name__}")
+    ranks = [STAGES.index(effect.stage) for effect in effects]
+    if ordered and ranks != sorted(ranks):
+        order = ", ".join(f"{effect.name} ({effect.stage})" for effect in effects)
+        raise ValueError(f"effects must be in physical stage order {' → '.join(STAGES)}, got {order}")
+
+
+def check_params(effects: Sequence[Effect], params: Sequence[Mapping[str, Tensor]]) -> None:
+    """Raise a ``ValueError`` unless ``params`` holds one entry per stage."""
+    if len(params) != len(effects):
+        raise ValueError(f"params must hold one entry per effect ({len(effects)}), got {len(params)}")
 
 
 def apply_effects(

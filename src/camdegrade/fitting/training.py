@@ -22,10 +22,11 @@ from torch import Tensor
 from tqdm.auto import tqdm
 
 from camdegrade._checks import check_seed
-from camdegrade._distributed import rank_and_world_size
+from camdegrade._distributed import is_distributed, rank_and_world_size
 from camdegrade._files import check_writable
 from camdegrade._pixels import as_unit
 from camdegrade._recipes import FAST, RECIPES
+from camdegrade._seeds import derive_seed, derived_generator
 from camdegrade.errors import CamdegradeError
 from camdegrade.fitting.checkpoint import TrainingState, capture_state, load_checkpoint, save_checkpoint
 from camdegrade.inference import native_bfloat16, run_network
@@ -275,7 +276,7 @@ def _check_initial(initial: DomainShiftNet | None) -> None:
 
 def _new_training(config: FitConfig, device: torch.device | str, initial: DomainShiftNet | None = None):
     with torch.random.fork_rng(devices=[]):
-        torch.manual_seed(config.seed)
+        torch.manual_seed(derive_seed(config.seed, "network-init"))
         network = DomainShiftNet(config.width)
     if initial is not None:
         if initial.width != network.width:
@@ -292,7 +293,7 @@ def _new_training(config: FitConfig, device: torch.device | str, initial: Domain
         )
     else:
         scheduler = torch.optim.lr_scheduler.StepLR(optimizer, step_size=config.lr_halving_epochs, gamma=0.5)
-    return network, optimizer, scheduler, torch.Generator().manual_seed(config.seed)
+    return network, optimizer, scheduler, derived_generator(config.seed, "training-crops")
 
 
 def pairs_fingerprint(train: Sequence[ImagePair], val: Sequence[ImagePair], names: Sequence[str] | None = None) -> str:
@@ -409,7 +410,7 @@ def _distributed(network: DomainShiftNet, device: torch.device | str) -> torch.n
 
 
 def _global_sum(value: Tensor) -> float:
-    if dist.is_available() and dist.is_initialized():
+    if is_distributed():
         value = value.clone()
         dist.all_reduce(value)
     return float(value)
