@@ -328,37 +328,12 @@ def _run_apply(args: argparse.Namespace) -> int:
 
 def _apply_jobs(source: Path, output: Path, overwrite: bool) -> list[tuple[Path, Path]]:
     """``(input image, output path)`` for ``apply``; refuses outputs that would replace or re-read inputs."""
-    from camdegrade._files import folder_relation
-    from camdegrade.io import iter_images
+    from camdegrade.io import input_images
 
     if source.is_file():
         return [(source, output / source.name if output.is_dir() else output)]
-    if not source.is_dir():
-        if source.exists():
-            raise ValueError(f"input {str(source)!r} is not a regular file or folder (a device, FIFO or socket)")
-        raise FileNotFoundError(f"input {str(source)!r} does not exist")
-    if output.exists() and not output.is_dir():
-        raise ValueError(f"output must be a folder when input is a folder, got file {str(output)!r}")
-    relation = folder_relation(source, output)
-    if relation == "same":
-        raise ValueError(
-            f"output folder {str(output)!r} is the input folder: every output would replace the image it was read "
-            "from; choose another output folder"
-        )
-    if relation == "inside" and not overwrite:
-        raise ValueError(
-            f"output folder {str(output)!r} is inside the input folder {str(source)!r}: a rerun would degrade its "
-            "own outputs; choose a folder outside it, or pass --overwrite (its images are then not read as inputs)"
-        )
-    skipped = output.resolve() if relation == "inside" else None
-    jobs = [
-        (path, output / path.relative_to(source))
-        for path in iter_images(source)
-        if skipped is None or not path.resolve().is_relative_to(skipped)
-    ]
-    if not jobs:
-        raise ValueError(f"input folder {str(source)!r} holds no images")
-    return jobs
+    found = input_images(source, output, overwrite=overwrite, output_name="output folder", allow="pass --overwrite")
+    return [(path, output / relative) for path, relative in found]
 
 
 def _list_failures(failed: Sequence[tuple[Path, str]]) -> None:

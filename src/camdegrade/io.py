@@ -17,7 +17,7 @@ import torch
 from PIL import ExifTags, Image, ImageOps
 from torch import Tensor
 
-from camdegrade._files import atomic_path
+from camdegrade._files import atomic_path, folder_relation
 from camdegrade._pixels import as_unit, unit_to_bytes
 from camdegrade.errors import ImageError
 
@@ -59,6 +59,46 @@ def iter_images(folder: str | os.PathLike[str]) -> Iterator[Path]:
         folders[:] = [name for name in folders if not name.startswith(".")]
         found += [Path(current, name) for name in files if not name.startswith(".") and is_image_path(name)]
     yield from sorted([*found, *unlisted])
+
+
+def input_images(
+    source: Path, output: Path, *, overwrite: bool, output_name: str, allow: str
+) -> list[tuple[Path, Path]]:
+    """``(image, name relative to the input)`` for a command that reads ``source`` (an image file or a folder,
+    recursively) and writes into ``output``; refused before anything is read: an input that is neither, an output
+    folder that is the input folder, and one inside it unless ``overwrite`` (whose images are then left out of
+    the inputs, so a rerun never reads its own outputs). ``output_name`` and ``allow`` (how to pass
+    ``overwrite``) are the caller's words for the messages."""
+    if source.is_file():
+        if not is_image_path(source):
+            raise ValueError(f"input must be an image file or a folder of images, got {str(source)!r}")
+        return [(source, Path(source.name))]
+    if not source.is_dir():
+        if source.exists():
+            raise ValueError(f"input {str(source)!r} is not a regular file or folder (a device, FIFO or socket)")
+        raise FileNotFoundError(f"input {str(source)!r} does not exist")
+    if output.exists() and not output.is_dir():
+        raise ValueError(f"{output_name} must be a folder when the input is a folder, got file {str(output)!r}")
+    relation = folder_relation(source, output)
+    if relation == "same":
+        raise ValueError(
+            f"{output_name} {str(output)!r} is the input folder: what is written would land among the images it is "
+            "made from; choose another folder"
+        )
+    if relation == "inside" and not overwrite:
+        raise ValueError(
+            f"{output_name} {str(output)!r} is inside the input folder {str(source)!r}: a rerun would read what it "
+            f"wrote as inputs; choose a folder outside it, or {allow} (it is then left out of the inputs)"
+        )
+    skipped = output.resolve() if relation == "inside" else None
+    found = [
+        (path, path.relative_to(source))
+        for path in iter_images(source)
+        if skipped is None or not path.resolve().is_relative_to(skipped)
+    ]
+    if not found:
+        raise ValueError(f"input folder {str(source)!r} holds no images (looked for .png, .jpg, ...)")
+    return found
 
 
 def to_rgb(image: Image.Image, *, source: str = "image") -> Image.Image:

@@ -18,13 +18,13 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from camdegrade._checks import check_int, check_seed
-from camdegrade._files import atomic_path, check_outputs_spare_inputs, folder_relation
+from camdegrade._files import atomic_path, check_outputs_spare_inputs
 from camdegrade._pixels import as_unit, bytes_to_unit, unit_to_bytes
 from camdegrade._seeds import derived_generator
 from camdegrade.effects import EFFECTS, STAGES, Effect
 from camdegrade.effects.chain import apply_effects, check_chain, check_params
 from camdegrade.errors import BatchError, UnknownPresetError
-from camdegrade.io import is_image_path, iter_images, read_image, write_image
+from camdegrade.io import input_images, read_image, write_image
 
 CameraParams = list[dict[str, Tensor]]
 
@@ -198,35 +198,8 @@ class VirtualCamera(nn.Module):
 
 def _inputs(input: Path, out_dir: Path, overwrite: bool) -> list[tuple[Path, Path]]:
     """``(image, relative name)`` of every input image; a pairs folder inside the input folder is left out."""
-    if input.is_file():
-        if not is_image_path(input):
-            raise ValueError(f"input must be an image file or a folder of images, got {str(input)!r}")
-        return [(input, Path(input.name))]
-    if not input.is_dir():
-        if input.exists():
-            raise ValueError(f"input {str(input)!r} is not a regular file or folder (a device, FIFO or socket)")
-        raise FileNotFoundError(f"input {str(input)!r} does not exist")
-    relation = folder_relation(input, out_dir)
-    if relation == "same":
-        raise ValueError(
-            f"out_dir {str(out_dir)!r} is the input folder: the pairs would be written among the images they are made "
-            "from; choose another folder"
-        )
-    if relation == "inside" and not overwrite:
-        raise ValueError(
-            f"out_dir {str(out_dir)!r} is inside the input folder {str(input)!r}: a rerun would read the pairs it "
-            "wrote as inputs; choose a folder outside it, or allow it with overwrite=True (CLI: --overwrite), which "
-            "leaves out_dir out of the inputs"
-        )
-    skipped = out_dir.resolve() if relation == "inside" else None
-    found = [
-        (path, path.relative_to(input))
-        for path in iter_images(input)
-        if skipped is None or not path.resolve().is_relative_to(skipped)
-    ]
-    if not found:
-        raise ValueError(f"input folder {str(input)!r} holds no images (looked for .png, .jpg, ...)")
-    return found
+    allow = "allow it with overwrite=True (CLI: --overwrite)"
+    return input_images(input, out_dir, overwrite=overwrite, output_name="out_dir", allow=allow)
 
 
 def _shrink(image: Tensor, max_side: int | None) -> Tensor:

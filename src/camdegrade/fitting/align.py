@@ -9,6 +9,11 @@ unit-variance luma and Hann-windowed; the cross-power spectrum is only half whit
 of its magnitude) and weighted by a Gaussian low-pass, so blur, sensor noise, vignetting and colour casts in the
 capture do not swamp the peak. The peak is located to 0.01 px with a matrix-multiply (upsampled) DFT around the
 integer maximum, then re-estimated on the overlapping crops so that the window does not bias large shifts.
+
+References:
+    C. D. Kuglin, D. C. Hines, "The phase correlation image alignment method", Proceedings of the IEEE
+    Conference on Cybernetics and Society, 1975; M. Guizar-Sicairos, S. T. Thurman, J. R. Fienup, "Efficient
+    subpixel image registration algorithms", Optics Letters 33(2), 2008 (the upsampled DFT around the peak).
 """
 
 from __future__ import annotations
