@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import math
 import os
 import struct
 import warnings
@@ -18,7 +17,7 @@ from PIL import ExifTags, Image, ImageOps
 from torch import Tensor
 
 from camdegrade._files import atomic_path, folder_relation
-from camdegrade._pixels import as_unit, unit_to_bytes
+from camdegrade._pixels import NOT_FINITE, SCALE_HINT, as_unit, off_unit_scale, unit_to_bytes
 from camdegrade.errors import ImageError
 
 #: File extensions read as images (compared case-insensitively).
@@ -324,9 +323,6 @@ def _inflated_idat_bytes(handle: IO[bytes], enough: int) -> int:
     return total
 
 
-#: Float images may stray this far outside [0, 1] and are clamped when written (as
-#: ``camdegrade.engine.UNIT_TOLERANCE``, which this module cannot import); further out they are on another scale.
-_WRITE_TOLERANCE = 0.1
 #: The largest width or height each format's encoder writes (larger ones fail inside the encoder, and libjpeg
 #: prints its own line on stderr before it does).
 _MAX_SIDE = {"JPEG": 65_500, "WEBP": 16_383}
@@ -384,11 +380,8 @@ def _check_writable_image(image: Any, path: Path) -> None:
         )
     if image.dtype == torch.uint8:
         return
-    low, high = torch.stack(torch.aminmax(image.detach())).tolist()  # NaN propagates to both
-    if not (math.isfinite(low) and math.isfinite(high)):
+    problem = off_unit_scale(image)
+    if problem == NOT_FINITE:
         raise ValueError(f"image to write to {str(path)!r} contains NaN or infinite values")
-    if low < -_WRITE_TOLERANCE or high > 1.0 + _WRITE_TOLERANCE:
-        raise ValueError(
-            f"float images are written from [0, 1], got values in [{low:.4g}, {high:.4g}] for {str(path)!r}; scale "
-            "0..255 images by 1/255 (or pass uint8) and map [-1, 1] images with (x + 1) / 2"
-        )
+    if problem is not None:
+        raise ValueError(f"float images are written from [0, 1], got {problem} for {str(path)!r}; {SCALE_HINT}")
