@@ -44,9 +44,8 @@ def check_image_shape(image: Tensor, who: str = "CameraDegrade()") -> None:
 
 
 def check_image_tensor(image: Tensor, who: str = "CameraDegrade()") -> None:
-    """:func:`check_image_shape`, and for floats: finite values within :data:`camdegrade._pixels.UNIT_TOLERANCE` of [0, 1].
-
-    One ``aminmax`` pass (:func:`camdegrade._pixels.off_unit_scale`)."""
+    """:func:`check_image_shape`, and for floats: finite values within 0.1 of [0, 1] (one ``aminmax`` pass,
+    :func:`camdegrade._pixels.off_unit_scale`)."""
     check_image_shape(image, who)
     if image.dtype == torch.uint8 or image.numel() == 0:
         return
