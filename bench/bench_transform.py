@@ -277,14 +277,14 @@ def transform_cases(args: argparse.Namespace, image: torch.Tensor, calls: int) -
     exact = CameraDegrade(args.profile, seed=0, precision="float32")
     reference = reference_network(args.profile)
     network = degrade.profile.network
-    plain = image[None]
+    plain, small = image[None], natural_image(32)
     cases = {
         "reference_network_fp32": Case(lambda: reference(image), calls=calls),
         "network_plan": Case(lambda: run_network(network, plain, degrade.precision), calls=calls),
         "camdegrade_single": Case(lambda: degrade(image), calls=calls),
         "camdegrade_batch32": Case(lambda: degrade(batch), images_per_call=32, calls=max(1, calls // 8)),
         "camdegrade_single_fp32": Case(lambda: exact(image), calls=calls),
-        "camdegrade_single_32px": Case(lambda: degrade(natural_image(32)), calls=calls),
+        "camdegrade_single_32px": Case(lambda: degrade(small), calls=calls),
     }
     if FAST_PROFILE in list_profiles():
         fast = CameraDegrade(FAST_PROFILE, seed=0)

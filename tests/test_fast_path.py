@@ -9,7 +9,14 @@ import torch
 from skimage import data
 
 from camdegrade import CameraDegrade, load_profile
-from camdegrade.inference import SPARSE_MAX_LIVE, CpuInference, native_bfloat16, resolve_precision, run_network
+from camdegrade.inference import (
+    SPARSE_MAX_LIVE,
+    CpuInference,
+    native_bfloat16,
+    probe_channel_order,
+    resolve_precision,
+    run_network,
+)
 
 PHOTOS = ("astronaut", "chelsea", "coffee", "rocket")
 
@@ -86,6 +93,31 @@ def test_cpu_plan_skips_channels_that_are_zero_over_the_image():
         hidden = plan._conv_relu(plan._conv_relu(image, *plan.encode[0]), *plan.encode[1])
         assert int((hidden.amax(dim=(0, 2, 3)) > 0).sum()) <= 64
         assert (plan.run(image) - sparse(image)).abs().max() < PLAN_TOLERANCE[torch.float32]
+
+
+def test_probe_orders_the_channels_photos_leave_at_zero_last(photos):
+    """The channel order is a permutation, and the channels live on photographs fill a short prefix of it (what the
+    native-bfloat16 plan's first decoder product runs over)."""
+    network = load_profile("city100-iphonex").network
+    order = probe_channel_order(network)
+    assert sorted(order.tolist()) == list(range(network.encode2.out_channels))
+    with torch.no_grad():
+        for image in photos:
+            hidden = torch.relu(network.encode2(torch.relu(network.encode1(image[None].float() / 255))))
+            live = (hidden.amax(dim=(0, 2, 3)) > 0)[order].nonzero()
+            assert int(live.max()) + 1 <= SPARSE_MAX_LIVE * len(order)
+
+
+@pytest.mark.skipif(not native_bfloat16(torch.device("cpu")), reason="the prefix product runs in native bfloat16")
+def test_bfloat16_prefix_product_follows_the_whole_product(photos):
+    """Leaving out the channels after the last live one changes only the rounding of the bfloat16 product."""
+    plan = CpuInference(load_profile("city100-iphonex").network, torch.bfloat16)
+    for image in photos:
+        x, first = plan._network_input(image[None])
+        hidden = plan._conv_relu(plan._conv_relu(x, first, plan.encode[0][1]), *plan.encode[1])
+        pixels = hidden.permute(0, 2, 3, 1).reshape(-1, hidden.shape[1])
+        whole = plan._linear_relu(pixels).float()
+        assert (plan._decode1(pixels).float() - whole).abs().max() <= 0.02 * whole.abs().max()
 
 
 @pytest.mark.parametrize("name", ["city100-iphonex", "lowcost-robot-sim"])
