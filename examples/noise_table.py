@@ -5,7 +5,9 @@ alternately into a fitting half and a checking half. :meth:`camdegrade.effects.N
 the clean image is a noise-free reference) is fitted on the first half; on the second half, where the clean image is
 flat in absolute terms, the fitted noise is compared with the real one: its std per channel and intensity bin, and
 its correlation with the neighbour 1 and 2 pixels away, horizontally and vertically. Groups with one image are
-fitted (table) but not checked.
+fitted (table) but not checked. The ``oracle`` column compares the real noise of the fitting half with the real
+noise of the checking half the same way: what a stage reproducing the fitting images' noise exactly would score,
+i.e. how much the images' own noise differs from image to image.
 
 Usage::
 
@@ -53,6 +55,9 @@ class GroupResult:
     std_ratio: list[list[float | None]]
     correlation_real: list[float]
     correlation_fitted: list[float]
+    #: The same per-bin ratio for the *real* noise of the fitting half against the checking half: what a stage that
+    #: reproduced the fitting images' noise exactly would score (how much the images' own noise differs).
+    oracle_ratio: list[list[float | None]] | None = None
 
     @property
     def worst_std_error(self) -> float | None:
@@ -113,6 +118,7 @@ def check_group(key: tuple[str, str, int], paths: list[tuple[Path, Path]], seed:
     real = _residual_sums(held_reals, held_cleans)
     fitted = _residual_sums(_simulate(noise, held_cleans, seed + 1), held_cleans)
     ratio = fitted.std() / real.std()
+    oracle = _residual_sums(reals, cleans).std() / real.std()
     return GroupResult(
         subset=subset,
         camera=camera,
@@ -121,10 +127,15 @@ def check_group(key: tuple[str, str, int], paths: list[tuple[Path, Path]], seed:
         check_pairs=len(paths[1::2]),
         sigma_mid_grey=round(noise.magnitude(), 3),
         flat_pixels=real.pixels,
-        std_ratio=[[round(float(r), 3) if torch.isfinite(r) else None for r in row] for row in ratio],
+        std_ratio=_rounded(ratio),
         correlation_real=[round(float(v), 3) for v in real.correlation().mean(-1).flatten()],
         correlation_fitted=[round(float(v), 3) for v in fitted.correlation().mean(-1).flatten()],
+        oracle_ratio=_rounded(oracle),
     )
+
+
+def _rounded(ratio) -> list[list[float | None]]:
+    return [[round(float(r), 3) if torch.isfinite(r) else None for r in row] for row in ratio]
 
 
 def noise_table(root: Path, subsets: tuple[str, ...] = SUBSETS) -> list[GroupResult]:
@@ -157,19 +168,22 @@ def monotone_in_iso(rows: list[GroupResult]) -> dict[tuple[str, str], bool]:
 def format_table(rows: list[GroupResult]) -> str:
     header = (
         f"{'subset':<20} {'camera':<10} {'ISO':>6} {'fit/check':>9} {'σ@128':>6} {'flat px':>9} "
-        f"{'bins ±15%':>10} {'worst std':>9} {'corr real h1 h2 v1 v2':>24} {'fitted':>22} {'worst':>6}"
+        f"{'bins ±15%':>10} {'oracle':>7} {'worst std':>9} {'corr real h1 h2 v1 v2':>24} {'fitted':>22} {'worst':>6}"
     )
     lines = [header, "-" * len(header)]
     for row in rows:
         ratios = [r for channel in row.std_ratio for r in channel if r is not None]
         within = sum(abs(r - 1) <= STD_TOLERANCE for r in ratios)
+        oracle = [r for channel in row.oracle_ratio or [] for r in channel if r is not None]
+        oracle_within = f"{sum(abs(r - 1) <= STD_TOLERANCE for r in oracle)}/{len(oracle)}"
         real = " ".join(f"{v:.2f}" for v in row.correlation_real)
         fitted = " ".join(f"{v:.2f}" for v in row.correlation_fitted)
         worst_std = f"{row.worst_std_error:.2f}" if row.worst_std_error is not None else "n/m"
         worst_corr = f"{row.worst_correlation_error:.2f}" if row.worst_correlation_error is not None else "n/m"
         lines.append(
             f"{row.subset:<20} {row.camera:<10} {row.iso:>6} {row.fit_pairs:>4}/{row.check_pairs:<4} "
-            f"{row.sigma_mid_grey:>6.2f} {row.flat_pixels:>9,} {within:>4}/{len(ratios):<5} {worst_std:>9} "
+            f"{row.sigma_mid_grey:>6.2f} {row.flat_pixels:>9,} {within:>4}/{len(ratios):<5} {oracle_within:>7} "
+            f"{worst_std:>9} "
             f"{real:>24} {fitted:>22} {worst_corr:>6}"
         )
     lines.append("")

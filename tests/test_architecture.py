@@ -159,6 +159,8 @@ FORBIDDEN = {
     "engine": ("transform", "data", "fitting", "diagnose", "sim"),
     "data": ("fitting", "diagnose", "sim"),
     "fitting": ("diagnose", "transform", "data"),
+    "synthetic": ("effects", "profile", "engine", "transform", "data", "fitting", "diagnose", "network", "inference"),
+    "inference": ("effects", "profile", "engine", "transform", "data", "fitting", "diagnose", "sim", "io"),
 }
 
 

@@ -471,3 +471,12 @@ def test_info_piped_into_a_reader_that_stops_early_is_quiet(tmp_path: Path) -> N
     command = f"{sys.executable} -m camdegrade info city100-iphonex | head -1"
     result = subprocess.run(command, shell=True, capture_output=True, text=True, check=False)
     assert result.stdout.count("\n") == 1 and "Error" not in result.stderr and "Traceback" not in result.stderr
+
+
+def test_a_seed_of_thousands_of_digits_is_named_as_out_of_range(tmp_path: Path, capsys) -> None:
+    """Python refuses to parse integers of more than 4,300 digits: the seed was reported as 'must be an integer'."""
+    image = good_image(tmp_path / "a.png")
+    seed = "9" * 5000
+    code, _, err = run_cli(["apply", _profile(tmp_path), image, tmp_path / "o.png", "--seed", seed], capsys)
+    line = one_line_error(err)
+    assert code == 2 and "must be an integer from -2**63 to 2**64 - 1" in line and "(5000 digits)" in line

@@ -52,6 +52,9 @@ def _non_negative_int(text: str) -> int:
 
 
 def _seed(text: str) -> int:
+    if text.strip().lstrip("+-").isdigit() and len(text.strip()) > 25:  # Python refuses to parse > 4300 digits
+        shown = text.strip() if len(text.strip()) <= 40 else f"{text.strip()[:20]}... ({len(text.strip())} digits)"
+        raise argparse.ArgumentTypeError(f"must be an integer from -2**63 to 2**64 - 1, got {shown}")
     try:
         return check_seed(_whole_number(text))
     except ValueError:
