@@ -26,6 +26,6 @@ RECIPES: dict[str, dict[str, Any]] = {"fast": FAST, "paper": PAPER}
 
 
 def recipe_default(key: str) -> str:
-    """``key``'s value in each recipe, for help text: ``"30 (paper: 100)"``, or one value where they agree."""
+    """``key``'s value in each recipe, for help text: ``"15; paper: 100"``, or one value where they agree."""
     fast, paper = FAST[key], PAPER[key]
     return f"{fast}" if fast == paper else f"{fast}; paper: {paper}"

@@ -31,8 +31,8 @@ SPARSE_MAX_LIVE = 0.75
 
 def native_bfloat16(device: torch.device) -> bool:
     """Whether ``device`` computes bfloat16 convolutions natively (CUDA with bf16, or a CPU with AVX-512 BF16/AMX)."""
-    if device.type == "cuda":
-        return torch.cuda.is_bf16_supported()
+    if device.type == "cuda":  # emulated bfloat16 (before Ampere) is slower and less accurate than float32
+        return torch.cuda.is_bf16_supported(including_emulation=False)
     if device.type == "cpu":
         return _cpu_native_bfloat16()
     return False
@@ -112,9 +112,10 @@ class CpuInference:
       an image; this replaces the transposed convolutions, the slowest part of the module on a CPU.
     - ReLU leaves many encoder channels at zero over a whole image (about half of them for the built-in profiles
       on natural photos). In float32, from :data:`SPARSE_MIN_PIXELS` encoder pixels up, the first decoder product
-      leaves those out; they contribute exact zeros, so only the rounding order changes. In native bfloat16 the
-      product runs whole: gathering the live bfloat16 columns costs more than the half product it saves (0.57 ms
-      against 0.53 ms for a 224² image on an AMD EPYC with AVX-512 BF16).
+      leaves those out; they contribute exact zeros, so only the rounding order changes. In native bfloat16, where
+      gathering the live columns costs more than the half product it saves (0.57 ms against 0.53 ms for a 224²
+      image on an AMD EPYC with AVX-512 BF16), the channels are ordered once by a probe
+      (:func:`probe_channel_order`) and the product runs over the prefix that ends at the last live one.
     - Images are computed one at a time, so each gets the same bytes alone as in any batch or chunk.
 
     Args:
@@ -138,9 +139,12 @@ class CpuInference:
             # last (a permutation of the hidden channels: the same function), and the first decoder product can
             # then skip them as a prefix instead of gathering columns (see _decode1).
             order = probe_channel_order(network) if self._fused else torch.arange(network.encode2.out_channels)
+            layers = [
+                (network.encode1.weight, network.encode1.bias),
+                (network.encode2.weight[order], network.encode2.bias[order]),
+            ]
             self.encode = [
-                (conv.weight.to(dtype).contiguous(memory_format=channels_last), conv.bias.to(dtype))
-                for conv in (network.encode1, _output_channels(network.encode2, order))
+                (weight.to(dtype).contiguous(memory_format=channels_last), bias.to(dtype)) for weight, bias in layers
             ]
             # bfloat16 holds 0…255 exactly, so uint8 images enter as their byte values and the first layer divides
             # by 255. float32 divides the image instead, so that uint8 and the same image in floats agree exactly.
@@ -244,7 +248,8 @@ def probe_channel_order(network: DomainShiftNet) -> Tensor:
     """The second encoder layer's output channels, most active first: sorted by their largest value before the
     ReLU over :data:`PROBE_IMAGES` dead-leaves images. Channels that photographs leave at zero (about half of
     them for the built-in profiles) come last: the live channels of photographs fill a prefix of 64 to 80 of 128.
-    """
+    The order is fixed for a network (and a Pillow, which draws the probe): it sets only the summation order of the
+    bfloat16 product, so an image's bytes still depend on nothing but the image. Draws nothing from torch's RNG."""
     images = torch.stack(dead_leaves_images(PROBE_IMAGES, PROBE_SIZE, seed=0)).float() / 255.0
     with torch.no_grad():
         first = network.encode1.weight.float(), network.encode1.bias.float()
@@ -252,15 +257,6 @@ def probe_channel_order(network: DomainShiftNet) -> Tensor:
         hidden = F.conv2d(images, *first, stride=2, padding=1).relu_()
         highest = F.conv2d(hidden, *second, stride=2, padding=1).amax(dim=(0, 2, 3))
     return torch.argsort(highest, descending=True, stable=True)
-
-
-def _output_channels(conv: torch.nn.Conv2d, order: Tensor) -> torch.nn.Conv2d:
-    """A copy of ``conv`` whose output channels come in ``order``."""
-    reordered = torch.nn.Conv2d(conv.in_channels, conv.out_channels, conv.kernel_size, conv.stride, conv.padding)
-    with torch.no_grad():
-        reordered.weight.copy_(conv.weight[order])
-        reordered.bias.copy_(conv.bias[order])
-    return reordered
 
 
 def _use_fused_kernels(dtype: torch.dtype) -> bool:

@@ -170,10 +170,10 @@ class Effect(nn.Module):
         ``sources`` are the profile's deterministic output on the clean images ``cleans``, ``captures`` the real
         captures; ``simulate_with(effect, indices)`` simulates the profile with ``effect`` in place of its stages of
         this kind on the clean images at ``indices`` (fixed seeds: the same effect gives the same images).
-        ``calibration_pairs`` bounds how many pairs a fit that simulates may use. Default: :meth:`fit` on the pairs
-        its fitter affords (:attr:`fit_budget`) with its :meth:`fit_options`. An effect whose look depends on the
-        stages after it (noise, through a tone curve and a codec) overrides this to calibrate through
-        ``simulate_with``.
+        ``calibration_pairs`` bounds about how many pairs a fit that simulates may use. Default: :meth:`fit` on
+        the pairs its fitter affords (:attr:`fit_budget`) with its :meth:`fit_options`. An effect whose look
+        depends on the stages after it (noise, through a tone curve and a codec) overrides this to calibrate
+        through ``simulate_with``.
         """
         return cls.fit_within_budget(sources, captures)
 

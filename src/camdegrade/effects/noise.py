@@ -334,7 +334,7 @@ class Noise(Effect):
         """The noise stage of a profile, calibrated by simulated moments through the stages after it.
 
         :meth:`fit` (``estimator="excess"``, no rounds, no banding) against the deterministic ``sources`` gives the
-        start; then the profile with the stage is simulated on at most ``calibration_pairs`` evenly spaced pairs,
+        start; then the profile with the stage is simulated on every ``⌊N / calibration_pairs⌋``-th pair,
         the noise statistics of the flat pixels are measured on the simulations and on the captures, and the level
         table, kernels and banding are corrected (two rounds, then the levels once more, then banding against a
         simulated no-banding null). What the tone curve and the codec do to the noise is measured, not assumed.

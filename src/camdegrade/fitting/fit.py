@@ -23,11 +23,18 @@ from camdegrade._distributed import is_main_process
 from camdegrade._metadata import running_versions
 from camdegrade._threads import torch_threads
 from camdegrade._version import __version__
-from camdegrade.effects import EFFECTS, STAGES, Effect, check_effect_names
-from camdegrade.fitting.noise import fit_stage_in_chain
+from camdegrade.effects import EFFECTS, STAGES, check_effect_names
+from camdegrade.fitting.noise import CALIBRATION_PAIRS, fit_stage_in_chain
 from camdegrade.fitting.pairs import MISSING, UNREADABLE
 from camdegrade.fitting.pairset import PairSet, PairsSource, simulate
-from camdegrade.fitting.training import EpochResult, FitConfig, ImagePair, fit_network, resolve_recipe
+from camdegrade.fitting.training import (
+    EpochResult,
+    FitConfig,
+    ImagePair,
+    fit_network,
+    resolve_recipe,
+    training_dtype,
+)
 from camdegrade.metrics import psnr
 from camdegrade.network import DomainShiftNet
 from camdegrade.profile import CameraProfile, as_profile
@@ -38,8 +45,7 @@ __all__ = ["DEFAULT_EFFECTS", "fit_profile", "init_distributed_from_env", "is_ma
 #: never the noise); position-dependent stages are kept only where they lower the validation error.
 DEFAULT_EFFECTS: tuple[str, ...] = ("noise", "vignetting")
 _MIN_RELATIVE_GAIN = 0.01
-#: A noise stage is calibrated on at most this many pairs (about 1 Mpixel of flat and textured pixels at 256²).
-NOISE_PAIRS = 32
+
 Log = Callable[[str], None]
 
 
@@ -55,7 +61,7 @@ def fit_profile(
     crops_per_pair: int | None = None,
     patience: int | None = None,
     width: int | None = None,
-    seed: int = 0,
+    seed: int | None = None,
     val_fraction: float = 0.15,
     align: bool = False,
     clean_suffix: str | None = None,
@@ -85,15 +91,16 @@ def fit_profile(
         epochs, crop, batch_size, lr, lr_halving_epochs, crops_per_pair, patience, width: change one value of the
             recipe; ``None`` keeps the recipe's. ``width`` is the network's (64, the paper's; 32 fits a network
             about four times cheaper to run).
-        seed: initialisation, crops and the validation split.
+        seed: initialisation, crops and the validation split (``None``: the recipe's, 0 unless a
+            :class:`FitConfig` says otherwise).
         val_fraction: share of *scenes* held out for choosing the best epoch and checking the effect stages.
         align: register every pair (sub-pixel translation) before training; the shifts are logged.
         size_mismatch: pairs whose images differ in size are skipped, or with ``"crop"`` centre-cropped.
         effects: effect stages to fit after the network (names from ``EFFECTS``).
         init_from: start the network from this profile's network (a :class:`CameraProfile`, a built-in name or a
             path) instead of a fresh initialisation from ``seed``: a refit on new pairs, usually with fewer epochs
-            and a lower ``lr`` (e.g. 20 and 0.001). Its width must be the fitted network's (64). Recorded in
-            ``fitted['init_from']``.
+            and a lower ``lr`` (e.g. 20 and 0.001). Its width must be the recipe's (64 unless ``width`` says
+            otherwise). Recorded in ``fitted['init_from']``.
         checkpoint: training state written after every epoch; with ``resume=True`` the fit continues from it.
         callback: called with an :class:`EpochResult` after every epoch (notebooks, Lightning loggers).
         log: called with human-readable progress lines (pairs found, shifts, effect fits).
@@ -117,7 +124,9 @@ def fit_profile(
             size_mismatch=size_mismatch,
             log=say,
         )
-        train, val = _split(pair_set, val_fraction, seed, align, say)
+        train, val = _split(pair_set, val_fraction, config.seed, align, say)
+        if config.patience and not len(val):
+            say("no validation pairs: the fit runs every epoch (early stopping needs validation)")
         started = time.perf_counter()
         network, history = fit_network(
             train.images,
@@ -136,6 +145,7 @@ def fit_profile(
         profile, effect_notes = _fit_effects(profile, [*val.unit_pairs(), *train.unit_pairs()], effect_names, say)
         profile.fitted = _record(pair_set, train, val, config, history, align, minutes, effect_notes)
         profile.fitted["init_from"] = init_label
+        profile.fitted["trained_in"] = str(training_dtype(config.precision, torch.device(device))).split(".")[-1]
         profile.quality = _quality(profile, val) if len(val) else {}
         return profile
 
@@ -178,23 +188,21 @@ def _fit_effects(
     """Fit each requested effect on (the profile's deterministic output, capture) over all pairs (noise needs many
     pixels; the network's residuals on its training crops are close to its validation residuals at 109k
     parameters), in the order light meets them; keep position-dependent stages only where they lower the error.
-    A stage that only adds noise is calibrated through the stages already in the profile (:meth:`fit_in_chain`)."""
+    Each is fitted by its class at its place in the chain (:meth:`Effect.fit_in_chain`: within its fitter's budget;
+    noise calibrated through the stages already in the profile)."""
     notes: dict[str, Any] = {}
     cleans = [clean for clean, _ in pairs]
     captured = [target for _, target in pairs]
     for name in sorted(names, key=lambda n: STAGES.index(EFFECTS[n].stage)):
         kind = EFFECTS[name]
-        simulated = simulate(profile, cleans, seed=0, deterministic=True)
         try:
-            if kind.draws_only_noise():
-                effect: Effect = fit_stage_in_chain(profile, kind, cleans, captured, calibration_pairs=NOISE_PAIRS)
-            else:
-                effect = kind.fit(simulated, captured, **kind.fit_options(simulated))
+            effect = fit_stage_in_chain(profile, kind, cleans, captured, calibration_pairs=CALIBRATION_PAIRS)
         except ValueError as error:  # e.g. too few pixels to estimate it
             notes[name] = {"kept": False, "reason": str(error)}
             say(f"effect {name}: not fitted ({error})")
             continue
         if effect.position_dependent:
+            simulated = simulate(profile, cleans, seed=0, deterministic=True)
             before = _mean_squared_error(simulated, captured)
             with torch.no_grad():
                 after = _mean_squared_error([effect(s[None])[0] for s in simulated], captured)

@@ -12,6 +12,10 @@ from camdegrade.effects import Effect, Noise
 from camdegrade.fitting.pairset import simulate
 from camdegrade.profile import CameraProfile
 
+#: A stage that calibrates itself by simulation uses about this many pairs (every ⌊N / this⌋-th of N pairs, so
+#: between this many and twice as many): about 1 Mpixel at 256².
+CALIBRATION_PAIRS = 32
+
 
 def fit_stage_in_chain(
     profile: CameraProfile,
@@ -43,8 +47,8 @@ def fit_noise_stage(
     seed: int = 0,
     calibration_pairs: int | None = None,
 ) -> Effect:
-    """The noise stage for ``profile`` (any it has is replaced), calibrated through the stages after it on at most
-    ``calibration_pairs`` evenly spaced pairs (:meth:`Noise.fit_in_chain`)."""
+    """The noise stage for ``profile`` (any it has is replaced), calibrated through the stages after it on every
+    ``⌊N / calibration_pairs⌋``-th of the N pairs (:meth:`Noise.fit_in_chain`; all when ``None``)."""
     return fit_stage_in_chain(profile, Noise, cleans, captures, seed=seed, calibration_pairs=calibration_pairs)
 
 

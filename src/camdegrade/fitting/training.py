@@ -1,4 +1,5 @@
-"""Training the domain-shifting network on (clean, captured) image tensors with the paper's recipe.
+"""Training the domain-shifting network on (clean, captured) image tensors: the recipes (camdegrade's fast one and
+the paper's), the training step, early stopping on the validation PSNR.
 
 Resumable (a safetensors checkpoint after every epoch), deterministic for a seed on one machine, and able to run
 under ``torchrun`` (DDP: every rank draws the same crops from the shared seed and trains on its share of each
@@ -54,8 +55,8 @@ class FitConfig:
     """Training recipe: L2 loss and Adam on random ``crop``×``crop`` windows of the full-resolution pairs (instead of
     the paper's squashed resizes); an epoch draws ``crops_per_pair`` windows from every training pair.
 
-    The defaults are camdegrade's fast recipe (``RECIPES["fast"]``, :mod:`camdegrade._recipes`): Adam on a cosine
-    schedule, batch 32, stopping early once the validation PSNR has not risen for ``patience`` epochs.
+    The defaults are camdegrade's fast recipe (``RECIPES["fast"]``, :mod:`camdegrade._recipes`): batches of 4, Adam on
+    a cosine schedule, stopping early once the validation PSNR has not risen for ``patience`` epochs.
     ``FitConfig.recipe("paper")`` is the paper's: 100 epochs, Adam at lr 0.01 halved every 30 epochs, batch 32,
     no early stopping. Either trains in bfloat16 where the device computes it natively (``precision="auto"``).
 
@@ -239,7 +240,8 @@ def _end_epoch(state, network, optimizer, scheduler, generator, val, loss: float
     """The state after an epoch: the schedule's step, the validation score, the best weights so far."""
     lr = optimizer.param_groups[0]["lr"]
     scheduler.step()
-    score = evaluate_psnr(network, val, device) if val else -loss
+    # Every rank takes rank 0's score, so that all agree on the best epoch and on when to stop.
+    score = _from_rank0(evaluate_psnr(network, val, device) if val else -loss, device)
     is_best = score > state.best_score
     result = EpochResult(state.epoch + 1, loss, score if val else float("nan"), lr, is_best)
     best = {k: v.detach().clone() for k, v in network.state_dict().items()} if is_best else state.best_network
@@ -342,6 +344,11 @@ def _initial_state(
     free = ("patience",) if config.schedule == "cosine" else ("epochs", "patience")
     recipe = {k: v for k, v in config.as_dict().items() if k not in free}
     saved = {k: v for k, v in state.config.items() if k not in free}
+    if set(saved) != set(recipe):
+        raise ValueError(
+            f"checkpoint {str(checkpoint)!r} was written by another camdegrade version (its recipe has the fields "
+            f"{sorted(saved)}); start a new fit without resume"
+        )
     if recipe != saved:
         raise ValueError(f"checkpoint {str(checkpoint)!r} was written with a different recipe: {saved}, now {recipe}")
     if state.data != fingerprint:
@@ -407,6 +414,14 @@ def _distributed(network: DomainShiftNet, device: torch.device | str) -> torch.n
         [device.index if device.index is not None else torch.cuda.current_device()] if device.type == "cuda" else None
     )
     return torch.nn.parallel.DistributedDataParallel(network, device_ids=device_ids)
+
+
+def _from_rank0(value: float, device: torch.device | str) -> float:
+    if not is_distributed():
+        return value
+    tensor = torch.tensor([value], dtype=torch.float64, device=device)
+    dist.broadcast(tensor, src=0)
+    return float(tensor)
 
 
 def _global_sum(value: Tensor) -> float:
