@@ -132,6 +132,11 @@ CASES: dict[str, tuple[Case, int, str]] = {
         2,
         r"--calibration-fraction: must be a fraction between 0 and 1 \(exclusive\), got 0",
     ),
+    "fit --lr-halving-epochs with the fast recipe": (
+        lambda tmp, p: ["fit", make_pairs_folder(tmp / "pairs"), "-o", tmp / "x.safetensors", "--lr-halving-epochs", 5],
+        1,
+        r"--lr-halving-epochs applies to --recipe paper",
+    ),
     "fit --resume without a checkpoint": (
         lambda tmp, p: ["fit", make_pairs_folder(tmp / "pairs"), "-o", tmp / "x.safetensors", "--resume", *QUICK],
         1,

@@ -75,6 +75,13 @@ def test_distilling_on_a_folder_skips_unreadable_files_and_refuses_too_few_image
         raise AssertionError("one image was accepted")
 
 
+def test_a_recipe_object_keeps_its_width_and_seed_unless_told() -> None:
+    recipe = FitConfig(**{**TINY.as_dict(), "epochs": 1, "width": 4, "seed": 3})
+    fast = distill_profile(_teacher(), dead_leaves_images(3, 48), recipe=recipe)
+    assert fast.network.width == 4 and fast.fitted["recipe"]["seed"] == 3
+    assert distill_profile(_teacher(), dead_leaves_images(3, 48), recipe=recipe, width=8).network.width == 8
+
+
 def test_a_profile_without_network_cannot_be_distilled() -> None:
     try:
         distill_profile(CameraProfile(None, [Tone(gamma=1.2)], name="effects-only"), dead_leaves_images(2, 40))

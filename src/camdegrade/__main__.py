@@ -371,6 +371,8 @@ def _run_fit(args: argparse.Namespace) -> int:
     from camdegrade.fitting.fit import DEFAULT_EFFECTS, fit_profile, init_distributed_from_env
     from camdegrade.fitting.training import FitInterrupted
 
+    if args.lr_halving_epochs is not None and RECIPES[args.recipe]["schedule"] != "step":
+        raise ValueError(f"--lr-halving-epochs applies to --recipe paper (a step schedule), not to {args.recipe!r}")
     checkpoint = _fit_checkpoint(args)
     _check_outputs({"--output": args.output, "--checkpoint": checkpoint}, _pair_files(args.pairs, args))
     device = init_distributed_from_env(args.device)
@@ -558,13 +560,12 @@ def _run_diagnose(args: argparse.Namespace) -> int:
 
 
 def _run_distill(args: argparse.Namespace) -> int:
-    from camdegrade._files import check_outputs_spare_inputs, check_writable
     from camdegrade.fitting.distill import distill_profile
+    from camdegrade.profile import resolve_profile_path
 
     if args.output.suffix != ".safetensors":
         raise ValueError(f"--output must end in .safetensors, got {str(args.output)!r}")
-    check_outputs_spare_inputs([(Path(args.profile), args.output)])
-    check_writable(args.output)
+    _check_outputs({"--output": args.output}, [resolve_profile_path(args.profile), *_image_files(args.images)])
     profile = distill_profile(
         args.profile,
         args.images,

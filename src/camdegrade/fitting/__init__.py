@@ -2,6 +2,7 @@
 network's training and checkpoints, and :func:`fit_profile` that runs them in order (``docs/fitting.md``)."""
 
 from camdegrade.fitting.align import AlignmentResult, align_pair, apply_shift, estimate_shift, register
+from camdegrade.fitting.distill import distill_profile
 from camdegrade.fitting.fit import DEFAULT_EFFECTS, fit_profile
 from camdegrade.fitting.pairs import Pair, PairReport, discover_pairs, filter_pairs, load_pair, split_by_scene
 from camdegrade.fitting.pairset import PairSet, simulate
@@ -19,6 +20,7 @@ __all__ = [
     "align_pair",
     "apply_shift",
     "discover_pairs",
+    "distill_profile",
     "estimate_shift",
     "filter_pairs",
     "fit_network",

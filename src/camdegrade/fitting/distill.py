@@ -24,12 +24,14 @@ from pathlib import Path
 from typing import Any
 
 import torch
+import torch.nn.functional as F
 from torch import Tensor
 
-from camdegrade._pixels import as_unit
+from camdegrade._pixels import as_unit, unit_to_bytes
 from camdegrade._seeds import derived_generator
 from camdegrade._threads import torch_threads
 from camdegrade._version import __version__
+from camdegrade.effects.base import evenly_spaced
 from camdegrade.errors import ImageError
 from camdegrade.fitting.training import EpochResult, FitConfig, ImagePair, fit_network, resolve_recipe
 from camdegrade.inference import run_network
@@ -42,16 +44,22 @@ Log = Callable[[str], None]
 #: Images a distillation generates when it is given none (dead leaves, 256²).
 SYNTHETIC_IMAGES = 64
 SYNTHETIC_SIZE = 256
+#: The student's width unless told: about a quarter of the paper network's arithmetic.
+DEFAULT_WIDTH = 32
+#: At most this many of the given images are used (evenly spaced), each at most this many pixels a side (larger
+#: ones are downscaled): every image is kept in memory with the teacher's float32 output beside it.
+MAX_IMAGES = 256
+MAX_SIDE = 1024
 
 
 def distill_profile(
     profile: CameraProfile | str | os.PathLike[str],
     images: str | os.PathLike[str] | Sequence[Tensor] | None = None,
     *,
-    width: int = 32,
+    width: int | None = None,
     recipe: str | FitConfig = "fast",
     epochs: int | None = None,
-    seed: int = 0,
+    seed: int | None = None,
     val_fraction: float = 0.15,
     device: torch.device | str = "cpu",
     threads: int | None = None,
@@ -61,16 +69,18 @@ def distill_profile(
     log: Log | None = None,
 ) -> CameraProfile:
     """A profile whose network of ``width`` (32: about a quarter of the paper's arithmetic) is trained to give what
-    ``profile``'s network gives, with ``profile``'s effect stages copied.
+    ``profile``'s network gives, with ``profile``'s effect stages copied. Images larger than :data:`MAX_SIDE` are
+    downscaled and at most :data:`MAX_IMAGES` are used (each is kept in memory with the teacher's output).
 
     Args:
         profile: the teacher: a :class:`CameraProfile`, a built-in name or a path; it must have a network.
         images: clean images like those the profile will degrade: a folder (read recursively; files that cannot
             be read are skipped and logged), or ``(3, H, W)`` tensors (uint8, or float in [0, 1]). ``None``:
             :data:`SYNTHETIC_IMAGES` generated dead-leaves images (:mod:`camdegrade.synthetic`).
-        width: the student network's width (:class:`~camdegrade.network.DomainShiftNet`).
+        width: the student network's width (:class:`~camdegrade.network.DomainShiftNet`); ``None``: 32, or a
+            :class:`FitConfig` recipe's own.
         recipe, epochs: the training recipe (:class:`FitConfig` or a name of its recipes) and its epochs.
-        seed: the split, the generated images, the student's initialisation and crops.
+        seed: the split, the generated images, the student's initialisation and crops (``None``: the recipe's).
         val_fraction: share of the images (at least one) that choose the best epoch and give the reported PSNR.
 
     Returns:
@@ -81,7 +91,10 @@ def distill_profile(
     teacher = as_profile(profile)
     if teacher.network is None:
         raise ValueError(f"profile {teacher.name!r} has no network to distil (it holds effect stages only)")
+    if width is None and not isinstance(recipe, FitConfig):
+        width = DEFAULT_WIDTH
     config = resolve_recipe(recipe, epochs=epochs, width=width, seed=seed)
+    width, seed = config.width, config.seed
     with torch_threads(threads):
         cleans, source = _clean_images(images, config.crop, seed, say)
         train, val = _split(cleans, val_fraction, seed)
@@ -123,14 +136,28 @@ def _clean_images(
         if not isinstance(image, Tensor) or image.ndim != 3 or image.shape[0] != 3:
             shape = tuple(image.shape) if isinstance(image, Tensor) else type(image).__name__
             raise ValueError(f"images[{index}] must be a (3, H, W) tensor, got {shape}")
-    usable = [image for image in loaded if min(image.shape[-2:]) >= crop]
-    if len(usable) < len(loaded):
-        say(f"left out {len(loaded) - len(usable)} image(s) smaller than the {crop}-pixel training crop")
+    usable = [_at_most(image, MAX_SIDE) for image in evenly_spaced(loaded, MAX_IMAGES)]
+    if len(loaded) > MAX_IMAGES:
+        say(f"using {MAX_IMAGES} of the {len(loaded)} images (evenly spaced)")
+    usable = [image for image in usable if min(image.shape[-2:]) >= crop]
+    if len(usable) < min(len(loaded), MAX_IMAGES):
+        say(f"left out {min(len(loaded), MAX_IMAGES) - len(usable)} image(s) smaller than the {crop}-pixel crop")
     if len(usable) < 2:
         raise ValueError(
             f"distillation needs at least 2 images of at least {crop}² pixels from {source}, got {len(usable)}"
         )
     return usable, source
+
+
+def _at_most(image: Tensor, side: int) -> Tensor:
+    """``image`` downscaled (area average) so that its longer side is at most ``side``; uint8 stays uint8."""
+    height, width = image.shape[-2:]
+    if max(height, width) <= side:
+        return image
+    scale = side / max(height, width)
+    size = (max(1, round(height * scale)), max(1, round(width * scale)))
+    smaller = F.interpolate(as_unit(image)[None], size=size, mode="area")[0]
+    return unit_to_bytes(smaller) if image.dtype == torch.uint8 else smaller
 
 
 def _read_folder(folder: Path, say: Log) -> list[Tensor]:

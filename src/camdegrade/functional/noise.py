@@ -120,7 +120,7 @@ def mix_channels(planes: Tensor, mixing: Tensor) -> Tensor:
 
     Nine scaled plane additions with the matrix's entries as Python numbers (zeros skipped): on the CPU several times
     faster than ``einsum``, which runs a batched matrix product with 3×3 blocks (kept for autograd)."""
-    if planes.requires_grad or mixing.requires_grad:
+    if planes.requires_grad or mixing.requires_grad or planes.device.type != "cpu":  # no host sync on a GPU
         return torch.einsum("ck,...khw->...chw", mixing.to(planes), planes)
     weights = mixing.tolist()
     out = torch.empty_like(planes)
