@@ -165,11 +165,12 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             network = load_profile(name).network
             if network is None:
                 continue
-            zeros = zero_channels(network, images)
-            record["profiles"][name] = {**agreement(network, images), "zero_encoder_channels_of_128": zeros}
-            print(f"{name:20s} encoder channels zero over each whole photo: {zeros} of 128")
+            zeros, channels = zero_channels(network, images), network.encode2.out_channels
+            record["profiles"][name] = {**agreement(network, images), "zero_encoder_channels": zeros}
+            record["profiles"][name]["encoder_channels"] = channels
+            print(f"{name:20s} encoder channels zero over each whole photo: {zeros} of {channels}")
             for variant, numbers in record["profiles"][name].items():
-                if variant.startswith("zero"):
+                if variant.startswith(("zero", "encoder")):
                     continue
                 print(
                     f"{name:20s} {variant:17s} within one level {numbers['within_one_level']:.5f} "

@@ -30,7 +30,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--data", type=Path, default=DEFAULT_DATA)
     parser.add_argument("--out", type=Path, default=Path("out/city100-iphonex-fast.safetensors"))
     parser.add_argument("--width", type=int, default=32)
-    parser.add_argument("--epochs", type=int, default=40)
+    parser.add_argument("--epochs", type=int, default=80)
     parser.add_argument("--patience", type=int, default=0, help="early stopping (0: run every epoch)")
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args(argv)

@@ -7,7 +7,9 @@ folder is absent.
 PolyU meets the bar on the noise level: its std per channel and intensity bin within ±15 % of the real noise in at
 least 22 of 24 bins. CC15 and SIDD do not, and cannot with one noise stage fitted on other images: the noise of
 their images differs 3.7× (CC15) and 4.7× (SIDD, crops from different phones) from image to image, and the two
-halves fill the intensity bins with different images; the test pins what they reach so that a regression shows.
+halves fill the intensity bins with different images; the real noise of the fitting half is itself within ±15 % of
+the checking half's in 8 of 19 CC15 bins (the oracle), as the fitted stage is in 8 of 20. The tests pin what they
+reach so that a regression shows.
 The spatial correlation (lags 1 and 2, both directions) is within ±0.1 of the real one in all three.
 """
 
@@ -53,6 +55,23 @@ def test_polyu_noise_level_per_bin_within_15_percent(rows: dict) -> None:
 @pytest.mark.parametrize("subset", ["polyu_real_noise", "cc15_nam_real_noise", "sidd_samples"])
 def test_spatial_correlation_within_a_tenth(rows: dict, subset: str) -> None:
     assert rows[subset].worst_correlation_error <= 0.1, (rows[subset].correlation_real, rows[subset].correlation_fitted)
+
+
+def test_the_fitted_noise_matches_other_images_as_well_as_their_own_real_noise_does(rows: dict) -> None:
+    """On the bins both measure, the oracle (the fitting images' own real noise) is within ±15 % of the checking
+    images' noise in no more bins than the fitted stage: what the bar misses on CC15 is how much its images' noise
+    differs from image to image, not the stage."""
+    for subset in ("polyu_real_noise", "cc15_nam_real_noise"):
+        row = rows[subset]
+        pairs = [
+            (fitted, oracle)
+            for fitted_channel, oracle_channel in zip(row.std_ratio, row.oracle_ratio, strict=True)
+            for fitted, oracle in zip(fitted_channel, oracle_channel, strict=True)
+            if fitted is not None and oracle is not None
+        ]
+        fitted_within = sum(abs(fitted - 1) <= 0.15 for fitted, _ in pairs)
+        oracle_within = sum(abs(oracle - 1) <= 0.15 for _, oracle in pairs)
+        assert fitted_within >= oracle_within, (subset, fitted_within, oracle_within, len(pairs))
 
 
 def test_heterogeneous_subsets_reach_what_one_noise_stage_can(rows: dict) -> None:

@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import math
+import os
 import sys
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
@@ -635,9 +636,11 @@ def main(cli_args: Sequence[str] | None = None, prog: str | None = None) -> int:
     try:
         with _threads(getattr(args, "threads", None)):
             return _COMMANDS[args.command](args)
-    except BrokenPipeError:  # `camdegrade info ... | head`: the reader has what it wanted
-        sys.stderr.close()  # nothing more can reach it; keep Python's exit from complaining
-        return 0
+    except BrokenPipeError as error:
+        if not _stdout_closed():  # another pipe (a file argument, a process group): an error like any other
+            _print_error(parser.prog, error)
+            return 1
+        return 0  # `camdegrade info ... | head`: the reader has what it wanted
     except (CamdegradeError, OSError, ValueError) as error:
         _print_error(parser.prog, error)
         return 1
@@ -652,6 +655,20 @@ def _print_error(prog: str, error: BaseException) -> None:
     if details:
         print(details)
     print(f"{prog}: error: {first}", file=sys.stderr)
+
+
+def _stdout_closed() -> bool:
+    """Whether the reader of stdout went away; if so, stdout is pointed at the null device, so that Python's own
+    flush at exit has nowhere to fail."""
+    try:
+        sys.stdout.flush()
+    except BrokenPipeError:
+        pass
+    else:
+        return False
+    with contextlib.suppress(OSError, ValueError, AttributeError):
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+    return True
 
 
 def _tolerant_output() -> None:
