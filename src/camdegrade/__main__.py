@@ -375,7 +375,6 @@ def _run_fit(args: argparse.Namespace) -> int:
     if args.lr_halving_epochs is not None and RECIPES[args.recipe]["schedule"] != "step":
         raise ValueError(f"--lr-halving-epochs applies to --recipe paper (a step schedule), not to {args.recipe!r}")
     checkpoint = _fit_checkpoint(args)
-    _check_outputs({"--output": args.output, "--checkpoint": checkpoint}, _pair_files(args.pairs, args))
     device = init_distributed_from_env(args.device)
     main_process = is_main_process()
     try:
@@ -423,9 +422,8 @@ def _run_fit(args: argparse.Namespace) -> int:
 
 
 def _fit_checkpoint(args: argparse.Namespace) -> Path:
-    """The checkpoint path of ``fit``, after checking it and ``--output`` before training, not after it."""
-    from camdegrade._files import check_writable
-
+    """The checkpoint path of ``fit``, after checking it and ``--output`` before training, not after it: writable,
+    not one file, and neither of them a file of the pairs."""
     if args.output.suffix != ".safetensors":
         raise ValueError(f"--output must end in .safetensors, got {str(args.output)!r}")
     checkpoint = args.checkpoint or args.output.with_name(args.output.stem + ".ckpt.safetensors")
@@ -434,8 +432,7 @@ def _fit_checkpoint(args: argparse.Namespace) -> Path:
             f"--checkpoint must differ from --output, got {str(checkpoint)!r} for both: the checkpoint is deleted "
             "after a successful fit, which would delete the profile"
         )
-    for path in (args.output, checkpoint):
-        check_writable(path)
+    _check_outputs({"--output": args.output, "--checkpoint": checkpoint}, _pair_files(args.pairs, args))
     if args.resume and not checkpoint.is_file():
         raise FileNotFoundError(
             f"--resume: checkpoint {str(checkpoint)!r} does not exist; check --checkpoint, or start a new fit "

@@ -250,7 +250,7 @@ def probe_channel_order(network: DomainShiftNet) -> Tensor:
     them for the built-in profiles) come last: the live channels of photographs fill a prefix of 64 to 80 of 128.
     The order is fixed for a network (and a Pillow, which draws the probe): it sets only the summation order of the
     bfloat16 product, so an image's bytes still depend on nothing but the image. Draws nothing from torch's RNG."""
-    images = torch.stack(dead_leaves_images(PROBE_IMAGES, PROBE_SIZE, seed=0)).float() / 255.0
+    images = bytes_to_unit(torch.stack(dead_leaves_images(PROBE_IMAGES, PROBE_SIZE, seed=0)))
     with torch.no_grad():
         first = network.encode1.weight.float(), network.encode1.bias.float()
         second = network.encode2.weight.float(), network.encode2.bias.float()

@@ -19,11 +19,12 @@ from torch import Tensor, nn
 
 from camdegrade._checks import check_int, check_seed
 from camdegrade._files import atomic_path, check_outputs_spare_inputs
-from camdegrade._pixels import as_unit, bytes_to_unit, unit_to_bytes
+from camdegrade._pixels import as_unit, unit_to_bytes
 from camdegrade._seeds import derived_generator
 from camdegrade.effects import EFFECTS, STAGES, Effect
 from camdegrade.effects.chain import apply_effects, check_chain, check_params
 from camdegrade.errors import BatchError, UnknownPresetError
+from camdegrade.functional.geometry import shrink_to_max_side
 from camdegrade.io import input_images, read_image, write_image
 
 CameraParams = list[dict[str, Tensor]]
@@ -202,16 +203,6 @@ def _inputs(input: Path, out_dir: Path, overwrite: bool) -> list[tuple[Path, Pat
     return input_images(input, out_dir, overwrite=overwrite, output_name="out_dir", allow=allow)
 
 
-def _shrink(image: Tensor, max_side: int | None) -> Tensor:
-    height, width = image.shape[-2:]
-    if max_side is None or max(height, width) <= max_side:
-        return image
-    factor = max_side / max(height, width)
-    size = (max(1, round(height * factor)), max(1, round(width * factor)))
-    shrunk = F.interpolate(bytes_to_unit(image)[None], size=size, mode="bilinear", antialias=True, align_corners=False)
-    return unit_to_bytes(shrunk[0], overwrite=True)
-
-
 def simulate_pairs(
     preset: str | VirtualCamera,
     input: str | os.PathLike[str],
@@ -262,7 +253,7 @@ def simulate_pairs(
     failed: list[tuple[Path, str]] = []
     for name, path in names.items():
         try:
-            clean = _shrink(read_image(path), max_side)
+            clean = shrink_to_max_side(read_image(path), max_side)
         except OSError as error:  # unreadable, truncated, too large, animated: reported at the end
             failed.append((path, str(error)))
             continue

@@ -21,6 +21,7 @@ import torch
 from PIL import Image, ImageDraw
 from torch import Tensor
 
+from camdegrade._pixels import bytes_to_unit, unit_to_bytes
 from camdegrade._seeds import derived_generator
 
 #: Discs smaller than this (pixels) are not drawn: near a pixel they would only add aliasing.
@@ -46,13 +47,13 @@ def dead_leaves_image(size: int, generator: torch.Generator) -> Tensor:
     # Inverse CDF of p(r) ∝ r⁻³ on [low, high]: 1/r² is uniform between 1/high² and 1/low².
     radii = (1.0 / (low**-2 + uniform[1:, 0] * (high**-2 - low**-2))).sqrt().tolist()
     centres = (uniform[1:, 1:3] * size).tolist()
-    colours = (_colours(uniform[:, 3:6]) * 255).round().to(torch.uint8).tolist()
+    colours = unit_to_bytes(_colours(uniform[:, 3:6])).tolist()
     canvas = Image.new("RGB", (size, size), tuple(colours[0]))
     draw = ImageDraw.Draw(canvas)
     for (y, x), radius, colour in zip(centres, radii, colours[1:], strict=True):
         draw.ellipse((x - radius, y - radius, x + radius, y + radius), fill=tuple(colour))
-    image = torch.from_numpy(np.asarray(canvas).copy()).permute(2, 0, 1).float() / 255.0
-    return _lit(image, generator).mul(255.0).round().to(torch.uint8)
+    image = bytes_to_unit(torch.from_numpy(np.asarray(canvas).copy()).permute(2, 0, 1))
+    return unit_to_bytes(_lit(image, generator), overwrite=True)
 
 
 def _lit(image: Tensor, generator: torch.Generator) -> Tensor:

@@ -24,16 +24,16 @@ from pathlib import Path
 from typing import Any
 
 import torch
-import torch.nn.functional as F
 from torch import Tensor
 
-from camdegrade._pixels import as_unit, unit_to_bytes
+from camdegrade._pixels import as_unit
 from camdegrade._seeds import derived_generator
 from camdegrade._threads import torch_threads
 from camdegrade._version import __version__
 from camdegrade.effects.base import evenly_spaced
 from camdegrade.errors import ImageError
 from camdegrade.fitting.training import EpochResult, FitConfig, ImagePair, fit_network, resolve_recipe
+from camdegrade.functional.geometry import shrink_to_max_side
 from camdegrade.inference import run_network
 from camdegrade.io import iter_images, read_image
 from camdegrade.metrics import psnr
@@ -136,7 +136,7 @@ def _clean_images(
         if not isinstance(image, Tensor) or image.ndim != 3 or image.shape[0] != 3:
             shape = tuple(image.shape) if isinstance(image, Tensor) else type(image).__name__
             raise ValueError(f"images[{index}] must be a (3, H, W) tensor, got {shape}")
-    usable = [_at_most(image, MAX_SIDE) for image in evenly_spaced(loaded, MAX_IMAGES)]
+    usable = [shrink_to_max_side(image, MAX_SIDE) for image in evenly_spaced(loaded, MAX_IMAGES)]
     if len(loaded) > MAX_IMAGES:
         say(f"using {MAX_IMAGES} of the {len(loaded)} images (evenly spaced)")
     usable = [image for image in usable if min(image.shape[-2:]) >= crop]
@@ -147,17 +147,6 @@ def _clean_images(
             f"distillation needs at least 2 images of at least {crop}² pixels from {source}, got {len(usable)}"
         )
     return usable, source
-
-
-def _at_most(image: Tensor, side: int) -> Tensor:
-    """``image`` downscaled (area average) so that its longer side is at most ``side``; uint8 stays uint8."""
-    height, width = image.shape[-2:]
-    if max(height, width) <= side:
-        return image
-    scale = side / max(height, width)
-    size = (max(1, round(height * scale)), max(1, round(width * scale)))
-    smaller = F.interpolate(as_unit(image)[None], size=size, mode="area")[0]
-    return unit_to_bytes(smaller) if image.dtype == torch.uint8 else smaller
 
 
 def _read_folder(folder: Path, say: Log) -> list[Tensor]:

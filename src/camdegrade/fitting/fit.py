@@ -195,14 +195,16 @@ def _fit_effects(
     captured = [target for _, target in pairs]
     for name in sorted(names, key=lambda n: STAGES.index(EFFECTS[n].stage)):
         kind = EFFECTS[name]
+        simulated = simulate(profile, cleans, seed=0, deterministic=True)
         try:
-            effect = fit_stage_in_chain(profile, kind, cleans, captured, calibration_pairs=CALIBRATION_PAIRS)
+            effect = fit_stage_in_chain(
+                profile, kind, cleans, captured, calibration_pairs=CALIBRATION_PAIRS, sources=simulated
+            )
         except ValueError as error:  # e.g. too few pixels to estimate it
             notes[name] = {"kept": False, "reason": str(error)}
             say(f"effect {name}: not fitted ({error})")
             continue
         if effect.position_dependent:
-            simulated = simulate(profile, cleans, seed=0, deterministic=True)
             before = _mean_squared_error(simulated, captured)
             with torch.no_grad():
                 after = _mean_squared_error([effect(s[None])[0] for s in simulated], captured)

@@ -25,17 +25,20 @@ def fit_stage_in_chain(
     *,
     seed: int = 0,
     calibration_pairs: int | None = None,
+    sources: Sequence[Tensor] | None = None,
 ) -> Effect:
     """A stage of ``kind`` for ``profile`` (its stages of that kind that draw only noise are replaced), fitted by
-    ``kind.fit_in_chain`` on ``(profile's deterministic output, capture)`` pairs."""
-    sources = simulate(profile.without_randomness(), cleans, seed, stream="noise-sources")
+    ``kind.fit_in_chain`` on ``(profile's deterministic output, capture)`` pairs. ``sources``: that output, when
+    the caller already has it (it draws nothing, so any seed gives the same images)."""
+    if sources is None:
+        sources = simulate(profile, cleans, seed, stream="noise-sources", deterministic=True)
 
     def simulate_with(effect: Effect, indices: Sequence[int]) -> list[Tensor]:
         chosen = [cleans[index] for index in indices]
         return simulate(replace_stage(profile, effect), chosen, seed, stream="noise-calibration")
 
     return kind.fit_in_chain(
-        list(cleans), sources, list(captures), simulate_with, seed=seed, calibration_pairs=calibration_pairs
+        list(cleans), list(sources), list(captures), simulate_with, seed=seed, calibration_pairs=calibration_pairs
     )
 
 

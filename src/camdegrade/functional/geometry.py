@@ -11,6 +11,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
+from camdegrade._pixels import bytes_to_unit, unit_to_bytes
 from camdegrade.functional._utils import ParamLike, apply_float, check_image, flat_param, per_sample
 from camdegrade.functional.color import linear_to_srgb, srgb_to_linear
 
@@ -146,3 +147,16 @@ def misalignment_image(image: Tensor, dx: ParamLike = 0.0, dy: ParamLike = 0.0, 
         return remap_image(_flatten(x), source_x, source_y).reshape(x.shape)
 
     return apply_float(image, kernel)
+
+
+def shrink_to_max_side(image: Tensor, max_side: int | None) -> Tensor:
+    """``(3, H, W)`` ``image`` downscaled (antialiased bilinear) so that its longer side is at most ``max_side``;
+    the image itself when it already is (or ``max_side`` is ``None``). uint8 stays uint8, floats stay floats."""
+    height, width = image.shape[-2:]
+    if max_side is None or max(height, width) <= max_side:
+        return image
+    factor = max_side / max(height, width)
+    size = (max(1, round(height * factor)), max(1, round(width * factor)))
+    unit = bytes_to_unit(image) if image.dtype == torch.uint8 else image
+    shrunk = F.interpolate(unit[None], size=size, mode="bilinear", antialias=True, align_corners=False)[0]
+    return unit_to_bytes(shrunk, overwrite=True) if image.dtype == torch.uint8 else shrunk
