@@ -32,8 +32,8 @@ from torch import Tensor
 
 from camdegrade import CameraProfile, load_profile
 from camdegrade.effects import EFFECTS, Effect, Noise
+from camdegrade.fitting import discover_pairs, filter_pairs, load_pair
 from camdegrade.fitting.noise import fit_noise_stage
-from camdegrade.fitting.pairs import discover_pairs, filter_pairs, load_pair
 from camdegrade.metrics import psnr, ssim
 
 DEFAULT_DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "real-pairs"

@@ -30,7 +30,7 @@ from torch import Tensor
 from camdegrade import CameraDegrade, CameraProfile, load_profile
 from camdegrade._pixels import as_unit
 from camdegrade.diagnose.critic import critic_test
-from camdegrade.fitting.pairs import discover_pairs, filter_pairs, load_pair
+from camdegrade.fitting import discover_pairs, filter_pairs, load_pair
 from camdegrade.functional.analysis import flat_mask, flattest_window, gradient_energy
 from camdegrade.functional.noise_stats import NoiseSums
 

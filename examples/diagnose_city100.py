@@ -19,7 +19,7 @@ from pathlib import Path
 import torch
 
 from camdegrade.diagnose import diagnose
-from camdegrade.fitting.pairs import discover_pairs, filter_pairs, load_pair
+from camdegrade.fitting import discover_pairs, filter_pairs, load_pair
 
 DEFAULT_DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "real-pairs"
 HELD_OUT = {f"{n:03d}" for n in range(56, 71)} | {"098"}

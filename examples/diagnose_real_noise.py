@@ -20,7 +20,7 @@ import torch
 from torch import Tensor
 
 from camdegrade.diagnose import DiagnosisReport, diagnose
-from camdegrade.fitting.pairs import discover_pairs, filter_pairs, load_pair
+from camdegrade.fitting import discover_pairs, filter_pairs, load_pair
 from camdegrade.fitting.pairset import simulate
 from camdegrade.functional.analysis import flat_mask, flattest_window
 from camdegrade.functional.noise_stats import measure_set

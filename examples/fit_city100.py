@@ -19,7 +19,7 @@ from pathlib import Path
 import torch
 
 from camdegrade import CameraProfile
-from camdegrade.fitting.pairs import Pair, discover_pairs, filter_pairs, load_pair
+from camdegrade.fitting import Pair, discover_pairs, filter_pairs, load_pair
 from camdegrade.fitting.training import FitConfig, evaluate_psnr, fit_network
 from camdegrade.metrics import psnr, ssim
 
@@ -108,7 +108,7 @@ def main() -> None:
             "train_scenes": len(train),
             "validation_scenes": len(val),
             "held_out_scenes": "056-070, 098",
-            "recipe": config.as_dict(),
+            "recipe": config.training_dict(),
             "best_epoch": best.epoch,
             "fit_minutes": round(minutes, 1),
             "machine": f"{platform.machine()}, {torch.get_num_threads()} threads, torch {torch.__version__}",

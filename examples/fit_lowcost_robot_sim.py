@@ -25,8 +25,7 @@ import torch
 from skimage import data as skdata
 
 from camdegrade import CameraProfile
-from camdegrade.fitting.fit import fit_profile
-from camdegrade.fitting.pairs import discover_pairs, load_pair
+from camdegrade.fitting import FitConfig, discover_pairs, fit_profile, load_pair
 from camdegrade.io import write_image
 from camdegrade.metrics import psnr, ssim
 from camdegrade.sim import PRESETS, simulate_pairs
@@ -143,13 +142,12 @@ def main() -> None:
                 flush=True,
             )
 
+        recipe = FitConfig.recipe("paper").replace(
+            epochs=args.epochs, crops_per_pair=args.crops_per_pair, seed=args.seed, effects=EFFECTS
+        )
         profile = fit_profile(
             train_manifest,
-            recipe="paper",
-            epochs=args.epochs,
-            crops_per_pair=args.crops_per_pair,
-            seed=args.seed,
-            effects=EFFECTS,
+            recipe,
             callback=report,
             name="lowcost-robot-sim",
             description="simulated cheap USB/robot camera (camdegrade's 'lowcost-robot' virtual camera: "

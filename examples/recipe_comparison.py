@@ -29,7 +29,7 @@ from pathlib import Path
 
 import torch
 
-from camdegrade.fitting.pairs import discover_pairs, load_pair
+from camdegrade.fitting import discover_pairs, load_pair
 from camdegrade.fitting.training import EpochResult, FitConfig, ImagePair, fit_network, training_dtype
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -74,7 +74,7 @@ def simulated_data(work: Path, seed: int) -> tuple[list[ImagePair], list[ImagePa
 
 def run_recipe(recipe: str, train, val, seed: int, **overrides) -> RecipeRun:
     config = FitConfig.recipe(recipe, seed=seed, **overrides)
-    run = RecipeRun(recipe, config.as_dict())
+    run = RecipeRun(recipe, config.training_dict())
     started = time.perf_counter()
 
     def record(result: EpochResult) -> None:

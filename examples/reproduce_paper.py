@@ -46,6 +46,7 @@ from torch.utils.data import DataLoader, TensorDataset
 
 from camdegrade import CameraProfile, DegradedDataset, VirtualCamera, fit_profile, simulate_pairs
 from camdegrade.data import Bernoulli, MixPolicy, PairedViews, Union
+from camdegrade.fitting import FitConfig
 from camdegrade.io import write_image
 
 #: Stripe period (pixels at the 64² rendering) of each class; neighbours differ by a factor √2.
@@ -217,16 +218,14 @@ def fit_camera_profile(
     for index, image in enumerate(clean):
         write_image(image, sources / f"{index:04d}.png")
     simulate_pairs(camera, sources, work / f"{name}-pairs", seed=seed)
-    return fit_profile(
-        work / f"{name}-pairs",
-        recipe="paper",
+    recipe = FitConfig.recipe("paper").replace(
         epochs=settings.fit_epochs,
         crop=settings.fit_crop,
         crops_per_pair=settings.fit_crops_per_pair,
         lr_halving_epochs=max(1, settings.fit_epochs // 3),
         seed=seed,
-        name=name,
     )
+    return fit_profile(work / f"{name}-pairs", recipe, name=name)
 
 
 def network_only(profile: CameraProfile) -> CameraProfile:

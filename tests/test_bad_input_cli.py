@@ -135,7 +135,7 @@ CASES: dict[str, tuple[Case, int, str]] = {
     "fit --lr-halving-epochs with the fast recipe": (
         lambda tmp, p: ["fit", make_pairs_folder(tmp / "pairs"), "-o", tmp / "x.safetensors", "--lr-halving-epochs", 5],
         1,
-        r"--lr-halving-epochs applies to --recipe paper",
+        r"--lr-halving-epochs applies to --recipe paper or --schedule step",
     ),
     "fit --resume without a checkpoint": (
         lambda tmp, p: ["fit", make_pairs_folder(tmp / "pairs"), "-o", tmp / "x.safetensors", "--resume", *QUICK],
@@ -185,7 +185,7 @@ def test_every_subcommand_reports_bad_input_in_one_line(case: str, tmp_path: Pat
 
 
 def test_the_case_table_covers_every_subcommand() -> None:
-    from camdegrade.__main__ import _COMMANDS
+    from camdegrade.cli import _COMMANDS
 
     assert {case.split()[0] for case in CASES} == set(_COMMANDS)
 

@@ -19,7 +19,7 @@ from camdegrade.errors import CamdegradeError, PairsError
 from camdegrade.fitting.checkpoint import CHECKPOINT_KEY, load_checkpoint
 from camdegrade.fitting.fit import fit_profile
 from camdegrade.fitting.pairs import discover_pairs
-from camdegrade.fitting.training import fit_network
+from camdegrade.fitting.training import FitConfig, fit_network
 from camdegrade.io import write_image
 from camdegrade.sim import simulate_pairs
 from test_fit import QUICK as CLI_QUICK
@@ -27,14 +27,14 @@ from test_fit import make_pairs_folder
 from test_training import TINY, synthetic_pairs
 
 BIG_SEED = 2**70
-QUICK = dict(epochs=1, crop=16, batch_size=4, crops_per_pair=1)
+QUICK = FitConfig(epochs=1, crop=16, batch_size=4, crops_per_pair=1)
 
 
 def test_fit_skips_a_png_whose_data_is_short(tmp_path: Path) -> None:
     folder = make_pairs_folder(tmp_path / "pairs")
     png_with_rows(folder / "captured" / "img2.png", 32, 32, rows=4)  # valid header, 28 rows missing
     lines: list[str] = []
-    profile = fit_profile(folder, **QUICK, log=lines.append)
+    profile = fit_profile(folder, QUICK, log=lines.append)
     assert profile.fitted["pairs"] == 5 and profile.fitted["skipped"] == 1
     assert any("img2.png" in line and "truncated" in line for line in lines)
     assert [Path(entry["path"]).name for entry in profile.fitted["unreadable"]] == ["img2.png"]
@@ -143,7 +143,7 @@ def test_diagnose_reports_the_pairs_it_skipped_in_stdout_and_json(tmp_path: Path
 @pytest.mark.parametrize(
     "call",
     [
-        lambda tmp: fit_profile(make_pairs_folder(tmp / "pairs"), seed=BIG_SEED, **QUICK),
+        lambda tmp: fit_profile(make_pairs_folder(tmp / "pairs"), QUICK.replace(seed=BIG_SEED)),
         lambda tmp: diagnose(CameraProfile(None, []), _write_pairs(tmp / "pairs", 8), seed=BIG_SEED),
         lambda tmp: simulate_pairs("lowcost-robot", make_pairs_folder(tmp / "pairs") / "clean", tmp / "out", BIG_SEED),
     ],

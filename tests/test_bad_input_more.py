@@ -423,7 +423,6 @@ def test_a_nested_tensor_is_refused_with_a_type_error() -> None:
         ({"device": "bogus"}, ValueError, r"device must be a torch device usable here, got device='bogus'"),
         ({"device": "meta"}, ValueError, r"device 'meta' holds no data"),
         ({"name": 5}, TypeError, r"name must be a str, got name=5"),
-        ({"effects": "tonne"}, ValueError, r"effects must be effect names .* got unknown \['tonne'\]"),
     ],
 )
 def test_fit_profile_refuses_bad_arguments_before_training(tmp_path: Path, options: dict, error, message: str) -> None:
@@ -434,6 +433,14 @@ def test_fit_profile_refuses_bad_arguments_before_training(tmp_path: Path, optio
         fit_profile(tmp_path / "never-read", **options)
     with pytest.raises(TypeError, match="pairs must be a folder"):
         fit_profile(None)  # type: ignore[arg-type]
+
+
+def test_a_recipe_takes_one_effect_name_as_a_name_not_its_letters() -> None:
+    from camdegrade.fitting import FitConfig
+
+    with pytest.raises(ValueError, match=r"effects must be effect names .* got unknown \['tonne'\]"):
+        FitConfig.recipe("fast").replace(effects="tonne")
+    assert FitConfig.recipe("fast").replace(effects="tone").effects == ("tone",)
 
 
 def test_fit_lists_manifest_rows_naming_missing_files_and_exits_1(tmp_path: Path, capsys) -> None:

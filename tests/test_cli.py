@@ -8,7 +8,7 @@ import sys
 import pytest
 import torch
 
-from camdegrade.__main__ import main
+from camdegrade.cli import main
 from camdegrade.io import read_image, write_image
 from profiles_for_tests import deterministic_profile, stochastic_profile
 

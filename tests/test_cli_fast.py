@@ -36,7 +36,7 @@ def _python(code: str, *options: str) -> subprocess.CompletedProcess[str]:
 def test_help_version_list_and_info_import_no_torch() -> None:
     code = f"""
 import contextlib, io, json, sys
-from camdegrade.__main__ import main
+from camdegrade.cli import main
 results = {{}}
 for argv in (["--help"], ["--version"], ["list"], ["info", "city100-iphonex"], ["info", "lowcost-robot-sim"]):
     out = io.StringIO()

@@ -6,7 +6,7 @@ import torch
 import torch.nn.functional as F
 
 from camdegrade import CameraProfile, load_profile
-from camdegrade.__main__ import main
+from camdegrade.cli import main
 from camdegrade.effects import Blur, Tone
 from camdegrade.fitting.distill import distill_profile
 from camdegrade.fitting.training import FitConfig

@@ -11,8 +11,8 @@ import torch
 import torch.nn.functional as F
 
 from camdegrade import CameraDegrade, CameraProfile, DomainShiftNet, ProfileError, load_profile
-from camdegrade.__main__ import main
 from camdegrade._seeds import derived_generator
+from camdegrade.cli import main
 from camdegrade.fitting.fit import fit_profile
 from camdegrade.fitting.training import FitConfig, fit_network, random_crop_batch
 from camdegrade.io import write_image
@@ -36,9 +36,8 @@ def make_pairs_folder(root, count: int = 6, size: int = 32):
 def test_fit_profile_records_how_it_was_made(tmp_path):
     folder = make_pairs_folder(tmp_path / "pairs")
     lines: list[str] = []
-    profile = fit_profile(
-        folder, epochs=2, crop=16, batch_size=4, crops_per_pair=2, val_fraction=0.34, name="tiny", log=lines.append
-    )
+    recipe = FitConfig.recipe("fast").replace(epochs=2, crop=16, batch_size=4, crops_per_pair=2, val_fraction=0.34)
+    profile = fit_profile(folder, recipe, name="tiny", log=lines.append)
     assert profile.name == "tiny" and profile.network is not None
     assert profile.fitted["pairs"] == 6 and profile.fitted["validation_pairs"] == 2
     assert profile.fitted["recipe"]["epochs"] == 2 and profile.fitted["recipe"]["crop"] == 16
@@ -52,10 +51,7 @@ def test_fit_profile_threads_apply_during_the_fit_and_are_restored(tmp_path):
     seen: list[int] = []
     fit_profile(
         make_pairs_folder(tmp_path / "pairs"),
-        epochs=1,
-        crop=16,
-        batch_size=4,
-        crops_per_pair=1,
+        FitConfig(epochs=1, crop=16, batch_size=4, crops_per_pair=1),
         threads=before + 1,
         callback=lambda result: seen.append(torch.get_num_threads()),
     )
@@ -67,16 +63,16 @@ def test_fit_profile_threads_apply_during_the_fit_and_are_restored(tmp_path):
 
 def test_fit_profile_same_seed_same_bytes(tmp_path):
     folder = make_pairs_folder(tmp_path / "pairs")
-    options = dict(epochs=2, crop=16, batch_size=4, crops_per_pair=2, seed=3)
-    first = fit_profile(folder, **options)
-    second = fit_profile(folder, **options)
+    recipe = FitConfig(epochs=2, crop=16, batch_size=4, crops_per_pair=2, seed=3)
+    first = fit_profile(folder, recipe)
+    second = fit_profile(folder, recipe)
     first.fitted.pop("fit_minutes"), second.fitted.pop("fit_minutes")
     assert first.save(tmp_path / "a.safetensors").read_bytes() == second.save(tmp_path / "b.safetensors").read_bytes()
 
 
 def test_fit_profile_rejects_unknown_effects(tmp_path):
     with pytest.raises(ValueError, match=r"effects must be effect names from .*unknown \['lens_flare'\]"):
-        fit_profile(make_pairs_folder(tmp_path / "pairs"), effects=["lens_flare"])
+        fit_profile(make_pairs_folder(tmp_path / "pairs"), FitConfig().replace(effects=["lens_flare"]))
 
 
 def test_cli_fit_writes_a_loadable_profile_and_removes_its_checkpoint(tmp_path, capsys):
@@ -150,7 +146,7 @@ def test_torchrun_two_processes_fit(tmp_path):
     result = subprocess.run(command, capture_output=True, text=True, timeout=240, env=env, check=False)
     assert result.returncode == 0, result.stderr[-2000:]
     profile = load_profile(out)
-    single = fit_profile(folder, epochs=2, crop=16, batch_size=4, crops_per_pair=2)
+    single = fit_profile(folder, FitConfig(epochs=2, crop=16, batch_size=4, crops_per_pair=2))
     assert profile.quality["network_psnr_db"] == pytest.approx(single.quality["network_psnr_db"], abs=0.05)
 
 
@@ -214,20 +210,22 @@ def test_fit_network_refuses_an_initial_network_it_cannot_start_from():
 def test_fit_profile_init_from_a_file_keeps_its_weights_at_a_tiny_lr_and_records_it(tmp_path):
     start = CameraProfile(seeded_network(3), name="start").save(tmp_path / "start.safetensors")
     folder = make_pairs_folder(tmp_path / "pairs", count=4)
-    options = dict(epochs=1, crop=16, batch_size=4, crops_per_pair=1, lr=1e-12, effects=(), val_fraction=0.0)
-    profile = fit_profile(folder, init_from=start, **options)
+    recipe = FitConfig(epochs=1, crop=16, batch_size=4, crops_per_pair=1, lr=1e-12, effects=(), val_fraction=0.0)
+    profile = fit_profile(folder, recipe, init_from=start)
     assert profile.network is not None
     for key, value in profile.network.state_dict().items():
         assert torch.allclose(value, seeded_network(3).state_dict()[key], rtol=0, atol=1e-9), key
     assert profile.fitted["init_from"] == str(start)
-    assert fit_profile(folder, **options).fitted["init_from"] is None
-    assert fit_profile(folder, init_from=load_profile(start), **options).fitted["init_from"] == "start"
+    assert fit_profile(folder, recipe).fitted["init_from"] is None
+    assert fit_profile(folder, recipe, init_from=load_profile(start)).fitted["init_from"] == "start"
 
 
 def test_fit_profile_records_the_torch_and_torchvision_versions(tmp_path):
     import torchvision
 
-    profile = fit_profile(make_pairs_folder(tmp_path / "pairs", count=4), epochs=1, crop=16, crops_per_pair=1)
+    profile = fit_profile(
+        make_pairs_folder(tmp_path / "pairs", count=4), FitConfig(epochs=1, crop=16, crops_per_pair=1)
+    )
     assert torch.__version__.startswith(profile.fitted["torch"])
     assert torchvision.__version__.startswith(profile.fitted["torchvision"])
 

@@ -23,9 +23,8 @@ from camdegrade.fitting.pairs import (
     Pair,
     discover_pairs,
     filter_pairs,
-    load_pair,
-    split_by_scene,
 )
+from camdegrade.fitting.pairset import load_pair, split_by_scene
 
 
 def save(path: Path, size: tuple[int, int] = (32, 24), mode: str = "RGB", seed: int = 0, **options) -> Path:

@@ -1,7 +1,13 @@
-"""The fitting recipes' values, in one place and without torch (the CLI's help text reads them)."""
+"""The fitting recipes' values and fields, in one place and without torch.
+
+:class:`~camdegrade.fitting.FitConfig` has one field per entry of :data:`FIELDS` (a test holds them equal), and the
+command line derives its recipe options (``camdegrade fit``/``distill``: type, help, the default shown) from the same
+entries, so a new recipe field cannot be left out of either.
+"""
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any
 
 #: camdegrade's default recipe: many small steps on small windows (batches of 8 windows of 64², 32 per pair and
@@ -20,6 +26,8 @@ FAST: dict[str, Any] = {
     "patience": 4,
     "precision": "auto",
     "width": 64,
+    "val_fraction": 0.15,
+    "effects": ("noise", "vignetting"),
 }
 #: The paper's schedule (Hegde et al.): 100 epochs, Adam at lr 0.01 halved every 30 epochs, batch 32, no early stop;
 #: 8 windows of 128² per pair and epoch.
@@ -35,8 +43,58 @@ PAPER: dict[str, Any] = {
 }
 RECIPES: dict[str, dict[str, Any]] = {"fast": FAST, "paper": PAPER}
 
+#: The values of the network's training (recorded as a profile's ``fitted['recipe']`` and in a checkpoint); the
+#: other fields say how the pairs are split and which effect stages follow the network.
+TRAINING_FIELDS: tuple[str, ...] = tuple(name for name in FAST if name not in ("val_fraction", "effects"))
+
+
+@dataclass(frozen=True)
+class RecipeField:
+    """One recipe value as the command line offers it: ``kind`` names the rule its text must meet (``count``: an
+    integer >= 1, ``count0``: >= 0, ``number``: > 0, ``fraction``: in [0, 1), ``seed``, ``choice``: one of
+    ``choices``, ``names``: any number of names, none for the empty tuple)."""
+
+    name: str
+    kind: str
+    help: str
+    choices: tuple[str, ...] = ()
+
+    @property
+    def option(self) -> str:
+        return "--" + self.name.replace("_", "-")
+
+
+SCHEDULES: tuple[str, ...] = ("step", "cosine")
+TRAIN_PRECISIONS: tuple[str, ...] = ("auto", "float32", "bfloat16")
+
+FIELDS: tuple[RecipeField, ...] = (
+    RecipeField("epochs", "count", "most epochs"),
+    RecipeField("crop", "count", "training crop size, a multiple of 4"),
+    RecipeField("batch_size", "count", "crops per step"),
+    RecipeField("lr", "number", "Adam learning rate at the start"),
+    RecipeField("lr_halving_epochs", "count", "with the step schedule: halve the learning rate every N epochs"),
+    RecipeField("crops_per_pair", "count", "random crops per pair per epoch"),
+    RecipeField("seed", "seed", "initialisation, crops and the validation split"),
+    RecipeField(
+        "schedule", "choice", "how the learning rate moves: halved in steps, or along a half cosine", SCHEDULES
+    ),
+    RecipeField(
+        "patience", "count0", "stop after N epochs without a better validation PSNR (by 0.01 dB), 0 never stops"
+    ),
+    RecipeField(
+        "precision",
+        "choice",
+        "arithmetic of the training passes (auto: bfloat16 where the device computes it natively)",
+        TRAIN_PRECISIONS,
+    ),
+    RecipeField("width", "count", "network width (32 runs about 4x cheaper, see 'camdegrade distill')"),
+    RecipeField("val_fraction", "fraction", "share of scenes held out to choose the best epoch"),
+    RecipeField("effects", "names", "effect stages fitted after the network, from the registry (none: network only)"),
+)
+
 
 def recipe_default(key: str) -> str:
     """``key``'s value in each recipe, for help text: ``"15; paper: 100"``, or one value where they agree."""
     fast, paper = FAST[key], PAPER[key]
-    return f"{fast}" if fast == paper else f"{fast}; paper: {paper}"
+    shown = (" ".join(fast) or "none") if isinstance(fast, tuple) else f"{fast}"
+    return shown if fast == paper else f"{shown}; paper: {paper}"

@@ -4,8 +4,8 @@ network's training and checkpoints, and :func:`fit_profile` that runs them in or
 from camdegrade.fitting.align import AlignmentResult, align_pair, apply_shift, estimate_shift, register
 from camdegrade.fitting.distill import distill_profile
 from camdegrade.fitting.fit import DEFAULT_EFFECTS, fit_profile
-from camdegrade.fitting.pairs import Pair, PairReport, discover_pairs, filter_pairs, load_pair, split_by_scene
-from camdegrade.fitting.pairset import PairSet, simulate
+from camdegrade.fitting.pairs import Pair, PairReport, discover_pairs, filter_pairs
+from camdegrade.fitting.pairset import PairSet, load_pair, simulate, split_by_scene
 from camdegrade.fitting.training import EpochResult, FitConfig, FitInterrupted, fit_network
 
 __all__ = [

@@ -32,6 +32,7 @@ from camdegrade._threads import torch_threads
 from camdegrade._version import __version__
 from camdegrade.effects.base import evenly_spaced
 from camdegrade.errors import ImageError
+from camdegrade.fitting.fit import finite_or_none
 from camdegrade.fitting.training import EpochResult, FitConfig, ImagePair, fit_network, resolve_recipe
 from camdegrade.functional.geometry import shrink_to_max_side
 from camdegrade.inference import run_network
@@ -60,7 +61,6 @@ def distill_profile(
     recipe: str | FitConfig = "fast",
     epochs: int | None = None,
     seed: int | None = None,
-    val_fraction: float = 0.15,
     device: torch.device | str = "cpu",
     threads: int | None = None,
     progress: bool = False,
@@ -79,13 +79,16 @@ def distill_profile(
             :data:`SYNTHETIC_IMAGES` generated dead-leaves images (:mod:`camdegrade.synthetic`).
         width: the student network's width (:class:`~camdegrade.network.DomainShiftNet`); ``None``: 32, or a
             :class:`FitConfig` recipe's own.
-        recipe, epochs: the training recipe (:class:`FitConfig` or a name of its recipes) and its epochs.
+        recipe, epochs: the training recipe (:class:`FitConfig` or a name of its recipes) and its epochs; the
+            recipe's ``val_fraction`` is the share of the images (at least one) that choose the best epoch and give
+            the reported PSNR (its ``effects`` do not apply: the teacher's stages are copied).
         seed: the split, the generated images, the student's initialisation and crops (``None``: the recipe's).
-        val_fraction: share of the images (at least one) that choose the best epoch and give the reported PSNR.
 
     Returns:
         The profile; ``fitted`` records the teacher, the images, the recipe and the best epoch, ``quality`` the
-        student's PSNR against the teacher's network on the validation images.
+        student's PSNR against the teacher's network on the validation images and that of the clean images
+        unchanged; a student further from its teacher than the clean images are gets ``fitted['warnings']`` (also
+        logged; see :func:`student_warnings`).
     """
     say = log or (lambda message: None)
     teacher = as_profile(profile)
@@ -93,11 +96,13 @@ def distill_profile(
         raise ValueError(f"profile {teacher.name!r} has no network to distil (it holds effect stages only)")
     if width is None and not isinstance(recipe, FitConfig):
         width = DEFAULT_WIDTH
-    config = resolve_recipe(recipe, epochs=epochs, width=width, seed=seed)
+    config = resolve_recipe(recipe).replace(epochs=epochs, width=width, seed=seed)
     width, seed = config.width, config.seed
+    if config.val_fraction == 0:
+        raise ValueError("val_fraction must be in (0, 1) for a distillation (it validates on its images), got 0")
     with torch_threads(threads):
         cleans, source = _clean_images(images, config.crop, seed, say)
-        train, val = _split(cleans, val_fraction, seed)
+        train, val = _split(cleans, config.val_fraction, seed)
         say(f"distilling {teacher.name or 'the profile'} into width {width} on {len(train)} images of {source}")
         started = time.perf_counter()
         pairs = [(image, _teacher_output(teacher, image)) for image in cleans]
@@ -117,7 +122,13 @@ def distill_profile(
         description=f"{teacher.description} (network distilled to width {width})".strip(),
     )
     fast.fitted = _record(teacher, source, len(train), len(val), config, history, minutes)
-    fast.quality = _quality(student, [pairs[i] for i in val])
+    quality = _quality(student, [pairs[i] for i in val])
+    warnings = student_warnings(quality)
+    if warnings:
+        fast.fitted["warnings"] = warnings
+    for warning in warnings:
+        say(f"warning: {warning}")
+    fast.quality = finite_or_none(quality)
     return fast
 
 
@@ -194,7 +205,7 @@ def _record(
         "images": source,
         "train_images": train,
         "validation_images": val,
-        "recipe": config.as_dict(),
+        "recipe": config.training_dict(),
         "best_epoch": best.epoch,
         "fit_minutes": round(minutes, 2),
         "machine": f"{platform.machine()}, {torch.get_num_threads()} threads, torch {torch.__version__}",
@@ -203,6 +214,25 @@ def _record(
 
 
 def _quality(student: torch.nn.Module, val: Sequence[ImagePair]) -> dict[str, Any]:
+    """The student's PSNR against the teacher's output on the validation images, and the clean images' (the
+    identity's)."""
     with torch.no_grad():
         scores = [psnr(run_network(student, as_unit(clean)[None], "float32")[0], target) for clean, target in val]
-    return {"validation_images": len(val), "student_vs_teacher_psnr_db": round(sum(scores) / len(scores), 3)}
+    identity = [psnr(as_unit(clean), target) for clean, target in val]
+    return {
+        "validation_images": len(val),
+        "student_vs_teacher_psnr_db": round(sum(scores) / len(scores), 3),
+        "identity_vs_teacher_psnr_db": round(sum(identity) / len(identity), 3),
+    }
+
+
+def student_warnings(quality: dict[str, Any]) -> list[str]:
+    """What a distillation's validation scores say is wrong: a student further from its teacher's output than the
+    clean images themselves (too few epochs or images)."""
+    student, identity = quality["student_vs_teacher_psnr_db"], quality["identity_vs_teacher_psnr_db"]
+    if not student < identity:
+        return []
+    return [
+        f"the student is far from its teacher on the validation images ({student:.2f} dB, less than the clean images' "
+        f"{identity:.2f} dB): distil for more epochs (--epochs) or on more images"
+    ]

@@ -1,8 +1,9 @@
 """``fit_profile``: from a folder (or CSV, or suffix rule) of (clean, captured) pairs to a camera profile.
 
-Steps: load the pair set (discover → load, EXIF honoured, unusable files reported) → split by scene into train and
-validation → optionally register each pair → train the network (:mod:`camdegrade.fitting.training`) → fit the
-effect stages the network cannot represent → a :class:`CameraProfile` whose metadata records how it was made.
+Steps: a pair set (:class:`~camdegrade.fitting.PairSet`: discovered, loaded, optionally registered; or loaded here
+from a path) → split by scene into train and validation → train the network (:mod:`camdegrade.fitting.training`)
+→ fit the effect stages the network cannot represent → a :class:`CameraProfile` whose metadata records how it was
+made, with a warning when the network does worse than the identity.
 
 References:
     Hegde et al., "A Simple Domain Shifting Network for Generating Low Quality Images" (the network and recipe).
@@ -10,20 +11,23 @@ References:
 
 from __future__ import annotations
 
+import math
 import os
 import platform
 import time
-from collections.abc import Callable, Iterable, Sequence
-from typing import Any, Literal
+from collections.abc import Callable, Sequence
+from typing import Any
 
 import torch
 import torch.distributed as dist
 
+from camdegrade._device import check_device
 from camdegrade._distributed import is_main_process
 from camdegrade._metadata import running_versions
+from camdegrade._recipes import FAST
 from camdegrade._threads import torch_threads
 from camdegrade._version import __version__
-from camdegrade.effects import EFFECTS, STAGES, check_effect_names
+from camdegrade.effects import EFFECTS, STAGES
 from camdegrade.fitting.noise import CALIBRATION_PAIRS, fit_stage_in_chain
 from camdegrade.fitting.pairs import MISSING, UNREADABLE
 from camdegrade.fitting.pairset import PairSet, PairsSource, simulate
@@ -39,36 +43,28 @@ from camdegrade.metrics import psnr
 from camdegrade.network import DomainShiftNet
 from camdegrade.profile import CameraProfile, as_profile
 
-__all__ = ["DEFAULT_EFFECTS", "fit_profile", "init_distributed_from_env", "is_main_process", "torch_threads"]
+__all__ = [
+    "DEFAULT_EFFECTS",
+    "finite_or_none",
+    "fit_profile",
+    "init_distributed_from_env",
+    "is_main_process",
+    "quality_warnings",
+    "torch_threads",
+]
 
-#: Effects fitted after the network by default. ``noise`` is always useful (an L2 network predicts the mean and
-#: never the noise); position-dependent stages are kept only where they lower the validation error.
-DEFAULT_EFFECTS: tuple[str, ...] = ("noise", "vignetting")
+#: Effects fitted after the network by default (the recipes' ``effects``). ``noise`` is always useful (an L2 network
+#: predicts the mean and never the noise); position-dependent stages are kept only where they lower the error.
+DEFAULT_EFFECTS: tuple[str, ...] = FAST["effects"]
 _MIN_RELATIVE_GAIN = 0.01
 
 Log = Callable[[str], None]
 
 
 def fit_profile(
-    pairs: PairsSource,
-    *,
+    pairs: PairsSource | PairSet,
     recipe: str | FitConfig = "fast",
-    epochs: int | None = None,
-    crop: int | None = None,
-    batch_size: int | None = None,
-    lr: float | None = None,
-    lr_halving_epochs: int | None = None,
-    crops_per_pair: int | None = None,
-    patience: int | None = None,
-    width: int | None = None,
-    seed: int | None = None,
-    val_fraction: float = 0.15,
-    align: bool = False,
-    clean_suffix: str | None = None,
-    captured_suffix: str | None = None,
-    strict: bool = False,
-    size_mismatch: Literal["skip", "crop"] = "skip",
-    effects: Iterable[str] = DEFAULT_EFFECTS,
+    *,
     init_from: CameraProfile | str | os.PathLike[str] | None = None,
     device: torch.device | str = "cpu",
     threads: int | None = None,
@@ -80,51 +76,44 @@ def fit_profile(
     description: str = "",
     log: Log | None = None,
 ) -> CameraProfile:
-    """Fit a camera profile from (clean, captured) pairs (see :class:`FitConfig` for the recipes).
+    """Fit a camera profile from (clean, captured) pairs with a recipe::
+
+        fit_profile("pairs/")
+        fit_profile(PairSet.load("pairs/", clean_suffix="_mean", captured_suffix="_real", align=True),
+                    FitConfig.recipe("fast").replace(epochs=3, effects=()))
 
     Args:
-        pairs: a folder with ``clean/`` and ``captured/``, a folder plus ``clean_suffix``/``captured_suffix``, a
-            CSV manifest, a list of :class:`~camdegrade.fitting.Pair`, a :class:`~camdegrade.fitting.PairReport`,
-            or a list of ``(clean, captured)`` tensors.
+        pairs: a :class:`~camdegrade.fitting.PairSet` (loaded with its options: suffixes, ``strict``,
+            ``size_mismatch``, ``max_pairs``, ``align``; see :meth:`PairSet.load`), or what it loads with the default
+            options: a folder with ``clean/`` and ``captured/``, a CSV manifest, a
+            :class:`~camdegrade.fitting.PairReport`, a list of :class:`~camdegrade.fitting.Pair` or of
+            ``(clean, captured)`` tensors.
         recipe: ``"fast"`` (default: a cosine schedule that stops early once the validation PSNR stops rising),
-            ``"paper"`` (the paper's 100 epochs, lr 0.01 halved every 30) or a :class:`FitConfig`.
-        epochs, crop, batch_size, lr, lr_halving_epochs, crops_per_pair, patience, width: change one value of the
-            recipe; ``None`` keeps the recipe's. ``width`` is the network's (64, the paper's; 32 fits a network
-            about four times cheaper to run).
-        seed: initialisation, crops and the validation split (``None``: the recipe's, 0 unless a
-            :class:`FitConfig` says otherwise).
-        val_fraction: share of *scenes* held out for choosing the best epoch and checking the effect stages.
-        align: register every pair (sub-pixel translation) before training; the shifts are logged.
-        size_mismatch: pairs whose images differ in size are skipped, or with ``"crop"`` centre-cropped.
-        effects: effect stages to fit after the network (names from ``EFFECTS``).
+            ``"paper"`` (the paper's 100 epochs, lr 0.01 halved every 30) or a :class:`FitConfig`: every training
+            value, the seed (initialisation, crops and the split), the share of scenes that validates
+            (``val_fraction``) and the effect stages fitted after the network (``effects``).
         init_from: start the network from this profile's network (a :class:`CameraProfile`, a built-in name or a
-            path) instead of a fresh initialisation from ``seed``: a refit on new pairs, usually with fewer epochs
-            and a lower ``lr`` (e.g. 20 and 0.001). Its width must be the recipe's (64 unless ``width`` says
-            otherwise). Recorded in ``fitted['init_from']``.
+            path) instead of a fresh initialisation from the recipe's seed: a refit on new pairs, usually with fewer
+            epochs and a lower ``lr`` (e.g. 20 and 0.001). Its width must be the recipe's. Recorded in
+            ``fitted['init_from']``.
         checkpoint: training state written after every epoch; with ``resume=True`` the fit continues from it.
         callback: called with an :class:`EpochResult` after every epoch (notebooks, Lightning loggers).
-        log: called with human-readable progress lines (pairs found, shifts, effect fits).
+        log: called with human-readable progress lines (pairs found, shifts, effect fits, warnings).
 
     Returns:
-        The fitted profile; its metadata records the pairs used, the recipe, validation PSNR and the machine.
+        The fitted profile; its metadata records the pairs used, the recipe, the validation PSNR of the profile and
+        of the identity (strict JSON: a PSNR of identical images is ``null``) and ``fitted['warnings']`` when the
+        network does worse than the identity on the validation pairs (also logged; see :func:`quality_warnings`).
     """
-    say = log or (lambda message: None)
-    changes = dict(epochs=epochs, crop=crop, batch_size=batch_size, lr=lr, lr_halving_epochs=lr_halving_epochs)
-    changes.update(crops_per_pair=crops_per_pair, patience=patience, width=width, seed=seed)
-    config = resolve_recipe(recipe, **changes)
-    _check_arguments(pairs, device, name, description)
-    effect_names = check_effect_names(effects)
+    say = log or _silent
+    config = resolve_recipe(recipe)
+    _check_arguments(pairs, name, description)
+    check_device(device)
     initial, init_label = _initial_network(init_from, config.width)
     with torch_threads(threads):
-        pair_set = PairSet.load(
-            pairs,
-            clean_suffix=clean_suffix,
-            captured_suffix=captured_suffix,
-            strict=strict,
-            size_mismatch=size_mismatch,
-            log=say,
-        )
-        train, val = _split(pair_set, val_fraction, config.seed, align, say)
+        pair_set = PairSet.load(pairs, log=say)
+        train, val = pair_set.validation_split(config.val_fraction, config.seed)
+        say(f"training on {len(train)} pairs, validating on {len(val)} ({len(set(val.scenes))} scenes)")
         if config.patience and not len(val):
             say("no validation pairs: the fit runs every epoch (early stopping needs validation)")
         started = time.perf_counter()
@@ -142,15 +131,25 @@ def fit_profile(
         )
         minutes = (time.perf_counter() - started) / 60
         profile = CameraProfile(network, name=name, description=description)
-        profile, effect_notes = _fit_effects(profile, [*val.unit_pairs(), *train.unit_pairs()], effect_names, say)
-        profile.fitted = _record(pair_set, train, val, config, history, align, minutes, effect_notes)
+        profile, effect_notes = _fit_effects(profile, [*val.unit_pairs(), *train.unit_pairs()], config.effects, say)
+        profile.fitted = _record(pair_set, train, val, config, history, minutes, effect_notes)
         profile.fitted["init_from"] = init_label
         profile.fitted["trained_in"] = str(training_dtype(config.precision, torch.device(device))).split(".")[-1]
-        profile.quality = _quality(profile, val) if len(val) else {}
+        quality = _quality(profile, val) if len(val) else {}
+        warnings = quality_warnings(quality)
+        if warnings:
+            profile.fitted["warnings"] = warnings
+        for warning in warnings:
+            say(f"warning: {warning}")
+        profile.quality = finite_or_none(quality)
         return profile
 
 
-def _check_arguments(pairs: Any, device: Any, name: Any, description: Any) -> None:
+def _silent(message: str) -> None:
+    pass
+
+
+def _check_arguments(pairs: Any, name: Any, description: Any) -> None:
     """What can be refused before any pair is read or any epoch trained."""
     if pairs is None:
         raise TypeError(
@@ -159,27 +158,31 @@ def _check_arguments(pairs: Any, device: Any, name: Any, description: Any) -> No
     for label, text in (("name", name), ("description", description)):
         if not isinstance(text, str):
             raise TypeError(f"{label} must be a str, got {label}={text!r} ({type(text).__name__})")
-    try:
-        torch.empty(1, device=device)
-    except Exception as error:  # a backend that is not built in may raise anything
-        reason = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
-        raise ValueError(f"device must be a torch device usable here, got device={device!r} ({reason})") from None
-    if torch.device(device).type == "meta":
-        raise ValueError("device 'meta' holds no data, so nothing can be trained on it; use 'cpu' or 'cuda'")
 
 
-def _split(pair_set: PairSet, val_fraction: float, seed: int, align: bool, say: Log) -> tuple[PairSet, PairSet]:
-    """``(train, validation)`` split by scene (everything trains with one scene or ``val_fraction`` 0)."""
-    if not 0.0 <= val_fraction < 1.0:
-        raise ValueError(f"val_fraction must be in [0, 1), got val_fraction={val_fraction!r}")
-    if val_fraction == 0 or len(set(pair_set.scenes)) < 2:
-        train, val = pair_set, pair_set.subset([])
-    else:
-        train, val = pair_set.split(val_fraction, seed)
-    if align:
-        train, val = train.aligned(say), val.aligned(say)
-    say(f"training on {len(train)} pairs, validating on {len(val)} ({len(set(val.scenes))} scenes)")
-    return train, val
+def quality_warnings(quality: dict[str, Any]) -> list[str]:
+    """What a fit's validation scores (:func:`_quality`'s) say is wrong: a network that does worse than passing the
+    clean image through unchanged (too few epochs, too few pairs, or pairs that show no difference)."""
+    network, identity = quality.get("network_psnr_db"), quality.get("identity_psnr_db")
+    if network is None or identity is None or not network < identity:
+        return []
+    return [
+        f"the fitted network is worse than the identity on the validation pairs ({_db(network)} vs {_db(identity)} "
+        "for the clean images unchanged): fit longer (--epochs), on more pairs, or check that the captures differ "
+        "from the clean images"
+    ]
+
+
+def _db(value: float) -> str:
+    return f"{value:.2f} dB" if math.isfinite(value) else f"{value} dB"
+
+
+def finite_or_none(values: dict[str, Any]) -> dict[str, Any]:
+    """``values`` with every non-finite number (the infinite PSNR of identical images) as ``None``, so that the
+    metadata stays strict JSON (``null``)."""
+    return {
+        key: None if isinstance(value, float) and not math.isfinite(value) else value for key, value in values.items()
+    }
 
 
 def _fit_effects(
@@ -226,7 +229,6 @@ def _record(
     val: PairSet,
     config: FitConfig,
     history: Sequence[EpochResult],
-    align: bool,
     minutes: float,
     effect_notes: dict[str, Any],
 ) -> dict[str, Any]:
@@ -240,8 +242,8 @@ def _record(
         "train_pairs": len(train),
         "validation_pairs": len(val),
         "validation_scenes": sorted(set(val.scenes)),
-        "aligned": align,
-        "recipe": config.as_dict(),
+        "aligned": pair_set.shifts is not None,
+        "recipe": config.training_dict(),
         "best_epoch": best.epoch,
         "fit_minutes": round(minutes, 2),
         "effects": effect_notes,

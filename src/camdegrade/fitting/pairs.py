@@ -12,8 +12,10 @@ Three layouts are understood (see :func:`discover_pairs`):
 
 Stems are compared case-sensitively, extensions case-insensitively. Pairs whose images differ in size are
 skipped by default, because a capture of another size usually shows another field of view and a centre crop
-would silently misalign it; ``size_mismatch="crop"`` keeps them and :func:`load_pair` centre-crops both images to
-their common size.
+would silently misalign it; ``size_mismatch="crop"`` keeps them and
+:func:`~camdegrade.fitting.pairset.load_pair` centre-crops both images to their common size.
+
+Loading the pairs and splitting them by scene belong to the pair set (:mod:`camdegrade.fitting.pairset`).
 """
 
 from __future__ import annotations
@@ -21,19 +23,17 @@ from __future__ import annotations
 import codecs
 import csv
 import os
-import random
 from collections import defaultdict
 from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
-from torch import Tensor
-
+from camdegrade._text import printable
 from camdegrade.errors import PairsError
-from camdegrade.io import IMAGE_EXTENSIONS, iter_images, read_image, read_image_size
+from camdegrade.io import IMAGE_EXTENSIONS, iter_images, read_image_size
 
-__all__ = ["Pair", "PairReport", "discover_pairs", "filter_pairs", "held_out_scenes", "load_pair", "split_by_scene"]
+__all__ = ["Pair", "PairReport", "discover_pairs", "filter_pairs"]
 
 # Reason categories; a reason is "<category>" or "<category>: <detail>", and summaries group by category.
 NO_CAPTURED = "no captured partner"
@@ -78,7 +78,7 @@ class PairReport:
 
     def summary(self, max_per_reason: int | None = 20) -> str:
         """Multi-line human-readable report: counts, then the skipped files grouped by reason."""
-        where = f" in {self.source} ({self.layout})" if self.source is not None else ""
+        where = f" in {printable(self.source)} ({self.layout})" if self.source is not None else ""
         lines = [f"{_count(len(self.pairs), 'pair')} found{where}, {len(self.skipped)} skipped"]
         cropped = sum(pair.crop_to is not None for pair in self.pairs)
         if cropped:
@@ -92,7 +92,7 @@ class PairReport:
             shown = _display(path, root)
             if root is not None:
                 detail = detail.replace(f"{root}{os.sep}", "")
-            groups[category].append(f"{shown}: {detail}" if detail else shown)
+            groups[category].append(printable(f"{shown}: {detail}" if detail else shown))
         for category, entries in sorted(groups.items()):
             lines.append(f"  {category} ({len(entries)}):")
             shown_entries = entries if max_per_reason is None else entries[:max_per_reason]
@@ -162,28 +162,6 @@ def discover_pairs(
     return report
 
 
-def load_pair(pair: Pair) -> tuple[Tensor, Tensor]:
-    """Read both images of ``pair`` as uint8 ``(3, H, W)`` tensors (EXIF orientation applied).
-
-    Raises:
-        PairsError: the two images differ in size (and the pair was not marked for cropping).
-        OSError, ValueError: an image cannot be read (see :func:`camdegrade.io.read_image`).
-    """
-    clean, captured = read_image(pair.clean), read_image(pair.captured)
-    if pair.crop_to is not None:
-        clean, captured = (
-            _centre_crop(clean, pair.crop_to, pair.clean),
-            _centre_crop(captured, pair.crop_to, pair.captured),
-        )
-    if clean.shape != captured.shape:
-        raise PairsError(
-            f"pair {pair.name!r}: clean image is {_size_text(clean.shape[-2:])} but captured image is "
-            f"{_size_text(captured.shape[-2:])} ({pair.clean} vs {pair.captured}); use size_mismatch='crop' "
-            "to centre-crop both to the common size"
-        )
-    return clean, captured
-
-
 def filter_pairs(pairs: Iterable[Pair], *, path_contains: str | None = None, **meta: str) -> list[Pair]:
     """Pairs whose ``meta`` has every given value and whose clean or captured path contains ``path_contains``.
 
@@ -202,36 +180,6 @@ def filter_pairs(pairs: Iterable[Pair], *, path_contains: str | None = None, **m
             continue
         selected.append(pair)
     return selected
-
-
-def split_by_scene(
-    pairs: Sequence[Pair], holdout: Iterable[str] | float, seed: int = 0
-) -> tuple[list[Pair], list[Pair]]:
-    """Split pairs into (train, held_out) so that no scene appears on both sides.
-
-    Args:
-        pairs: the pairs to split; each side keeps their order.
-        holdout: scene ids to hold out, a fraction of the scenes in (0, 1), or a number of scenes (int).
-        seed: seeds the choice of scenes when ``holdout`` is a fraction or a count.
-    """
-    chosen = held_out_scenes([pair.scene for pair in pairs], holdout, seed)
-    train = [pair for pair in pairs if pair.scene not in chosen]
-    held_out = [pair for pair in pairs if pair.scene in chosen]
-    return train, held_out
-
-
-def held_out_scenes(scenes: Iterable[str], holdout: Iterable[str] | float, seed: int = 0) -> set[str]:
-    """The scenes :func:`split_by_scene` holds out of ``scenes`` (ids, a fraction or a count, seeded)."""
-    known = sorted(set(scenes))
-    if isinstance(holdout, bool):
-        raise PairsError(f"holdout must be scene ids, a fraction or a count, got holdout={holdout!r}")
-    if isinstance(holdout, (int, float)):
-        return _draw_scenes(known, holdout, seed)
-    chosen = {holdout} if isinstance(holdout, str) else set(holdout)
-    unknown = sorted(chosen - set(known))
-    if unknown:
-        raise PairsError(f"holdout names scenes that no pair has: {unknown[:10]}; known scenes include {known[:10]}")
-    return chosen
 
 
 _Skipped = list[tuple[Path | str, str]]
@@ -413,7 +361,7 @@ def _check_candidates(candidates: list[Pair], skipped: _Skipped, min_size: int, 
             if isinstance(size, str):
                 problems.append((path, f"{UNREADABLE}: {size}"))
             elif min(size) < min_size:
-                problems.append((path, f"{TOO_SMALL}: {_size_text(size)} (min_size={min_size})"))
+                problems.append((path, f"{TOO_SMALL}: {size_text(size)} (min_size={min_size})"))
         if problems:
             skipped.extend(problem for problem in problems if problem[0] not in reported)
             reported.update(path for path, _ in problems)
@@ -429,7 +377,7 @@ def _check_candidates(candidates: list[Pair], skipped: _Skipped, min_size: int, 
         skipped.append(
             (
                 pair.clean,
-                f"{SIZE_MISMATCH}: clean {_size_text(clean_size)}, captured {_size_text(captured_size)} "
+                f"{SIZE_MISMATCH}: clean {size_text(clean_size)}, captured {size_text(captured_size)} "
                 f"(captured: {pair.captured})",
             )
         )
@@ -471,21 +419,6 @@ def _nothing_recognised(root: Path) -> str:
     )
 
 
-def _draw_scenes(scenes: list[str], holdout: float, seed: int) -> set[str]:
-    if isinstance(holdout, float):
-        if not 0.0 < holdout < 1.0:
-            raise PairsError(f"holdout as a fraction must be between 0 and 1 (exclusive), got holdout={holdout}")
-        count = max(1, round(holdout * len(scenes)))
-    else:
-        count = holdout
-    if not 1 <= count < len(scenes):
-        raise PairsError(
-            f"holding out {count} of {len(scenes)} scenes leaves no scene on one side; "
-            "need at least 2 scenes and a holdout smaller than their number"
-        )
-    return set(random.Random(seed).sample(scenes, count))
-
-
 def _scene_id(clean_stem: str, captured_stem: str) -> str:
     """The part of the two file stems that names the scene: ``001H``/``001L`` → ``001``, ``a_mean``/``a_real``
     → ``a``. Falls back to the clean stem when the stems share less than half of it."""
@@ -519,15 +452,6 @@ def _count(number: int, noun: str) -> str:
     return f"{number} {noun}" if number == 1 else f"{number} {noun}s"
 
 
-def _size_text(size: Sequence[int]) -> str:
+def size_text(size: Sequence[int]) -> str:
     height, width = size
     return f"{width}x{height} px"
-
-
-def _centre_crop(image: Tensor, size: tuple[int, int], path: Path) -> Tensor:
-    height, width = size
-    if image.shape[-2] < height or image.shape[-1] < width:
-        raise PairsError(f"{path} is {_size_text(image.shape[-2:])}, smaller than the crop {_size_text(size)}")
-    top = (image.shape[-2] - height) // 2
-    left = (image.shape[-1] - width) // 2
-    return image[..., top : top + height, left : left + width]

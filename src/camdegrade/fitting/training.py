@@ -12,7 +12,7 @@ import hashlib
 import math
 import os
 from collections.abc import Callable, Sequence
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
 from typing import Any
 
@@ -22,12 +22,14 @@ import torch.nn.functional as F
 from torch import Tensor
 from tqdm.auto import tqdm
 
+from camdegrade import _recipes
 from camdegrade._checks import check_seed
 from camdegrade._distributed import is_distributed, rank_and_world_size
 from camdegrade._files import check_writable
 from camdegrade._pixels import as_unit
-from camdegrade._recipes import FAST, RECIPES
+from camdegrade._recipes import FAST, RECIPES, TRAINING_FIELDS
 from camdegrade._seeds import derive_seed, derived_generator
+from camdegrade.effects import check_effect_names
 from camdegrade.errors import CamdegradeError
 from camdegrade.fitting.checkpoint import TrainingState, capture_state, load_checkpoint, save_checkpoint
 from camdegrade.inference import native_bfloat16, run_network
@@ -44,21 +46,23 @@ class FitInterrupted(CamdegradeError):
 
 #: How the learning rate moves: ``"step"`` halves it every ``lr_halving_epochs`` epochs (the paper's schedule);
 #: ``"cosine"`` lowers it from ``lr`` to 0 along a half cosine over ``epochs``, one step per epoch.
-SCHEDULES: tuple[str, ...] = ("step", "cosine")
+SCHEDULES: tuple[str, ...] = _recipes.SCHEDULES
 #: Arithmetic of the forward and backward passes: ``"bfloat16"`` autocasts the convolutions (float32 weights,
 #: optimizer and loss); ``"auto"`` does so where the device computes bfloat16 natively, else float32.
-TRAIN_PRECISIONS: tuple[str, ...] = ("auto", "float32", "bfloat16")
+TRAIN_PRECISIONS: tuple[str, ...] = _recipes.TRAIN_PRECISIONS
 
 
 @dataclass(frozen=True)
 class FitConfig:
-    """Training recipe: L2 loss and Adam on random ``crop``×``crop`` windows of the full-resolution pairs (instead of
-    the paper's squashed resizes); an epoch draws ``crops_per_pair`` windows from every training pair.
+    """A fitting recipe: L2 loss and Adam on random ``crop``×``crop`` windows of the full-resolution pairs (instead of
+    the paper's squashed resizes); an epoch draws ``crops_per_pair`` windows from every training pair; a share
+    ``val_fraction`` of the scenes validates; the ``effects`` stages are fitted after the network.
 
-    The defaults are camdegrade's fast recipe (``RECIPES["fast"]``, :mod:`camdegrade._recipes`): batches of 4, Adam on
+    The defaults are camdegrade's fast recipe (``RECIPES["fast"]``, :mod:`camdegrade._recipes`): batches of 8, Adam on
     a cosine schedule, stopping early once the validation PSNR has not risen for ``patience`` epochs.
     ``FitConfig.recipe("paper")`` is the paper's: 100 epochs, Adam at lr 0.01 halved every 30 epochs, batch 32,
     no early stopping. Either trains in bfloat16 where the device computes it natively (``precision="auto"``).
+    Change values with :meth:`replace`: ``FitConfig.recipe("fast").replace(epochs=3)``.
 
     Args:
         patience: stop after this many epochs without a better validation PSNR (by at least 0.01 dB); 0 never
@@ -66,6 +70,10 @@ class FitConfig:
         schedule: one of :data:`SCHEDULES`; ``lr_halving_epochs`` is used by ``"step"`` only.
         precision: one of :data:`TRAIN_PRECISIONS`.
         width: the network's width (:class:`DomainShiftNet`; the paper's 64).
+        val_fraction: share of *scenes* held out for choosing the best epoch and checking the effect stages
+            (``fit_profile``; ``distill_profile`` holds out that share of its images, at least one).
+        effects: effect stages ``fit_profile`` fits after the network (names from ``EFFECTS``; ``()``: network only).
+            ``distill_profile`` copies its teacher's stages instead.
     """
 
     epochs: int = FAST["epochs"]
@@ -79,6 +87,8 @@ class FitConfig:
     patience: int = FAST["patience"]
     precision: str = FAST["precision"]
     width: int = FAST["width"]
+    val_fraction: float = FAST["val_fraction"]
+    effects: tuple[str, ...] = FAST["effects"]
 
     def __post_init__(self) -> None:
         for name in ("epochs", "crop", "batch_size", "lr_halving_epochs", "crops_per_pair", "width"):
@@ -96,6 +106,10 @@ class FitConfig:
         for name, allowed in (("schedule", SCHEDULES), ("precision", TRAIN_PRECISIONS)):
             if getattr(self, name) not in allowed:
                 raise ValueError(f"{name} must be one of {allowed}, got {name}={getattr(self, name)!r}")
+        share = self.val_fraction
+        if isinstance(share, bool) or not isinstance(share, (int, float)) or not 0.0 <= share < 1.0:
+            raise ValueError(f"val_fraction must be in [0, 1), got val_fraction={share!r}")
+        object.__setattr__(self, "effects", tuple(check_effect_names(self.effects)))
         check_seed(self.seed)
 
     @classmethod
@@ -106,17 +120,32 @@ class FitConfig:
         values = {**RECIPES[name], **{key: value for key, value in overrides.items() if value is not None}}
         return cls(**values)
 
+    def replace(self, **changes: Any) -> FitConfig:
+        """This recipe with ``changes`` (``None`` values keep this recipe's), checked like a new one."""
+        unknown = sorted(set(changes) - {item.name for item in fields(self)})
+        if unknown:
+            raise TypeError(f"FitConfig has no field(s) {unknown}; its fields: {[item.name for item in fields(self)]}")
+        return replace(self, **{key: value for key, value in changes.items() if value is not None})
+
     def as_dict(self) -> dict[str, Any]:
-        return asdict(self)
+        """Every value, ``effects`` as a list (JSON's)."""
+        values = asdict(self)
+        values["effects"] = list(self.effects)
+        return values
+
+    def training_dict(self) -> dict[str, Any]:
+        """The network's training values (:data:`~camdegrade._recipes.TRAINING_FIELDS`): what a profile records as
+        ``fitted['recipe']`` and a checkpoint must match to be resumed."""
+        return {name: getattr(self, name) for name in TRAINING_FIELDS}
 
 
-def resolve_recipe(recipe: str | FitConfig, **changes: Any) -> FitConfig:
-    """``recipe`` (a name of ``RECIPES`` or a :class:`FitConfig`) with the ``changes`` that are not ``None``."""
+def resolve_recipe(recipe: str | FitConfig) -> FitConfig:
+    """``recipe``: a name of ``RECIPES`` or a :class:`FitConfig`."""
     if isinstance(recipe, FitConfig):
-        return replace(recipe, **{key: value for key, value in changes.items() if value is not None})
+        return recipe
     if not isinstance(recipe, str):
         raise TypeError(f"recipe must be a recipe name {tuple(RECIPES)} or a FitConfig, got {type(recipe).__name__}")
-    return FitConfig.recipe(recipe, **changes)
+    return FitConfig.recipe(recipe)
 
 
 @dataclass(frozen=True)
@@ -328,7 +357,7 @@ def _initial_state(
         epoch=0,
         best_score=-math.inf,
         best_network=None,
-        config=config.as_dict(),
+        config=config.training_dict(),
         data=fingerprint,
     )
     if not resume:
@@ -342,7 +371,7 @@ def _initial_state(
     state = load_checkpoint(checkpoint)
     # A resume may change how long the fit runs, unless the schedule is laid out over its length (cosine).
     free = ("patience",) if config.schedule == "cosine" else ("epochs", "patience")
-    recipe = {k: v for k, v in config.as_dict().items() if k not in free}
+    recipe = {k: v for k, v in config.training_dict().items() if k not in free}
     saved = {k: v for k, v in state.config.items() if k not in free}
     if set(saved) != set(recipe):
         raise ValueError(

@@ -1,0 +1,129 @@
+"""``camdegrade fit PAIRS -o PROFILE``: fit a camera profile (:func:`~camdegrade.fitting.fit_profile`).
+
+The pairs are discovered once; the outputs are checked against that report before any work, and the loaded pair
+set is passed on. The recipe options are the recipe's fields (:mod:`camdegrade.cli._recipe`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from camdegrade._text import printable
+from camdegrade.cli._common import (
+    add_threads,
+    check_outputs,
+    check_suffix,
+    fail_on_unreadable,
+    profile_name,
+    say,
+)
+from camdegrade.cli._pairs import PAIRS_LAYOUTS, add_pair_options, discover, report_files
+from camdegrade.cli._recipe import add_recipe_options, check_schedule_options, recipe_changes
+from camdegrade.errors import CamdegradeError
+
+
+def add_parser(commands: argparse._SubParsersAction) -> None:
+    fit = commands.add_parser(
+        "fit",
+        help="fit a profile from (clean, captured) pairs",
+        description=f"Fit a camera profile. PAIRS: {PAIRS_LAYOUTS}. Under 'torchrun --nproc_per_node N -m "
+        "camdegrade fit ...' the fit runs data-parallel (gloo on CPU, NCCL on GPU). Recipe options left out keep "
+        "the recipe's values.",
+    )
+    fit.add_argument("pairs", type=Path, help="pairs folder or CSV manifest")
+    fit.add_argument("-o", "--output", type=Path, required=True, help="profile to write (.safetensors)")
+    add_recipe_options(fit)
+    fit.add_argument(
+        "--no-effects", dest="effects", action="store_const", const=[], help="network only: --effects with no names"
+    )
+    fit.add_argument("--device", default="cpu")
+    add_threads(fit)
+    add_pair_options(fit, loading=True)
+    fit.add_argument(
+        "--init-from",
+        type=profile_name,
+        default=None,
+        metavar="PROFILE",
+        help="start the network from this profile's weights (built-in name or .safetensors path) instead of a fresh "
+        "initialisation; a refit usually takes fewer epochs and a lower --lr (e.g. --epochs 20 --lr 0.001)",
+    )
+    fit.add_argument("--checkpoint", type=Path, default=None, help="default: OUTPUT with .ckpt.safetensors")
+    fit.add_argument("--resume", action="store_true", help="continue an interrupted fit from --checkpoint")
+    fit.add_argument("--name", default=None, help="profile name (default: OUTPUT's stem)")
+    fit.add_argument("--description", default="")
+    fit.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def run(args: argparse.Namespace) -> int:
+    import torch.distributed
+
+    from camdegrade._distributed import is_distributed, is_main_process
+    from camdegrade.fitting.fit import fit_profile, init_distributed_from_env
+    from camdegrade.fitting.pairset import PairSet
+    from camdegrade.fitting.training import FitConfig, FitInterrupted
+
+    recipe = FitConfig.recipe(args.recipe, **recipe_changes(args))
+    check_schedule_options(args, recipe.schedule)
+    checkpoint = _checkpoint(args)
+    report = discover(args)
+    check_outputs({"--output": args.output, "--checkpoint": checkpoint}, report_files(report, args.pairs))
+    device = init_distributed_from_env(args.device)
+    main_process = is_main_process()
+    log = say if main_process else None
+    try:
+        pairs = PairSet.load(report, max_pairs=args.max_pairs, align=args.align, log=log)
+        profile = fit_profile(
+            pairs,
+            recipe,
+            init_from=args.init_from,
+            device=device,
+            checkpoint=checkpoint,
+            resume=args.resume,
+            progress=not args.quiet and main_process,
+            name=args.name or args.output.stem,
+            description=args.description,
+            log=log,
+        )
+    except FitInterrupted as interrupted:
+        print(f"camdegrade fit: {interrupted}; run again with --resume", file=sys.stderr)
+        return 130
+    finally:
+        if is_distributed():
+            torch.distributed.destroy_process_group()
+    if main_process:
+        _write(profile, args, checkpoint)
+    return 0
+
+
+def _write(profile, args: argparse.Namespace, checkpoint: Path) -> None:
+    """The profile written (unless ``--strict`` and a warning), its warnings on stderr, the unreadable files listed."""
+    warnings = profile.fitted.get("warnings", [])
+    if warnings and args.strict:
+        raise CamdegradeError(f"{warnings[0]}; {args.output} not written (--strict)")
+    profile.save(args.output)
+    checkpoint.unlink(missing_ok=True)
+    say(profile.describe())
+    print(f"wrote {printable(args.output)}")
+    for warning in warnings:
+        print(f"camdegrade fit: warning: {warning}", file=sys.stderr)
+    fail_on_unreadable(profile.fitted.get("unreadable", []), "the profile was fitted on the other pairs")
+
+
+def _checkpoint(args: argparse.Namespace) -> Path:
+    """The checkpoint path, after checking it and ``--output`` before any work: ``.safetensors``, not one file,
+    and an existing checkpoint for ``--resume`` (kept off the pairs' files once they are discovered)."""
+    check_suffix("--output", args.output)
+    checkpoint = args.checkpoint or args.output.with_name(args.output.stem + ".ckpt.safetensors")
+    if checkpoint.resolve() == args.output.resolve():
+        raise ValueError(
+            f"--checkpoint must differ from --output, got {str(checkpoint)!r} for both: the checkpoint is deleted "
+            "after a successful fit, which would delete the profile"
+        )
+    if args.resume and not checkpoint.is_file():
+        raise FileNotFoundError(
+            f"--resume: checkpoint {str(checkpoint)!r} does not exist; check --checkpoint, or start a new fit "
+            "without --resume"
+        )
+    return checkpoint
