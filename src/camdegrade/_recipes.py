@@ -84,7 +84,7 @@ FIELDS: tuple[RecipeField, ...] = (
     RecipeField(
         "precision",
         "choice",
-        "arithmetic of the training passes (auto: bfloat16 where the device computes it natively)",
+        "arithmetic of the training passes; auto: bfloat16 where the device computes it natively",
         TRAIN_PRECISIONS,
     ),
     RecipeField("width", "count", "network width (32 runs about 4x cheaper, see 'camdegrade distill')"),

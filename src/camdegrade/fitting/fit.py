@@ -111,7 +111,7 @@ def fit_profile(
     check_device(device)
     initial, init_label = _initial_network(init_from, config.width)
     with torch_threads(threads):
-        pair_set = PairSet.load(pairs, log=say)
+        pair_set = pairs if isinstance(pairs, PairSet) else PairSet.load(pairs, log=say)
         train, val = pair_set.validation_split(config.val_fraction, config.seed)
         say(f"training on {len(train)} pairs, validating on {len(val)} ({len(set(val.scenes))} scenes)")
         if config.patience and not len(val):

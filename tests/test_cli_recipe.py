@@ -1,0 +1,95 @@
+"""Issue 22: the CLI built from the library. Every recipe field is a ``fit`` option (and a ``distill`` one, or is
+listed as not offered, with the reason), with its help and default from the one recipe table; ``diagnose``'s
+options follow the keywords of ``diagnose``; a ``fit`` discovers its pairs once and hands them down as one value."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import inspect
+
+import pytest
+
+import camdegrade.fitting.pairs as pairs_module
+from camdegrade._recipes import FAST, FIELDS, PAPER, TRAINING_FIELDS, recipe_default
+from camdegrade.cli import diagnose as diagnose_command
+from camdegrade.cli import distill as distill_command
+from camdegrade.cli import main, main_parser
+from camdegrade.fitting import FitConfig, PairSet, fit_profile
+from camdegrade.fitting.fit import DEFAULT_EFFECTS
+from test_fit import QUICK, make_pairs_folder
+
+
+def _options(command: str) -> dict[str, argparse.Action]:
+    parser = main_parser("camdegrade")
+    subparsers = next(action for action in parser._actions if isinstance(action, argparse._SubParsersAction))
+    return {option: action for action in subparsers.choices[command]._actions for option in action.option_strings}
+
+
+def test_the_recipe_table_has_one_entry_per_fit_config_field() -> None:
+    assert [field.name for field in dataclasses.fields(FitConfig)] == [field.name for field in FIELDS]
+    assert list(FAST) == list(PAPER) == [field.name for field in FIELDS]
+    assert FitConfig() == FitConfig.recipe("fast") and FitConfig().effects == DEFAULT_EFFECTS
+    assert set(TRAINING_FIELDS) < set(FAST)
+
+
+@pytest.mark.parametrize("command, not_offered", [("fit", {}), ("distill", distill_command.NOT_OFFERED)])
+def test_every_recipe_field_is_an_option_with_the_tables_help(command: str, not_offered: dict[str, str]) -> None:
+    options = _options(command)
+    for field in FIELDS:
+        if field.name in not_offered:
+            assert field.option not in options and not_offered[field.name]
+            continue
+        action = options[field.option]
+        assert action.dest == field.name and action.default is None  # left out: the recipe's value
+        assert action.help.startswith(field.help), field.name
+        if command == "fit":
+            assert action.help.endswith(f"({recipe_default(field.name)})")
+        assert list(action.choices or []) == list(field.choices), field.name
+
+
+def test_fit_options_build_the_recipe_they_name(tmp_path) -> None:
+    parser = main_parser("camdegrade")
+    argv = ["fit", "pairs", "-o", "x.safetensors", "--recipe", "paper", "--lr", "0.02", "--effects", "noise"]
+    from camdegrade.cli._recipe import recipe_changes
+
+    args = parser.parse_args([*argv, "--val-fraction", "0", "--precision", "float32"])
+    recipe = FitConfig.recipe(args.recipe, **recipe_changes(args))
+    assert recipe == FitConfig.recipe("paper").replace(
+        lr=0.02, effects=("noise",), val_fraction=0.0, precision="float32"
+    )
+    assert parser.parse_args([*argv[:4], "--no-effects"]).effects == []
+
+
+def test_every_pair_loading_option_is_a_fit_option() -> None:
+    options = _options("fit")
+    keywords = set(inspect.signature(PairSet.load).parameters) - {"source", "log"}
+    assert {"--" + keyword.replace("_", "-") for keyword in keywords} <= set(options)
+
+
+def test_diagnose_offers_every_keyword_of_diagnose_or_says_why_not() -> None:
+    from camdegrade.diagnose import diagnose
+
+    dests = {action.dest for action in _options("diagnose").values()}
+    keywords = set(inspect.signature(diagnose).parameters) - {"profile", "pairs"}
+    offered = keywords - set(diagnose_command.NOT_OFFERED)
+    assert offered <= dests, sorted(offered - dests)
+    assert set(diagnose_command.NOT_OFFERED) <= keywords  # no stale entry
+
+
+def test_fit_profile_takes_a_pair_set_and_a_recipe_in_at_most_12_parameters() -> None:
+    parameters = inspect.signature(fit_profile).parameters
+    assert len(parameters) <= 12 and list(parameters)[:2] == ["pairs", "recipe"]
+
+
+def test_a_fit_discovers_its_pairs_once(tmp_path, monkeypatch) -> None:
+    collect, calls = pairs_module._collect, []
+
+    def counted(*args, **kwargs):
+        calls.append(args[0])
+        return collect(*args, **kwargs)
+
+    monkeypatch.setattr(pairs_module, "_collect", counted)
+    folder = make_pairs_folder(tmp_path / "pairs", count=4)
+    assert main(["fit", str(folder), "-o", str(tmp_path / "cam.safetensors"), *QUICK, "--epochs", "1"]) == 0
+    assert len(calls) == 1
