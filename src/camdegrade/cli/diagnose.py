@@ -68,9 +68,10 @@ def run(args: argparse.Namespace) -> int:
         check_outputs(outputs, [resolve_profile_path(args.profile), *image_files(args.pairs), *image_files(args.real)])
         report = _unpaired(args)
     else:
-        pairs = discover(args)
-        check_outputs(outputs, [resolve_profile_path(args.profile), *report_files(pairs, args.pairs)])
-        report = _paired(args, pairs)
+        pairs = _discover_or_defer(args)
+        found = report_files(pairs, args.pairs) if pairs is not None else [args.pairs] if args.pairs.is_file() else []
+        check_outputs(outputs, [resolve_profile_path(args.profile), *found])
+        report = _paired(args, pairs if pairs is not None else args.pairs)
     if args.quiet:
         print(report.verdict)
         skipped = getattr(report, "skipped", [])
@@ -82,6 +83,17 @@ def run(args: argparse.Namespace) -> int:
     unreadable = [entry for entry in getattr(report, "skipped", []) if entry["reason"].startswith(UNREADABLE)]
     fail_on_unreadable(unreadable, "the diagnosis used the other pairs")
     return 0
+
+
+def _discover_or_defer(args: argparse.Namespace):
+    """The pairs' discovery report, or ``None`` when the pairs cannot be found: ``diagnose`` then reports that,
+    after refusing its own bad arguments (``--kinds``, ``--candidates``) first."""
+    from camdegrade.errors import PairsError
+
+    try:
+        return discover(args)
+    except (PairsError, OSError, ValueError):
+        return None
 
 
 def _paired(args: argparse.Namespace, pairs):
