@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import math
+import sys
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import NoReturn
@@ -186,4 +187,4 @@ def print_error(prog: str, error: BaseException) -> None:
     first, _, details = str(error).partition("\n")
     if details:
         print(printable_lines(details))
-    print(f"{prog}: error: {printable(first)}", file=__import__("sys").stderr)
+    print(f"{prog}: error: {printable(first)}", file=sys.stderr)

@@ -7,6 +7,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from camdegrade.cli._common import positive_int
+
 #: What PAIRS can be, for the commands' descriptions.
 PAIRS_LAYOUTS = (
     "a folder with clean/ and captured/ (matching relative names), a CSV manifest with clean,captured columns, or "
@@ -19,7 +21,7 @@ def add_pair_options(parser: argparse.ArgumentParser, *, loading: bool) -> None:
     ``--size-mismatch`` and ``--align``."""
     parser.add_argument("--clean-suffix", default=None, help="e.g. _mean (with --captured-suffix)")
     parser.add_argument("--captured-suffix", default=None, help="e.g. _real, or _copy for the paper's layout")
-    parser.add_argument("--max-pairs", type=_positive, default=None, help="use at most this many pairs (by name)")
+    parser.add_argument("--max-pairs", type=positive_int, default=None, help="use at most this many pairs (by name)")
     if not loading:
         return
     parser.add_argument(
@@ -35,12 +37,6 @@ def add_pair_options(parser: argparse.ArgumentParser, *, loading: bool) -> None:
         default="skip",
         help="pairs whose images differ in size: skip them (default) or centre-crop both to the common size",
     )
-
-
-def _positive(text: str) -> int:
-    from camdegrade.cli._common import positive_int
-
-    return positive_int(text)
 
 
 def discover(args: argparse.Namespace):
