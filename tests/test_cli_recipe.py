@@ -93,3 +93,14 @@ def test_a_fit_discovers_its_pairs_once(tmp_path, monkeypatch) -> None:
     folder = make_pairs_folder(tmp_path / "pairs", count=4)
     assert main(["fit", str(folder), "-o", str(tmp_path / "cam.safetensors"), *QUICK, "--epochs", "1"]) == 0
     assert len(calls) == 1
+
+
+def test_a_recipe_changes_by_replace_and_refuses_unknown_fields() -> None:
+    fast = FitConfig.recipe("fast")
+    changed = fast.replace(epochs=3, lr=None)  # None keeps the recipe's value
+    assert changed.epochs == 3 and changed.lr == fast.lr and fast.epochs == FAST["epochs"]
+    with pytest.raises(TypeError, match=r"FitConfig has no field\(s\) \['epoch'\]"):
+        fast.replace(epoch=3)
+    with pytest.raises(ValueError, match=r"val_fraction must be in \[0, 1\), got val_fraction=1"):
+        fast.replace(val_fraction=1)
+    assert fast.training_dict() == {name: getattr(fast, name) for name in TRAINING_FIELDS}
