@@ -14,6 +14,7 @@ from torch import Tensor
 from camdegrade._checks import check_non_negative
 from camdegrade._random import standard_normal
 from camdegrade.effects._common import batch_shape, resolve_params, vector
+from camdegrade.effects._noise_fit import calibrate, fit_noise, flat_noise_sums
 from camdegrade.effects.base import Effect, Encoding, Pairs, check_range, register_effect
 from camdegrade.functional import linear_to_srgb, srgb_to_linear
 from camdegrade.functional.noise import add_noise_, correlated_field, mix_channels, noise_std
@@ -316,8 +317,6 @@ class Noise(Effect):
         correlations within 0.05, channel correlations within 0.05, no banding on a camera without it (row σ below
         a tenth of the noise std), banding within 20 % where present.
         """
-        from camdegrade.effects._noise_fit import fit_noise
-
         return fit_noise(cls, source, target, estimator=estimator, taps=taps, banding=banding, rounds=rounds, seed=seed)
 
     @classmethod
@@ -339,8 +338,6 @@ class Noise(Effect):
         table, kernels and banding are corrected (two rounds, then the levels once more, then banding against a
         simulated no-banding null). What the tone curve and the codec do to the noise is measured, not assumed.
         """
-        from camdegrade.effects._noise_fit import calibrate, flat_noise_sums
-
         start = cls.fit(list(sources), list(captures), estimator="excess", rounds=0, banding=False, seed=seed)
         step = max(1, len(cleans) // calibration_pairs) if calibration_pairs else 1
         chosen = list(range(0, len(cleans), step))
