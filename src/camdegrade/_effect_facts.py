@@ -85,13 +85,14 @@ class Setting:
                 raise TypeError(f"config {key!r} must be true or false, got {json_value(value)}")
             return
         if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise TypeError(f"config {key!r} must be a number {self.bound_text()}, got {json_value(value)}")
+            kind = "an integer" if self.kind is int else "a number"
+            raise TypeError(f"config {key!r} must be {kind} {self.range_text()}, got {json_value(value)}")
         if (self.kind is int and not isinstance(value, int)) or (self.bound and not self.bound.holds(value)):
-            raise ValueError(f"{key} must be {self.bound_text()}, got {key}={value!r}")
+            kind = "an integer " if self.kind is int else ""
+            raise ValueError(f"{key} must be {kind}{self.range_text()}, got {key}={value!r}")
 
-    def bound_text(self) -> str:
-        text = self.bound.text() if self.bound else "finite"
-        return text if self.kind is not int or text.startswith("an integer") else f"an integer {text}"
+    def range_text(self) -> str:
+        return self.bound.text() if self.bound else "(finite)"
 
 
 @dataclass(frozen=True)
