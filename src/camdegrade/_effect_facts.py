@@ -9,11 +9,13 @@ every key, every range, so that a file one of them refuses the other refuses too
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import numpy as np
+if TYPE_CHECKING:
+    import numpy as np  # imported where values are checked: `camdegrade list` reads none
 
 #: How JSON names the type of a value, for messages (``got a string 'false'``).
 JSON_TYPES: dict[type, str] = {
@@ -56,8 +58,13 @@ class Bound:
     integer: bool = False
 
     def holds(self, values: np.ndarray | float) -> bool:
-        if isinstance(values, int):  # a JSON integer may be too large for a float
-            return (self.low < values if self.low_open else self.low <= values) and values <= self.high
+        if isinstance(values, (int, float)):  # a config value (a JSON integer may be too large for a float)
+            whole = isinstance(values, int) or (math.isfinite(values) and values == round(values))
+            finite = isinstance(values, int) or math.isfinite(values)
+            above = self.low < values if self.low_open else self.low <= values
+            return finite and above and values <= self.high and (whole or not self.integer)
+        import numpy as np
+
         values = np.asarray(values, dtype=np.float64)
         below = values <= self.low if self.low_open else values < self.low
         inside = np.isfinite(values) & ~below & (values <= self.high)
@@ -150,6 +157,8 @@ class EffectFacts:
     def check_values(self, config: Mapping[str, Any], arrays: Mapping[str, np.ndarray]) -> None:
         """Raise ``ValueError`` naming the first value out of range: every value finite, then each range, unit rows
         and the rules between values, in the order ``Effect.check_values`` checks them."""
+        import numpy as np
+
         for key, array in arrays.items():
             if not np.isfinite(array).all():
                 raise ValueError(f"{key} must be finite, got {key}={shown(array)}")

@@ -1,10 +1,10 @@
 """Profile files read without torch: the safetensors header, the profile's metadata, a few small tensors.
 
 ``camdegrade list`` and ``camdegrade info`` answer from here in a fraction of a second (importing torch takes
-seconds). :func:`read_header` reads a file and checks it whole (:func:`camdegrade._profile_check.check_profile`:
-metadata, effect entries, tensor names, dtypes and shapes, values); :func:`camdegrade.load_profile` reads every
-profile through it before it builds anything, so the two refuse the same files. Nothing here imports torch; numpy
-reads the tensors.
+seconds). :func:`read_header` reads a file and checks it (:mod:`camdegrade._profile_check`: metadata, effect
+entries, tensor names, dtypes and shapes; the values when they are shown or loaded); :func:`camdegrade.load_profile`
+reads every profile through it before it builds anything, so the two refuse the same files. Nothing here imports
+torch; numpy reads the tensors (``camdegrade list`` reads none).
 
 A profile file is safetensors: 8 bytes (little-endian header length), a JSON header naming every tensor's dtype,
 shape and byte range, with ``__metadata__`` holding one key, :data:`METADATA_KEY`, whose value is the profile's JSON
@@ -27,7 +27,14 @@ from camdegrade._profile_check import DEFAULT_NETWORK_WIDTH as DEFAULT_NETWORK_W
 from camdegrade._profile_check import MAX_EFFECTS as MAX_EFFECTS
 from camdegrade._profile_check import MAX_NETWORK_WIDTH as MAX_NETWORK_WIDTH
 from camdegrade._profile_check import TensorEntry as TensorEntry
-from camdegrade._profile_check import check_profile, effect_facts, network_config, read_arrays, tensor_entries
+from camdegrade._profile_check import (
+    check_profile,
+    check_values,
+    effect_facts,
+    network_config,
+    read_arrays,
+    tensor_entries,
+)
 from camdegrade._version import __version__
 from camdegrade.errors import ProfileError, ProfileTypeError, UnknownProfileError
 
@@ -186,10 +193,18 @@ class ProfileHeader:
     def description(self) -> str:
         return str(self.metadata.get("description", ""))
 
+    def check_values(self) -> None:
+        """Raise a one-line :class:`ProfileError` for a tensor value out of its range (a network weight that is not
+        finite, an effect value its effect refuses), as :func:`~camdegrade.load_profile` refuses it. Reads every
+        tensor (numpy, no torch)."""
+        check_values(self.path, self.metadata, self.tensors)
+
     def describe(self) -> str:
         """What ``camdegrade info`` prints: what :meth:`CameraProfile.describe` shows (name, network, effect chain
         with stages, configs and small fitted values, fitting record, quality), then the torch and torchvision
-        versions the profile was fitted with and those running here. Reads the small tensors, nothing else."""
+        versions the profile was fitted with and those running here. The values are checked first
+        (:meth:`check_values`): a file ``load_profile`` refuses is refused here too, never shown."""
+        self.check_values()
         metadata = self.metadata
         spec = metadata.get("network")
         network = "none" if spec is None else f"DomainShiftNet({network_config(spec, self.path)})"
@@ -254,10 +269,11 @@ def _stage(name: str) -> str:
 
 
 def read_header(name_or_path: str | os.PathLike[str]) -> ProfileHeader:
-    """A built-in profile's or a profile file's header and metadata, checked whole before anything is shown or built
+    """A built-in profile's or a profile file's header and metadata, checked before anything is shown or built
     (file kind, header size, format, version, then :func:`~camdegrade._profile_check.check_profile`: the network and
-    effect entries, the tensors' names, dtypes, shapes and byte ranges, their values). :func:`~camdegrade.load_profile`
-    reads every profile through this. Anything wrong is a one-line :class:`ProfileError`.
+    effect entries, the tensors' names, dtypes, shapes and byte ranges); the values are checked by
+    :meth:`ProfileHeader.check_values`, which :meth:`~ProfileHeader.describe` (``camdegrade info``) and
+    :func:`~camdegrade.load_profile` call. Anything wrong is a one-line :class:`ProfileError`.
 
     Examples:
         >>> read_header("city100-iphonex").metadata["network"]

@@ -17,13 +17,14 @@ import sys
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Protocol
-
-import numpy as np
+from typing import TYPE_CHECKING, Any, Protocol
 
 from camdegrade._effect_facts import BUILT_IN, json_value
 from camdegrade._version import __version__
 from camdegrade.errors import ProfileError, ProfileTypeError
+
+if TYPE_CHECKING:
+    import numpy as np  # imported where values are read: `camdegrade list` reads none
 
 #: The longest effect chain a profile may declare (a camera has nine kinds of stage; a few may repeat). Effects are
 #: built from the metadata before the tensors are read, so this bounds what a file can make camdegrade build.
@@ -88,14 +89,20 @@ class _Stage:
 
 def check_profile(path: Path, metadata: Mapping[str, Any], tensors: Mapping[str, TensorEntry]) -> None:
     """Raise a one-line :class:`ProfileError` for anything :func:`~camdegrade.load_profile` would refuse in the
-    profile at ``path``, whose parsed metadata and header entries are ``metadata`` and ``tensors``."""
-    network = network_shapes_of(metadata.get("network"), path)
-    stages = [_checked_stage(index, spec, path) for index, spec in enumerate(effect_specs(metadata, path))]
+    profile at ``path``, whose parsed metadata and header entries are ``metadata`` and ``tensors``, short of the
+    tensors' values (:func:`check_values`): the network and effect entries, the tensors' layout, names, shapes and
+    dtypes."""
+    _network, _stages, expected = _declared(path, metadata)
     check_layout(tensors, path)
-    expected = dict(network)
-    for stage in stages:
-        expected |= {f"effects.{stage.index}.{key}": shape for key, shape in _shapes(stage, path).items()}
     compare_tensors(expected, tensors, path)
+
+
+def check_values(path: Path, metadata: Mapping[str, Any], tensors: Mapping[str, TensorEntry]) -> None:
+    """Raise a one-line :class:`ProfileError` for a value out of its range in a profile :func:`check_profile`
+    passed: a network weight that is not finite, an effect value outside what its effect allows."""
+    import numpy as np
+
+    network, stages, expected = _declared(path, metadata)
     arrays = read_arrays(path, [key for key in expected if tensors[key].dtype in FLOAT_DTYPES])
     for key in network:
         if not np.isfinite(arrays[key]).all():
@@ -108,6 +115,18 @@ def check_profile(path: Path, metadata: Mapping[str, Any], tensors: Mapping[str,
             stage.facts.check_values(stage.config, values)
         except ValueError as error:
             raise ProfileError(f"profile {str(path)!r}: {stage.label}: {error}") from None
+
+
+def _declared(
+    path: Path, metadata: Mapping[str, Any]
+) -> tuple[dict[str, tuple[int, ...]], list[_Stage], dict[str, tuple[int, ...]]]:
+    """The network tensors, the checked effect entries, and every tensor (name → shape) the metadata declares."""
+    network = network_shapes_of(metadata.get("network"), path)
+    stages = [_checked_stage(index, spec, path) for index, spec in enumerate(effect_specs(metadata, path))]
+    expected = dict(network)
+    for stage in stages:
+        expected |= {f"effects.{stage.index}.{key}": shape for key, shape in _shapes(stage, path).items()}
+    return network, stages, expected
 
 
 # --- the network --------------------------------------------------------------------------------------------------
@@ -256,7 +275,7 @@ class _RegisteredEffect:
         import torch
 
         effect = self.cls.from_config(dict(config))
-        effect.load_state_dict({key: torch.from_numpy(np.array(value)) for key, value in arrays.items()}, strict=False)
+        effect.load_state_dict({key: torch.from_numpy(value.copy()) for key, value in arrays.items()}, strict=False)
         effect.check_values()
 
 

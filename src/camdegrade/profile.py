@@ -247,6 +247,7 @@ def load_profile(name_or_path: str | os.PathLike[str], device: torch.device | st
         'city100-iphonex'
     """
     header = read_header(name_or_path)
+    header.check_values()
     path = header.path
     profile = _profile_from_metadata(header.metadata, path)
     try:
