@@ -5,10 +5,13 @@
 tensor entries) and checks, in order: the network entry (architecture, width), every effect entry (a known effect,
 its recorded stage, its config keys, their JSON types and ranges), the byte layout of the tensors (each dtype's size
 times its shape, no gaps or overlaps), the tensors against what the metadata declares (names, shapes, float dtypes;
-nothing missing, nothing extra), then the values (network weights finite, every effect value in its range), read
-with safetensors' numpy loader. Built-in effects are checked against :data:`camdegrade._effect_facts.BUILT_IN`; an
-effect registered by other code (a plugin, a test) is asked of its class, which is only possible where the registry
-has been imported (and torch with it): a ``camdegrade info`` process has neither, and knows only the built-ins.
+nothing missing, nothing extra). :func:`check_values` then reads the tensors with safetensors' numpy loader and
+checks the values (network weights finite, every effect value in its range); ``camdegrade info`` and
+``load_profile`` run both, ``camdegrade list`` (which shows no value) the first.
+
+Built-in effects are checked against :data:`camdegrade._effect_facts.BUILT_IN`; an effect registered by other code
+(a plugin, a test) is asked of its class, which is only possible where the registry has been imported (and torch
+with it): a ``camdegrade info`` process has neither, and knows only the built-ins.
 """
 
 from __future__ import annotations
@@ -285,24 +288,25 @@ class _RegisteredEffect:
 def tensor_entries(header: Mapping[str, Any], corrupt: str) -> dict[str, TensorEntry]:
     """The tensor entries of a safetensors header (``__metadata__`` removed); ``corrupt`` starts the message of an
     entry without a dtype, a shape of whole numbers or a byte range."""
-    try:
-        entries = {
-            key: TensorEntry(entry["dtype"], tuple(entry["shape"]), tuple(entry["data_offsets"]))
-            for key, entry in header.items()
-        }
-    except (TypeError, KeyError):
-        entries = {}
-    numbers = [
-        value for entry in entries.values() for value in (*entry.shape, *entry.offsets) if not isinstance(value, bool)
-    ]
-    valid = all(isinstance(value, int) and value >= 0 for value in numbers) and all(
-        isinstance(entry.dtype, str) and len(entry.offsets) == 2 for entry in entries.values()
-    )
-    if len(entries) != len(header) or not valid or len(numbers) != sum(len(e.shape) + 2 for e in entries.values()):
+    entries = {key: _entry(value) for key, value in header.items()}
+    if None in entries.values():
         raise ProfileError(
             f"{corrupt} (a tensor entry lacks its dtype or shape, or its data offsets); fit or copy it again"
         )
-    return entries
+    return entries  # type: ignore[return-value]
+
+
+def _entry(entry: Any) -> TensorEntry | None:
+    """One header entry as a :class:`TensorEntry`, or None unless it holds a dtype name, a shape and a byte range
+    of whole numbers from 0."""
+    if not isinstance(entry, dict):
+        return None
+    dtype, shape, offsets = entry.get("dtype"), entry.get("shape"), entry.get("data_offsets")
+    if not (isinstance(dtype, str) and isinstance(shape, list) and isinstance(offsets, list) and len(offsets) == 2):
+        return None
+    if not all(isinstance(n, int) and not isinstance(n, bool) and n >= 0 for n in (*shape, *offsets)):
+        return None
+    return TensorEntry(dtype, tuple(shape), (offsets[0], offsets[1]))
 
 
 def check_layout(tensors: Mapping[str, TensorEntry], path: Path) -> None:
