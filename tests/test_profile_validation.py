@@ -13,6 +13,8 @@ import copy
 import json
 import math
 import struct
+import subprocess
+import sys
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -513,3 +515,24 @@ def test_the_network_shapes_are_the_networks(width: int) -> None:
         network = DomainShiftNet(width)
     shapes = {f"network.{key}": tuple(value.shape) for key, value in network.state_dict().items()}
     assert network_shapes(width) == shapes
+
+
+def test_info_refuses_without_importing_torch(tmp_path: Path) -> None:
+    """The refusals are decided by the torch-free check: a `camdegrade info` process imports no torch for them."""
+    paths = []
+    for case in ("unknown-effect-with-a-stage-key", "out-of-range-effect-value", "string-false-for-a-boolean"):
+        _, builtin, corrupt, _ = next(entry for entry in CASES if entry[0] == case)
+        (tmp_path / case).mkdir()
+        paths.append(str(_corrupted(tmp_path / case, builtin, corrupt)))
+    code = f"""
+import contextlib, io, json, sys
+from camdegrade.__main__ import main
+statuses = []
+for path in {paths!r}:
+    with contextlib.redirect_stderr(io.StringIO()):
+        statuses.append(main(["info", path]))
+print(json.dumps([statuses, [name for name in ("torch", "torchvision") if name in sys.modules]]))
+"""
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=False)
+    assert run.returncode == 0, run.stderr
+    assert json.loads(run.stdout) == [[1, 1, 1], []]
