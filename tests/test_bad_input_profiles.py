@@ -224,3 +224,15 @@ def test_effect_configs_refuse_infinity_and_text_themselves(name: str, config: d
     OverflowError, the text "false" to switch a part on."""
     with pytest.raises(error, match=message):
         EFFECTS[name].from_config(config)
+
+
+def test_an_integer_too_long_to_read_is_a_profile_error(tmp_path: Path) -> None:
+    """Python refuses to read integers of more than 4300 digits: that ValueError escaped as such."""
+    path = CameraProfile(None, [JPEG(80)]).save(tmp_path / "j.safetensors")
+    data = path.read_bytes()
+    start = data.index(b'quality_jitter\\":0') + len(b'quality_jitter\\":')
+    long = data[:start] + b"9" * 5000 + data[start + 1 :]
+    length = int.from_bytes(long[:8], "little") + 4999
+    path.write_bytes(length.to_bytes(8, "little") + long[8:])
+    with pytest.raises(ProfileError, match="has invalid JSON metadata: Exceeds the limit"):
+        load_profile(path)

@@ -47,6 +47,12 @@ def shown(values: np.ndarray) -> str:
     return f"{items}" if len(flat) <= 9 else f"{items[:-1]} ... ({len(flat)} values)"
 
 
+def _number(value: int | float) -> str:
+    """A config number for a message (an integer too long to print whole is named by its size)."""
+    huge = isinstance(value, int) and value.bit_length() > 64
+    return f"an integer of {value.bit_length()} bits" if huge else repr(value)
+
+
 @dataclass(frozen=True)
 class Bound:
     """Valid values: from ``low`` to ``high`` (``low`` itself excluded with ``low_open``), whole numbers only with
@@ -93,13 +99,13 @@ class Setting:
             return
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             kind = "an integer" if self.kind is int else "a number"
-            raise TypeError(f"config {key!r} must be {kind} {self.range_text()}, got {json_value(value)}")
-        if (self.kind is int and not isinstance(value, int)) or (self.bound and not self.bound.holds(value)):
+            bound = f" {self.bound.text()}" if self.bound else ""
+            raise TypeError(f"config {key!r} must be {kind}{bound}, got {json_value(value)}")
+        in_range = self.bound.holds(value) if self.bound else isinstance(value, int) or math.isfinite(value)
+        if (self.kind is int and not isinstance(value, int)) or not in_range:
             kind = "an integer " if self.kind is int else ""
-            raise ValueError(f"{key} must be {kind}{self.range_text()}, got {key}={value!r}")
-
-    def range_text(self) -> str:
-        return self.bound.text() if self.bound else "(finite)"
+            expected = self.bound.text() if self.bound else "finite"
+            raise ValueError(f"{key} must be {kind}{expected}, got {key}={_number(value)}")
 
 
 @dataclass(frozen=True)

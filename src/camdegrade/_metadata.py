@@ -168,7 +168,7 @@ def _json(text: str | bytes, invalid: str, part: str, path: Path) -> Any:
     it is nested too deeply to parse."""
     try:
         return json.loads(text)
-    except (json.JSONDecodeError, UnicodeDecodeError) as error:
+    except ValueError as error:  # not JSON, not UTF-8, or an integer of more digits than Python converts
         raise ProfileError(f"{invalid}: {error}") from None
     except RecursionError:
         raise ProfileError(f"profile {str(path)!r} has {part} nested too deeply to read") from None
