@@ -293,7 +293,7 @@ def tensor_entries(header: Mapping[str, Any], corrupt: str) -> dict[str, TensorE
         raise ProfileError(
             f"{corrupt} (a tensor entry lacks its dtype or shape, or its data offsets); fit or copy it again"
         )
-    return entries  # type: ignore[return-value]
+    return {key: entry for key, entry in entries.items() if entry is not None}
 
 
 def _entry(entry: Any) -> TensorEntry | None:
