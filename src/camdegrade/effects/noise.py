@@ -129,13 +129,13 @@ class Noise(Effect):
     def from_config(cls, config: Mapping[str, Any]) -> Noise:
         """A stage with buffers of the shapes ``config`` describes (values to be loaded from a state dict)."""
         options = dict(config)
-        knots, taps = int(options.pop("knots", 0)), int(options.pop("taps", 0))
+        knots, taps = (_count(options.pop(key, 0), key) for key in ("knots", "taps"))
         if not (0 <= knots <= cls.MAX_KNOTS and 0 <= taps <= cls.MAX_TAPS):
             raise ValueError(
                 f"knots must be from 0 to {cls.MAX_KNOTS} and taps from 0 to {cls.MAX_TAPS}, got knots={knots}, "
                 f"taps={taps}"
             )
-        columns, mixing = bool(options.pop("columns", False)), bool(options.pop("mixing", False))
+        columns, mixing = (_flag(options.pop(key, False), key) for key in ("columns", "mixing"))
         impulse = torch.zeros(3, taps)
         if taps:
             impulse[:, taps // 2] = 1.0
@@ -355,6 +355,21 @@ class Noise(Effect):
         # A small std in linear light becomes std times the slope of the sRGB curve at that intensity.
         slope = (linear_to_srgb(x + 1e-4) - linear_to_srgb(x)) / 1e-4 if self.linear else torch.ones_like(x)
         return float((std * slope).mean()) * 255.0
+
+
+def _count(value: Any, name: str) -> int:
+    """A config count (knots, taps): a whole number, not a bool, a text or Infinity."""
+    whole = isinstance(value, int) or (isinstance(value, float) and value.is_integer())
+    if isinstance(value, bool) or not whole:
+        raise ValueError(f"{name} must be a whole number, got {name}={value!r}")
+    return int(value)
+
+
+def _flag(value: Any, name: str) -> bool:
+    """A config flag (columns, mixing): true or false, not the text "false" (which ``bool`` reads as true)."""
+    if not isinstance(value, bool):
+        raise TypeError(f"{name} must be True or False, got {name}={value!r} ({type(value).__name__})")
+    return value
 
 
 def _non_negative(tensor: Tensor, name: str) -> Tensor:
