@@ -138,14 +138,19 @@ class CameraDegrade(Transform):
         # torchvision's rule for plain tensors, with numpy images counted as explicit images (as PIL images are),
         # and a warning (once) when it leaves image-shaped plain tensors undegraded beside the first.
         needs = super()._needs_transform_list(flat_inputs)
-        if any(_is_numpy_image(inpt) for inpt in flat_inputs):
-            return [needed and not _is_plain_tensor(inpt) for inpt, needed in zip(flat_inputs, needs, strict=True)]
-        skipped = [not needed and _is_image_shaped(inpt) for inpt, needed in zip(flat_inputs, needs, strict=True)]
-        degraded_plain = any(needed and _is_plain_tensor(inpt) for inpt, needed in zip(flat_inputs, needs, strict=True))
-        if degraded_plain and any(skipped) and not self._warned_plain_tensors:
+        if len(flat_inputs) == 1:  # a bare image: nothing beside it
+            return needs
+        skipped, degraded_plain = 0, False
+        for inpt, needed in zip(flat_inputs, needs, strict=True):
+            if isinstance(inpt, np.ndarray) and needed:  # a numpy image: plain tensors beside it are no images
+                return [needed and not _is_plain_tensor(inpt) for inpt, needed in zip(flat_inputs, needs, strict=True)]
+            if _is_plain_tensor(inpt):
+                degraded_plain |= needed
+                skipped += not needed and _is_image_shaped(inpt)
+        if skipped and degraded_plain and not self._warned_plain_tensors:
             self._warned_plain_tensors = True
             warnings.warn(
-                f"CameraDegrade() degrades only the first of {sum(skipped) + 1} plain image-shaped tensors in a sample "
+                f"CameraDegrade() degrades only the first of {skipped + 1} plain image-shaped tensors in a sample "
                 "(torchvision's rule for plain tensors); wrap each image in tv_tensors.Image to degrade them all",
                 PlainTensorsWarning,
                 stacklevel=3,
