@@ -143,9 +143,7 @@ def warp_mask(profile: CameraProfile, params: EffectParams, mask: Tensor) -> Ten
     height, width = mask.shape[-2:]
     x, y = centered_coordinates(height, width, torch.float64, mask.device)
     x, y = chain_source_points(profile.effects, params, x.reshape(1, -1), y.reshape(1, -1), (height, width))
-    labels = mask.reshape(1, -1, height, width)
-    out = remap_labels(labels, x.reshape(1, height, width), y.reshape(1, height, width))
-    return out.reshape(mask.shape)
+    return remap_labels(mask, x.reshape(height, width), y.reshape(height, width))
 
 
 def warp_points(profile: CameraProfile, params: EffectParams, points: Tensor, size: tuple[int, int]) -> Tensor:

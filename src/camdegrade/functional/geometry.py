@@ -190,13 +190,16 @@ def misalignment_target(x: Tensor, y: Tensor, dx: Tensor, dy: Tensor, theta: Ten
 
 
 def remap_labels(labels: Tensor, source_x: Tensor, source_y: Tensor) -> Tensor:
-    """``labels`` ``(M, K, H, W)`` (any dtype: class ids, instance ids, booleans) sampled at the nearest pixel of
-    centred coordinates ``(M, H, W)``; 0 where a position falls outside the frame. Values are never mixed."""
+    """``labels`` ``(..., H, W)`` (any dtype: class ids, instance ids, booleans) read at the pixel holding each of
+    the centred coordinates ``(H, W)``: nearest-neighbour, so values are never mixed, and 0 where a position falls
+    outside the frame. Values are gathered, not interpolated, so every dtype stays exact."""
     height, width = labels.shape[-2:]
-    grid = torch.stack((source_x / (width / 2.0), source_y / (height / 2.0)), dim=-1).to(torch.float64)
-    values = labels.to(torch.float64)  # exact for integers below 2**53
-    out = F.grid_sample(values, grid, mode="nearest", padding_mode="zeros", align_corners=False)
-    return out.round().to(labels.dtype) if not labels.dtype.is_floating_point else out.to(labels.dtype)
+    column = torch.floor(source_x + width / 2.0)
+    row = torch.floor(source_y + height / 2.0)
+    inside = (column >= 0) & (column < width) & (row >= 0) & (row < height)
+    index = (row.clamp(0, height - 1) * width + column.clamp(0, width - 1)).long().flatten()
+    gathered = labels.reshape(*labels.shape[:-2], height * width).index_select(-1, index).reshape(labels.shape)
+    return torch.where(inside, gathered, torch.zeros((), dtype=labels.dtype, device=labels.device))
 
 
 def shrink_to_max_side(image: Tensor, max_side: int | None) -> Tensor:
