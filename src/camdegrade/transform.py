@@ -143,7 +143,7 @@ class CameraDegrade(Transform):
         skipped, degraded_plain = 0, False
         for inpt, needed in zip(flat_inputs, needs, strict=True):
             if isinstance(inpt, np.ndarray) and needed:  # a numpy image: plain tensors beside it are no images
-                return [needed and not _is_plain_tensor(inpt) for inpt, needed in zip(flat_inputs, needs, strict=True)]
+                return [wanted and not _is_plain_tensor(item) for item, wanted in zip(flat_inputs, needs, strict=True)]
             if _is_plain_tensor(inpt):
                 degraded_plain |= needed
                 skipped += not needed and _is_image_shaped(inpt)
@@ -181,7 +181,11 @@ class CameraDegrade(Transform):
     ) -> dict[str, Any]:
         """Draw a call's randomness from ``generator`` for the first image in ``flat_inputs`` (the others must share
         its shape): whether each sample is degraded (probability ``p``, default ``self.p``) and every stochastic
-        effect's values. The draws are the same whatever ``p`` is, so ``p`` only changes which samples change."""
+        effect's values. The draws are the same whatever ``p`` is, so ``p`` only changes which samples change.
+
+        When ``flat_inputs`` also holds targets (masks, boxes, keypoints), ``"warp"`` holds the one warp that moves
+        them (see :func:`camdegrade.engine.one_warp`); a ``TypeError`` when it holds no image.
+        """
         p = self.p if p is None else check_probability(p)
         images = [inpt for inpt in flat_inputs if not isinstance(inpt, TARGETS)]
         if not images:
@@ -244,7 +248,8 @@ class CameraDegrade(Transform):
             return tv_tensors.wrap(warp_mask(self.profile, warp, plain), like=target)
         _check_size(f"a tv_tensors.{type(target).__name__}", tuple(target.canvas_size), size)
         if isinstance(target, tv_tensors.KeyPoints):
-            # Keypoints index pixels (torchvision's flips map x to W - 1 - x): pixel j's centre is at j + 0.5.
+            # A keypoint's x = j is pixel j's centre (torchvision's flips map x to W - 1 - x); the engine measures
+            # from the frame's edge, where that centre is at j + 0.5.
             moved = warp_points(self.profile, warp, plain + 0.5, size) - 0.5
             return tv_tensors.wrap(_as_dtype(moved, target.dtype), like=target)
         return self._move_boxes(target, warp, size)

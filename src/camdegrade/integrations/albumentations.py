@@ -92,7 +92,8 @@ class AlbumentationsCameraDegrade(DualTransform):
 
     @property
     def targets(self) -> dict[str, Callable[..., Any]]:
-        # DualTransform's, less the volumes' masks' own handling: every spatial target goes through one warp.
+        # DualTransform's targets, with every kind of mask moved whole by the one warp (DualTransform would run
+        # the image's per-slice machinery on 3-D masks).
         return {
             "image": self.apply,
             "images": self.apply_to_images,
