@@ -2,12 +2,16 @@
 
 from __future__ import annotations
 
+import importlib.util
 import os
+import sys
 from pathlib import Path
+from types import ModuleType
 
 import pytest
 
 _REAL_PAIRS_ENV = "CAMDEGRADE_REAL_PAIRS"
+REPOSITORY = Path(__file__).resolve().parents[1]
 
 # albumentations asks PyPI for a newer version when first imported (and warns when offline); tests download nothing.
 # Set here, before collection, because the doctests under src/ import camdegrade.integrations.albumentations too.
@@ -35,3 +39,17 @@ def real_pairs_dir() -> Path:
     if not (folder / "pairs.csv").is_file():
         pytest.skip(f"real pairs not found at {folder} (set {_REAL_PAIRS_ENV} to their folder)")
     return folder
+
+
+def load_script(relative_path: str, module_name: str) -> ModuleType:
+    """A script of the repository (``examples/...``, ``bench/...``: not a package) imported as ``module_name``.
+
+    Tests import it as ``from conftest import load_script``. The module is put in ``sys.modules`` before it runs,
+    because dataclasses and pickling look a class's module up by name.
+    """
+    spec = importlib.util.spec_from_file_location(module_name, REPOSITORY / relative_path)
+    assert spec is not None and spec.loader is not None, relative_path
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[module_name] = module
+    spec.loader.exec_module(module)
+    return module

@@ -206,3 +206,33 @@ def test_a_fifo_is_refused_without_blocking(tmp_path: Path) -> None:
         thread.join(timeout=10)
         pytest.fail("load_profile blocked on a FIFO")
     assert isinstance(outcome[0], ProfileError) and "is not a regular file" in str(outcome[0])
+
+
+@pytest.mark.parametrize(
+    "name, config, error, message",
+    [
+        ("jpeg", {"quality_jitter": float("inf")}, ValueError, "quality_jitter must be a non-negative integer"),
+        ("noise", {"knots": float("inf")}, ValueError, "knots must be a whole number, got knots=inf"),
+        ("noise", {"taps": float("nan")}, ValueError, "taps must be a whole number, got taps=nan"),
+        ("noise", {"knots": "8"}, ValueError, "knots must be a whole number, got knots='8'"),
+        ("noise", {"columns": "false"}, TypeError, "columns must be True or False, got columns='false'"),
+        ("noise", {"mixing": 1}, TypeError, "mixing must be True or False, got mixing=1"),
+    ],
+)
+def test_effect_configs_refuse_infinity_and_text_themselves(name: str, config: dict, error: type, message: str) -> None:
+    """Built from a config without a profile file (no file check before them): Infinity used to escape as an
+    OverflowError, the text "false" to switch a part on."""
+    with pytest.raises(error, match=message):
+        EFFECTS[name].from_config(config)
+
+
+def test_an_integer_too_long_to_read_is_a_profile_error(tmp_path: Path) -> None:
+    """Python refuses to read integers of more than 4300 digits: that ValueError escaped as such."""
+    path = CameraProfile(None, [JPEG(80)]).save(tmp_path / "j.safetensors")
+    data = path.read_bytes()
+    start = data.index(b'quality_jitter\\":0') + len(b'quality_jitter\\":')
+    long = data[:start] + b"9" * 5000 + data[start + 1 :]
+    length = int.from_bytes(long[:8], "little") + 4999
+    path.write_bytes(length.to_bytes(8, "little") + long[8:])
+    with pytest.raises(ProfileError, match="has invalid JSON metadata: Exceeds the limit"):
+        load_profile(path)

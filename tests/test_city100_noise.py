@@ -6,12 +6,12 @@ fail. Skipped when the shared real-pairs folder is absent."""
 
 from __future__ import annotations
 
-import importlib.util
-import sys
 from pathlib import Path
 
 import pytest
 import torch
+
+from conftest import load_script
 
 pytestmark = [pytest.mark.realdata, pytest.mark.slow]
 torch.set_num_threads(1)
@@ -19,12 +19,7 @@ torch.set_num_threads(1)
 
 @pytest.fixture(scope="module")
 def rows(real_pairs_dir: Path) -> dict[str, dict]:
-    path = Path(__file__).resolve().parents[1] / "examples" / "city100_noise_evidence.py"
-    spec = importlib.util.spec_from_file_location("camdegrade_city100_noise_evidence", path)
-    assert spec is not None and spec.loader is not None
-    example = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = example
-    spec.loader.exec_module(example)
+    example = load_script("examples/city100_noise_evidence.py", "camdegrade_city100_noise_evidence")
     sums, _ = example.statistics(real_pairs_dir)
     return {row["image"]: row for row in example.table(sums)}
 

@@ -15,13 +15,8 @@ import camdegrade
 import camdegrade._metadata as metadata_module
 from bad_inputs import one_line_error, profile_file, run_cli
 from camdegrade import ProfileError, load_profile
-from camdegrade._metadata import (
-    DEFAULT_NETWORK_WIDTH,
-    MAX_NETWORK_WIDTH,
-    check_network_config,
-    read_header,
-    running_versions,
-)
+from camdegrade._metadata import read_header, running_versions
+from camdegrade._profile_check import DEFAULT_NETWORK_WIDTH, MAX_NETWORK_WIDTH, check_network_config, effect_facts
 from camdegrade.effects import EFFECTS
 from camdegrade.network import MAX_WIDTH, DomainShiftNet
 from profiles_for_tests import deterministic_profile, stochastic_profile
@@ -148,12 +143,10 @@ def test_info_shows_what_describe_shows(name: str, tmp_path: Path, capsys) -> No
     assert any(line.startswith("running:     torch ") for line in shown)
 
 
-def test_profiles_record_each_stage_and_older_ones_ask_the_registry() -> None:
-    """Saved profiles carry each effect's stage (so ``info`` needs no torch); an entry without it is looked up."""
-    recorded = [{"name": "blur", "stage": "optics", "config": {}}, {"name": "tone", "stage": "isp", "config": {}}]
-    assert metadata_module.effect_stages(recorded) == {"blur": "optics", "tone": "isp"}
-    older = [{"name": name, "config": {}} for name in EFFECTS]
-    assert metadata_module.effect_stages(older) == {name: cls.stage for name, cls in EFFECTS.items()}
+def test_profiles_record_each_stage_and_the_check_knows_every_effects_stage() -> None:
+    """Saved profiles carry each effect's stage; the check knows it without torch (the built-in table) and asks
+    the registry for effects registered by other code (the tests' own)."""
+    assert {name: effect_facts(name).stage for name in EFFECTS} == {name: cls.stage for name, cls in EFFECTS.items()}
     assert all("stage" in spec for spec in load_profile("city100-iphonex").metadata()["effects"])
 
 
@@ -180,7 +173,7 @@ def test_the_network_config_check_agrees_with_the_network(width) -> None:
         ({"network": {"arch": "DomainShiftNet", "config": {"width": 5000}}}, "width must be an integer from 1 to 1024"),
         ({"network": {"arch": "ResNet"}}, "metadata 'network' must be null or"),
         ({"effects": [{"name": "lens_flare", "config": {}}]}, "uses effect 'lens_flare', unknown to camdegrade"),
-        ({"effects": [{"name": ["blur"], "config": {}}]}, "has invalid metadata: unhashable type"),
+        ({"effects": [{"name": ["blur"], "config": {}}]}, "an effect's 'name' must be a string, got a list"),
         ({"effects": [{"name": "blur", "config": {}}] * 65}, "declares 65 effect stages"),
         ({"format_version": 7}, "newer than this camdegrade"),
         ({"format": "other"}, "is not a camdegrade profile"),

@@ -197,6 +197,27 @@ def test_dict_sample_structure_and_untouched_items(noisy):
         assert degraded[key] is sample[key]
 
 
+def test_degraded_views_move_their_targets_with_the_image():
+    """A profile that moves pixels moves the degraded view's mask and boxes too; the clean view keeps its own."""
+    from camdegrade import CameraProfile
+    from camdegrade.effects import Misalignment
+
+    image = torch.full((3, 24, 32), 0.15)
+    image[:, 8:16, 10:18] = 0.85
+    mask = tv_tensors.Mask((image[0] > 0.5).to(torch.uint8))
+    boxes = tv_tensors.BoundingBoxes([[10.0, 8.0, 18.0, 16.0]], format="XYXY", canvas_size=(24, 32))
+    sample = {"image": tv_tensors.Image(image), "mask": mask, "boxes": boxes}
+    shifted = CameraProfile(None, [Misalignment(3.0, 2.0)], name="shifted")  # whole pixels: exact
+    dataset = DegradedDataset([sample], shifted, policy=PairedViews(), seed=0)
+    clean, degraded = dataset[0]
+    assert clean is sample
+    moved = degraded["image"][0] > 0.5
+    assert torch.equal(degraded["mask"].bool(), moved) and not torch.equal(degraded["mask"], mask)
+    ys, xs = moved.nonzero(as_tuple=True)
+    found = torch.tensor([xs.min(), ys.min(), xs.max() + 1, ys.max() + 1], dtype=torch.float32)
+    torch.testing.assert_close(degraded["boxes"][0], found, atol=1e-4, rtol=0)
+
+
 def test_pil_tuple_sample_comes_back_as_pil(noisy):
     pil = PIL.Image.fromarray(tiny_image(0, 10).permute(1, 2, 0).numpy())
     image, target = DegradedDataset([(pil, {"id": 1})], noisy, policy=Union(), seed=0)[1]

@@ -10,8 +10,6 @@ finding. Skipped when the shared real-pairs folder is absent.
 
 from __future__ import annotations
 
-import importlib.util
-import sys
 from pathlib import Path
 
 import pytest
@@ -22,6 +20,7 @@ from camdegrade._pixels import as_unit
 from camdegrade.diagnose import DiagnosisReport, diagnose
 from camdegrade.diagnose.critic import critic_test
 from camdegrade.functional.analysis import flattest_window
+from conftest import load_script
 
 pytestmark = [pytest.mark.realdata, pytest.mark.slow]
 torch.set_num_threads(1)
@@ -32,13 +31,7 @@ NOISE_AXES = ("noise", "noise_correlation", "banding")
 
 
 def _example():
-    path = Path(__file__).resolve().parents[1] / "examples" / "diagnose_city100.py"
-    spec = importlib.util.spec_from_file_location("camdegrade_diagnose_city100_example", path)
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module
-    spec.loader.exec_module(module)
-    return module
+    return load_script("examples/diagnose_city100.py", "camdegrade_diagnose_city100_example")
 
 
 def _flattest_crop(clean: torch.Tensor, captured: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:

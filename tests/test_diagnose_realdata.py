@@ -11,14 +11,13 @@ shared real-pairs folder is absent.
 
 from __future__ import annotations
 
-import importlib.util
-import sys
 from pathlib import Path
 
 import pytest
 import torch
 
 from camdegrade.diagnose import DiagnosisReport
+from conftest import load_script
 
 pytestmark = [pytest.mark.realdata, pytest.mark.slow]
 torch.set_num_threads(1)
@@ -29,17 +28,7 @@ torch.set_num_threads(1)
 TOLERANCE = {"polyu_real_noise": 0.15, "cc15_nam_real_noise": 0.15, "sidd_samples": 0.3}
 
 
-def _example():
-    path = Path(__file__).resolve().parents[1] / "examples" / "diagnose_real_noise.py"
-    spec = importlib.util.spec_from_file_location("camdegrade_diagnose_real_noise_example", path)
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module
-    spec.loader.exec_module(module)
-    return module
-
-
-EXAMPLE = _example()
+EXAMPLE = load_script("examples/diagnose_real_noise.py", "camdegrade_diagnose_real_noise_example")
 
 
 @pytest.fixture(scope="module")

@@ -5,31 +5,20 @@ real from simulated; the control must accept nothing."""
 
 from __future__ import annotations
 
-import importlib.util
-import sys
-from pathlib import Path
 from types import ModuleType
 
 import pytest
 import torch
 
+from conftest import load_script
+
 pytestmark = pytest.mark.slow
 torch.set_num_threads(1)
 
 
-def _bench() -> ModuleType:
-    path = Path(__file__).resolve().parents[1] / "bench" / "bench_diagnose.py"
-    spec = importlib.util.spec_from_file_location("camdegrade_bench_diagnose", path)
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module
-    spec.loader.exec_module(module)
-    return module
-
-
 @pytest.fixture(scope="module")
 def bench() -> ModuleType:
-    return _bench()
+    return load_script("bench/bench_diagnose.py", "camdegrade_bench_diagnose")
 
 
 @pytest.mark.parametrize(

@@ -263,3 +263,61 @@ def test_chain_shares_one_srgb_decode_and_matches_stage_by_stage() -> None:
     with_graph = apply_effects(stages, params, image.clone().requires_grad_())
     assert with_graph.requires_grad
     assert (with_graph.detach() - expected).abs().max() <= 2e-6
+
+
+# --- how an effect moves positions (targets follow it) -------------------------------------------------------------
+
+_DOTS = [(-14.0, -9.0), (0.0, 0.0), (11.5, 7.0), (-3.0, 12.5)]
+
+
+def _dot_image(x: float, y: float, height: int = 48, width: int = 64) -> Tensor:
+    """A grey frame with a small Gaussian dot centred at centred pixel coordinates ``(x, y)``."""
+    ys = torch.arange(height, dtype=torch.float64) + 0.5 - height / 2
+    xs = torch.arange(width, dtype=torch.float64) + 0.5 - width / 2
+    dot = torch.exp(-((xs[None] - x) ** 2 + (ys[:, None] - y) ** 2) / (2 * 1.5**2))
+    return (0.2 + 0.6 * dot).float().expand(1, 3, height, width).clone()
+
+
+def _dot_centre(effect: Effect, x: float, y: float, params: dict[str, Tensor], near: tuple[float, float]) -> Tensor:
+    """Where the dot lands: the centroid of the effect's output minus its output on the bare frame (same params),
+    within 6 pixels of ``near``."""
+    image = _dot_image(x, y)
+    bare = torch.full_like(image, 0.2)
+    change = (effect(image, params) - effect(bare, params)).mean(1)[0].double()
+    height, width = change.shape
+    ys = torch.arange(height, dtype=torch.float64)[:, None] + 0.5 - height / 2
+    xs = torch.arange(width, dtype=torch.float64)[None] + 0.5 - width / 2
+    window = ((xs - near[0]).abs() <= 6) & ((ys - near[1]).abs() <= 6)
+    weight = change.clamp_min(0) * window
+    return torch.stack(((weight * xs).sum() / weight.sum(), (weight * ys).sum() / weight.sum()))
+
+
+@pytest.mark.parametrize("name", REGISTERED)
+def test_every_effect_moves_positions_as_it_moves_the_image(name: str) -> None:
+    """An effect that moves pixels says where (its moved_points lands a dot where its image does, and
+    source_points inverts it); every other effect leaves a dot where it was and maps positions to themselves."""
+    effect = strong(name)
+    params = effect.make_params((1, 3, 48, 64), torch.Generator().manual_seed(1))
+    x = torch.tensor([[p[0] for p in _DOTS]], dtype=torch.float64)
+    y = torch.tensor([[p[1] for p in _DOTS]], dtype=torch.float64)
+    moved_x, moved_y = effect.moved_points(x, y, (48, 64), params)
+    back_x, back_y = effect.source_points(moved_x, moved_y, (48, 64), params)
+    torch.testing.assert_close(torch.stack((back_x, back_y)), torch.stack((x, y)), atol=1e-6, rtol=0)
+    if not effect.moves_pixels:
+        assert torch.equal(moved_x, x) and torch.equal(moved_y, y)
+        assert type(effect).source_points is Effect.source_points and type(effect).moved_points is Effect.moved_points
+    for index, (dot_x, dot_y) in enumerate(_DOTS):
+        expected = (float(moved_x[0, index]), float(moved_y[0, index]))
+        found = _dot_centre(effect, dot_x, dot_y, params, near=expected)
+        assert (found - torch.tensor(expected, dtype=torch.float64)).abs().max() < 0.3, (name, _DOTS[index], found)
+
+
+def test_moving_effects_are_the_warps() -> None:
+    assert {name for name in REGISTERED if EFFECTS[name].moves_pixels} == {"distortion", "misalignment"}
+
+
+def test_the_dot_check_can_fail() -> None:
+    """A stage claiming to stay put while it shifts the image is caught by the dot measurement."""
+    shifted = Misalignment(1.0, 0.0)
+    found = _dot_centre(shifted, 0.0, 0.0, {}, near=(0.0, 0.0))
+    assert abs(float(found[0]) - 1.0) < 0.1

@@ -14,10 +14,8 @@ from camdegrade.effects import (
     Distortion,
     Effect,
     Misalignment,
-    Noise,
     Tone,
     Vignetting,
-    noise_level_function,
 )
 from effects_images import patch_chart, photos_for_fitting
 
@@ -67,17 +65,6 @@ def test_vignetting_recovery(photos: list[Tensor]) -> None:
 def test_vignetting_ignores_a_global_exposure_change(photos: list[Tensor]) -> None:
     targets = [t * 0.8 for t in _capture(Vignetting(-0.3), photos)]
     assert _relative(Vignetting.fit(photos, targets, degree=1).k1, -0.3) < 0.10
-
-
-def test_the_old_noise_level_function_warns_and_still_measures() -> None:
-    charts = [patch_chart(128, seed=seed) for seed in range(2)]
-    with pytest.warns(DeprecationWarning, match="NoiseSums"):
-        levels = noise_level_function((charts, _capture(Noise(0.01, 1e-4), charts)))
-    for channel in range(3):
-        valid = torch.isfinite(levels.variance[channel])
-        order = torch.argsort(levels.intensity[channel, valid])
-        variance = levels.variance[channel, valid][order]
-        assert torch.corrcoef(torch.stack([levels.intensity[channel, valid][order], variance]))[0, 1] > 0.95
 
 
 @pytest.mark.parametrize("quality", [23, 60, 88])

@@ -225,3 +225,90 @@ def test_one_shared_generator_decorrelates_decisions_reproducibly(profile_path):
     shared = decisions(share=True)
     assert any(len(applied) == 1 for applied in shared)
     assert shared == decisions(share=True)
+
+
+# --- targets move with the image -----------------------------------------------------------------------------------
+
+
+def _warp_profile():
+    from camdegrade import CameraProfile, load_profile
+    from camdegrade.effects import Misalignment
+
+    return CameraProfile(None, [*load_profile("lowcost-robot-sim").effects, Misalignment(5.0, 3.0, 2.0)], name="warp")
+
+
+def _square(x0: int, y0: int, side: int = 20, height: int = 96, width: int = 128):
+    image = np.full((height, width, 3), 40, dtype=np.uint8)
+    image[y0 : y0 + side, x0 : x0 + side] = 220
+    mask = np.zeros((height, width), dtype=np.uint8)
+    mask[y0 : y0 + side, x0 : x0 + side] = 1
+    return image, mask
+
+
+def _object(image: np.ndarray) -> np.ndarray:
+    return image.mean(-1) > 130
+
+
+def test_mask_bboxes_and_keypoints_follow_the_warp():
+    """Before, masks, boxes and keypoints passed through while the image moved by several pixels."""
+    image, mask = _square(12, 10)
+    pipeline = A.Compose(
+        [AlbumentationsCameraDegrade(_warp_profile())],
+        bbox_params=A.BboxParams(format="pascal_voc", label_fields=[]),
+        keypoint_params=A.KeypointParams(format="xy", remove_invisible=False),
+        seed=0,
+    )
+    out = pipeline(image=image, mask=mask, bboxes=[[12, 10, 32, 30]], keypoints=[[21.5, 19.5]])
+    found = _object(out["image"])
+    moved = out["mask"].astype(bool)
+    assert (moved & found).sum() / (moved | found).sum() >= 0.95
+    ys, xs = found.nonzero()
+    assert np.abs(np.asarray(out["bboxes"][0]) - [xs.min(), ys.min(), xs.max() + 1, ys.max() + 1]).max() <= 1.0
+    x, y = out["keypoints"][0]
+    assert abs(x - (found * np.arange(128)[None]).sum() / found.sum()) <= 0.5  # the square's centre
+    assert abs(y - (found * np.arange(96)[:, None]).sum() / found.sum()) <= 0.5
+
+
+def test_keypoint_angles_and_scales_turn_with_the_warp():
+    from camdegrade import CameraProfile
+    from camdegrade.effects import Misalignment
+
+    degrade = AlbumentationsCameraDegrade(CameraProfile(None, [Misalignment(5.0, 3.0, 2.0)], name="turn"))
+    pipeline = A.Compose([degrade], keypoint_params=A.KeypointParams(format="xyas", angle_in_degrees=True), seed=0)
+    out = pipeline(image=_square(12, 10)[0], keypoints=[[60.0, 40.0, 30.0, 2.0]])
+    angle, scale = out["keypoints"][0][2:]
+    assert abs(angle - 28.0) <= 0.01 and abs(scale - 2.0) <= 1e-4  # turned by the 2° counter-clockwise rotation
+
+
+def test_targets_replay_with_the_image(tmp_path):
+    from camdegrade import CameraProfile
+    from camdegrade.effects import Misalignment
+
+    jittered = CameraProfile(None, [Misalignment(shift_std=3.0, angle_std=2.0)], name="jitter")
+    pipeline = A.ReplayCompose([AlbumentationsCameraDegrade(str(jittered.save(tmp_path / "jitter.safetensors")))])
+    image, mask = _square(50, 40)
+    first = pipeline(image=image, mask=mask, masks=np.stack([mask, 1 - mask]))
+    replayed = A.ReplayCompose.replay(first["replay"], image=image, mask=mask, masks=np.stack([mask, 1 - mask]))
+    assert all(np.array_equal(first[key], replayed[key]) for key in ("image", "mask", "masks"))
+    found = _object(first["image"])
+    moved = first["mask"].astype(bool)
+    assert (moved & found).sum() / (moved | found).sum() >= 0.95 and not np.array_equal(first["mask"], mask)
+    assert np.array_equal(first["masks"][0], first["mask"])
+    inside = (slice(10, -10), slice(10, -10))  # outside the frame's content, every moved mask holds 0
+    assert np.array_equal(first["masks"][1][inside], 1 - first["mask"][inside])
+
+
+def test_targets_beside_images_that_move_differently_are_refused():
+    from camdegrade import CameraProfile
+    from camdegrade.effects import Misalignment
+
+    jittered = CameraProfile(None, [Misalignment(shift_std=3.0)], name="jitter")
+    image, mask = _square(50, 40)
+    with pytest.raises(ValueError, match="cannot move targets"):
+        AlbumentationsCameraDegrade(jittered)(images=np.stack([image, image]), masks=np.stack([mask, mask]))
+
+
+def test_targets_stay_when_the_profile_moves_no_pixels(profile_path):
+    image, mask = _square(12, 10)
+    out = AlbumentationsCameraDegrade(profile_path)(image=image, mask=mask)
+    assert out["mask"] is mask

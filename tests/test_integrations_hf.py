@@ -127,3 +127,23 @@ def test_streaming_dataset_with_an_index_column_matches_the_map_style_union(hf_d
     streamed_images = [item["image"] for item in streamed]
     assert len(streamed_images) == len(mapped) == 2 * ITEMS
     assert all(torch.equal(a, mapped[j]["image"]) for j, a in enumerate(streamed_images))
+
+
+def test_rows_in_numpy_format_are_degraded_as_numpy(noisy):
+    """``with_format("numpy")`` rows hold HWC uint8 arrays; before, their 'degraded' view was the clean bytes."""
+    rgb = datasets.Dataset.from_dict(
+        {
+            "image": [
+                PIL.Image.fromarray(np.random.default_rng(i).integers(0, 256, (10, 14, 3), dtype=np.uint8))
+                for i in range(3)
+            ],
+            "label": [0, 1, 2],
+        }
+    ).with_format("numpy")
+    union = DegradedDataset(rgb, noisy, policy=Union(), seed=0)
+    for source_index in range(3):
+        clean, degraded = union[2 * source_index], union[2 * source_index + 1]
+        assert isinstance(degraded["image"], np.ndarray) and degraded["image"].dtype == np.uint8
+        assert degraded["image"].shape == clean["image"].shape == (10, 14, 3)
+        assert not np.array_equal(degraded["image"], clean["image"])
+        assert degraded["label"] == clean["label"] == source_index

@@ -7,10 +7,8 @@ the trainer's epoch reaches the dataset (and its persistent workers), the union'
 from __future__ import annotations
 
 import hashlib
-import importlib.util
 import json
 import os
-import sys
 from collections import Counter
 from pathlib import Path
 
@@ -20,6 +18,7 @@ import torch.nn.functional as F
 
 L = pytest.importorskip("lightning")
 
+from conftest import load_script  # noqa: E402
 from profiles_for_tests import stochastic_profile  # noqa: E402
 
 pytestmark = [
@@ -29,20 +28,11 @@ pytestmark = [
     pytest.mark.filterwarnings("ignore:.*LeafSpec.*is deprecated:FutureWarning"),
 ]
 
-EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "lightning_datamodule.py"
 ITEMS = 12  # source images; the union serves 24 per epoch
 EPOCHS = 2
 
 
-def load_example():
-    spec = importlib.util.spec_from_file_location("lightning_datamodule", EXAMPLE)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module
-    spec.loader.exec_module(module)
-    return module
-
-
-example = load_example()
+example = load_script("examples/lightning_datamodule.py", "lightning_datamodule")
 
 
 @pytest.fixture(autouse=True)

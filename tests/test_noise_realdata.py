@@ -15,24 +15,18 @@ The spatial correlation (lags 1 and 2, both directions) is within ±0.1 of the r
 
 from __future__ import annotations
 
-import importlib.util
-import sys
 from pathlib import Path
 from types import ModuleType
 
 import pytest
 
+from conftest import load_script
+
 pytestmark = [pytest.mark.realdata, pytest.mark.slow]
 
 
 def _load_example() -> ModuleType:
-    path = Path(__file__).resolve().parents[1] / "examples" / "noise_table.py"
-    spec = importlib.util.spec_from_file_location("camdegrade_noise_table_example", path)
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module  # dataclasses resolve their module by name
-    spec.loader.exec_module(module)
-    return module
+    return load_script("examples/noise_table.py", "camdegrade_noise_table_example")
 
 
 @pytest.fixture(scope="module")

@@ -2,23 +2,16 @@
 
 from __future__ import annotations
 
-import importlib.util
 import json
-import sys
-from pathlib import Path
 
 import pytest
 import torch
 
-EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "reproduce_paper.py"
+from conftest import load_script
 
 
 def load_example():
-    spec = importlib.util.spec_from_file_location("reproduce_paper", EXAMPLE)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module  # dataclasses resolve their module by name
-    spec.loader.exec_module(module)
-    return module
+    return load_script("examples/reproduce_paper.py", "reproduce_paper")
 
 
 def test_scenes_are_seeded_and_in_range():

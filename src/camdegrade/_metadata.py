@@ -1,9 +1,10 @@
 """Profile files read without torch: the safetensors header, the profile's metadata, a few small tensors.
 
 ``camdegrade list`` and ``camdegrade info`` answer from here in a fraction of a second (importing torch takes
-seconds). :mod:`camdegrade.profile` loads every profile through the same checks (what kind of file it is, the
-metadata's format, version and structure) before it builds anything; the checks that need the built modules (tensor
-shapes, value ranges) stay there. Nothing here imports torch; numpy is imported only to read small tensors.
+seconds). :func:`read_header` reads a file and checks it (:mod:`camdegrade._profile_check`: metadata, effect
+entries, tensor names, dtypes and shapes; the values when they are shown or loaded); :func:`camdegrade.load_profile`
+reads every profile through it before it builds anything, so the two refuse the same files. Nothing here imports
+torch; numpy reads the tensors (``camdegrade list`` reads none).
 
 A profile file is safetensors: 8 bytes (little-endian header length), a JSON header naming every tensor's dtype,
 shape and byte range, with ``__metadata__`` holding one key, :data:`METADATA_KEY`, whose value is the profile's JSON
@@ -13,17 +14,29 @@ metadata (see :meth:`camdegrade.profile.CameraProfile.metadata`).
 from __future__ import annotations
 
 import json
-import math
 import os
 import re
-from collections.abc import Collection, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
 from typing import Any
 
+from camdegrade._effect_facts import json_value
+from camdegrade._profile_check import DEFAULT_NETWORK_WIDTH as DEFAULT_NETWORK_WIDTH
+from camdegrade._profile_check import MAX_EFFECTS as MAX_EFFECTS
+from camdegrade._profile_check import MAX_NETWORK_WIDTH as MAX_NETWORK_WIDTH
+from camdegrade._profile_check import TensorEntry as TensorEntry
+from camdegrade._profile_check import (
+    check_profile,
+    check_values,
+    effect_facts,
+    network_config,
+    read_arrays,
+    tensor_entries,
+)
 from camdegrade._version import __version__
-from camdegrade.errors import ProfileError, UnknownProfileError
+from camdegrade.errors import ProfileError, ProfileTypeError, UnknownProfileError
 
 #: Value of the ``format`` metadata key in every profile file.
 FORMAT_NAME = "camdegrade-profile"
@@ -33,13 +46,6 @@ FORMAT_VERSION = 1
 METADATA_KEY = "camdegrade"
 #: The longest JSON header read (safetensors' own limit): the header alone never makes camdegrade read more.
 MAX_HEADER_BYTES = 100 * 1024 * 1024
-#: The longest effect chain a profile may declare (a camera has nine kinds of stage; a few may repeat). Effects are
-#: built from the metadata before the tensors are compared, so this bounds what a file can make camdegrade build.
-MAX_EFFECTS = 64
-#: The widest network a profile may declare (``camdegrade.network.MAX_WIDTH``, which imports torch; a test keeps
-#: the two equal) and the width of a network whose config names none.
-MAX_NETWORK_WIDTH = 1024
-DEFAULT_NETWORK_WIDTH = 64
 #: Tensors of at most this many values are shown by ``camdegrade info`` (as ``Effect.extra_repr`` does).
 SHOWN_VALUES = 9
 
@@ -151,22 +157,10 @@ def _check_field_types(metadata: Mapping[str, Any], path: Path) -> None:
     (a name ``["a"]`` into the text ``"['a']"``) or fail later with a message naming neither entry nor file."""
     for key, (types, expected) in _FIELD_TYPES.items():
         if key in metadata and not isinstance(metadata[key], types):
-            value = metadata[key]
-            shown = repr(value) if len(repr(value)) <= 80 else repr(value)[:77] + "..."
-            kind = _JSON_TYPES.get(type(value), type(value).__name__)
-            got = kind if value is None else f"{kind} {shown}"
-            raise ProfileError(f"profile {str(path)!r} has invalid metadata: {key!r} must be {expected}, got {got}")
-
-
-_JSON_TYPES: dict[type, str] = {
-    dict: "an object",
-    list: "a list",
-    str: "a string",
-    int: "a number",
-    float: "a number",
-    bool: "a boolean",
-    type(None): "null",
-}
+            raise ProfileTypeError(
+                f"profile {str(path)!r} has invalid metadata: {key!r} must be {expected}, "
+                f"got {json_value(metadata[key])}"
+            )
 
 
 def _json(text: str | bytes, invalid: str, part: str, path: Path) -> Any:
@@ -174,58 +168,13 @@ def _json(text: str | bytes, invalid: str, part: str, path: Path) -> Any:
     it is nested too deeply to parse."""
     try:
         return json.loads(text)
-    except (json.JSONDecodeError, UnicodeDecodeError) as error:
+    except ValueError as error:  # not JSON, not UTF-8, or an integer of more digits than Python converts
         raise ProfileError(f"{invalid}: {error}") from None
     except RecursionError:
         raise ProfileError(f"profile {str(path)!r} has {part} nested too deeply to read") from None
 
 
-def effect_specs(metadata: Mapping[str, Any], path: Path) -> Any:
-    """The metadata's ``effects`` entry (``[]`` when absent), refused when it declares more than
-    :data:`MAX_EFFECTS` stages."""
-    specs = metadata.get("effects", [])
-    if isinstance(specs, list) and len(specs) > MAX_EFFECTS:
-        raise ProfileError(
-            f"profile {str(path)!r} declares {len(specs)} effect stages, more than camdegrade builds ({MAX_EFFECTS})"
-        )
-    return specs
-
-
-def network_config(spec: Any, path: Path) -> Any:
-    """The constructor arguments of the network a (non-null) ``network`` metadata entry declares."""
-    if not isinstance(spec, dict) or spec.get("arch") != "DomainShiftNet":
-        raise ProfileError(
-            f"profile {str(path)!r} metadata 'network' must be null or {{'arch': 'DomainShiftNet', 'config': ...}}, "
-            f"got {spec!r}"
-        )
-    return spec.get("config", {})
-
-
-def effect_name(spec: Any, path: Path, known: Collection[str]) -> str:
-    """The registered effect name of one ``effects`` metadata entry; ``known``: the registered names."""
-    if not isinstance(spec, dict) or not isinstance(spec.get("config", {}), dict):
-        raise ProfileError(f"profile {str(path)!r} has an effect entry that is not {{'name', 'config'}}: {spec!r}")
-    if spec.get("name") not in known:
-        raise ProfileError(
-            f"profile {str(path)!r} uses effect {spec.get('name')!r}, unknown to camdegrade {__version__} "
-            f"(known: {', '.join(sorted(known))}); upgrade camdegrade"
-        )
-    return spec["name"]
-
-
 # --- the header alone ---------------------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class TensorEntry:
-    """One tensor as the header describes it: safetensors dtype code (``F32``) and shape."""
-
-    dtype: str
-    shape: tuple[int, ...]
-
-    @property
-    def numel(self) -> int:
-        return math.prod(self.shape)
 
 
 @dataclass(frozen=True)
@@ -244,10 +193,18 @@ class ProfileHeader:
     def description(self) -> str:
         return str(self.metadata.get("description", ""))
 
+    def check_values(self) -> None:
+        """Raise a one-line :class:`ProfileError` for a tensor value out of its range (a network weight that is not
+        finite, an effect value its effect refuses), as :func:`~camdegrade.load_profile` refuses it. Reads every
+        tensor (numpy, no torch)."""
+        check_values(self.path, self.metadata, self.tensors)
+
     def describe(self) -> str:
         """What ``camdegrade info`` prints: what :meth:`CameraProfile.describe` shows (name, network, effect chain
         with stages, configs and small fitted values, fitting record, quality), then the torch and torchvision
-        versions the profile was fitted with and those running here. Reads the small tensors, nothing else."""
+        versions the profile was fitted with and those running here. The values are checked first
+        (:meth:`check_values`): a file ``load_profile`` refuses is refused here too, never shown."""
+        self.check_values()
         metadata = self.metadata
         spec = metadata.get("network")
         network = "none" if spec is None else f"DomainShiftNet({network_config(spec, self.path)})"
@@ -266,7 +223,6 @@ class ProfileHeader:
 
     def _effect_lines(self) -> list[str]:
         specs = self.metadata.get("effects") or []
-        stages = effect_stages(specs)
         buffers = sorted(key for key in self.tensors if key.startswith("effects.") and key.count(".") == 2)
         values = read_small_values(self, buffers)
         lines = [f"effects:     {len(specs)}"]
@@ -275,7 +231,7 @@ class ProfileHeader:
             for key in (key for key in buffers if key.startswith(f"effects.{index}.")):
                 shown = values.get(key, f"<{'x'.join(str(size) for size in self.tensors[key].shape)}>")
                 items.append(f"{key.rsplit('.', 1)[1]}={shown}")
-            lines.append(f"  {index}. {spec['name']} [{stages[spec['name']]}] {', '.join(items)}")
+            lines.append(f"  {index}. {spec['name']} [{_stage(spec['name'])}] {', '.join(items)}")
         if len(values) < len(buffers):
             lines.append(f"  (<AxB>: the shape of a tensor of more than {SHOWN_VALUES} values, not shown)")
         return lines
@@ -307,10 +263,17 @@ class ProfileHeader:
         return warnings
 
 
+def _stage(name: str) -> str:
+    facts = effect_facts(name)
+    return facts.stage if facts is not None else "?"  # never "?": read_header refuses unknown effects
+
+
 def read_header(name_or_path: str | os.PathLike[str]) -> ProfileHeader:
-    """A built-in profile's or a profile file's header and metadata, checked as :func:`~camdegrade.load_profile`
-    checks them before building anything (file kind, header size, format, version, network and effect entries,
-    effect names); tensor values are not read. Anything wrong is a one-line :class:`ProfileError`.
+    """A built-in profile's or a profile file's header and metadata, checked before anything is shown or built
+    (file kind, header size, format, version, then :func:`~camdegrade._profile_check.check_profile`: the network and
+    effect entries, the tensors' names, dtypes, shapes and byte ranges); the values are checked by
+    :meth:`ProfileHeader.check_values`, which :meth:`~ProfileHeader.describe` (``camdegrade info``) and
+    :func:`~camdegrade.load_profile` call. Anything wrong is a one-line :class:`ProfileError`.
 
     Examples:
         >>> read_header("city100-iphonex").metadata["network"]
@@ -326,16 +289,8 @@ def read_header(name_or_path: str | os.PathLike[str]) -> ProfileHeader:
     if not isinstance(raw, dict) or not all(isinstance(value, str) for value in raw.values()):
         raise ProfileError(f"{corrupt} (not a safetensors header); fit or copy it again")
     metadata = parse_metadata(raw, path)
-    try:
-        tensors = {
-            key: TensorEntry(str(entry["dtype"]), tuple(int(size) for size in entry["shape"]))
-            for key, entry in header.items()
-        }
-        data_end = max((int(entry["data_offsets"][1]) for entry in header.values()), default=0)
-    except (TypeError, KeyError, ValueError, IndexError):
-        raise ProfileError(
-            f"{corrupt} (a tensor entry lacks its dtype or shape, or its data offsets); fit or copy it again"
-        ) from None
+    tensors = tensor_entries(header, corrupt)
+    data_end = max((entry.offsets[1] for entry in tensors.values()), default=0)
     size = path.stat().st_size
     if size != 8 + length + data_end:  # load_profile refuses such a file too (safetensors checks the same)
         found = "is cut short" if size < 8 + length + data_end else "has bytes after its data"
@@ -343,37 +298,8 @@ def read_header(name_or_path: str | os.PathLike[str]) -> ProfileHeader:
             f"{corrupt} (its header places {data_end} bytes of tensor data after it, but the file {found}: "
             f"{size} bytes, expected {8 + length + data_end}); fit or copy it again"
         )
-    _check_structure(metadata, path)
+    check_profile(path, metadata, tensors)
     return ProfileHeader(path, metadata, tensors)
-
-
-def _check_structure(metadata: Mapping[str, Any], path: Path) -> None:
-    """The network and effect entries, as :func:`~camdegrade.load_profile` checks them while building."""
-    specs = effect_specs(metadata, path)
-    try:
-        spec = metadata.get("network")
-        if spec is not None:
-            check_network_config(network_config(spec, path))
-        specs = list(specs)
-        stages = effect_stages(specs)
-        for spec in specs:
-            effect_name(spec, path, stages)
-    except (TypeError, ValueError, AttributeError, KeyError) as error:
-        if isinstance(error, ProfileError):
-            raise
-        raise ProfileError(f"profile {str(path)!r} has invalid metadata: {error}") from error
-
-
-def check_network_config(config: Any) -> None:
-    """Raise as ``DomainShiftNet(**config)`` would for a config it refuses (a test keeps the two in step)."""
-    if not isinstance(config, dict):
-        raise TypeError(f"the network config must be a mapping, got {type(config).__name__}")
-    unexpected = sorted(set(config) - {"width"})
-    if unexpected:
-        raise TypeError(f"unexpected network config keys {unexpected}")
-    width = config.get("width", DEFAULT_NETWORK_WIDTH)
-    if isinstance(width, bool) or not isinstance(width, int) or not 1 <= width <= MAX_NETWORK_WIDTH:
-        raise ValueError(f"width must be an integer from 1 to {MAX_NETWORK_WIDTH}, got width={width!r}")
 
 
 def read_small_values(header: ProfileHeader, keys: Sequence[str]) -> dict[str, Any]:
@@ -383,17 +309,7 @@ def read_small_values(header: ProfileHeader, keys: Sequence[str]) -> dict[str, A
     wanted = [
         key for key in keys if header.tensors[key].numel <= SHOWN_VALUES and header.tensors[key].dtype in _NUMPY_DTYPES
     ]
-    if not wanted:
-        return {}
-    from safetensors import SafetensorError, safe_open
-
-    try:
-        with safe_open(str(header.path), framework="numpy") as handle:
-            arrays = {key: handle.get_tensor(key) for key in wanted}
-    except (SafetensorError, OSError) as error:
-        raise ProfileError(
-            f"profile file {str(header.path)!r} is corrupt or truncated ({error}); fit or copy it again"
-        ) from None
+    arrays = read_arrays(header.path, wanted)
     shown = {}
     for key, array in arrays.items():
         items = [round(value, 6) if isinstance(value, float) else value for value in array.reshape(-1).tolist()]
@@ -426,22 +342,3 @@ def _versions(versions: Mapping[str, str | None]) -> str:
 def _major(version: str) -> int | None:
     found = re.match(r"\s*v?(\d+)", version)
     return int(found.group(1)) if found else None
-
-
-# --- effect stages, without importing the effects -----------------------------------------------------------------
-
-
-def effect_stages(specs: Sequence[object] = ()) -> dict[str, str]:
-    """``{name: stage}`` for the effect entries ``specs`` of a profile's metadata.
-
-    Profiles record each stage's ``stage`` beside its name (written since format version 1 gained the key), so
-    ``info`` shows them without importing the effects (they import torch). For an entry without it (an older
-    profile), the registry (:data:`camdegrade.effects.EFFECTS`) is asked after all, which also refuses unknown names.
-    """
-    entries = [spec for spec in specs if isinstance(spec, dict)]
-    recorded = {spec.get("name"): spec.get("stage") for spec in entries}
-    if entries and all(isinstance(name, str) and isinstance(stage, str) for name, stage in recorded.items()):
-        return recorded  # type: ignore[return-value]
-    from camdegrade.effects import EFFECTS
-
-    return {name: cls.stage for name, cls in EFFECTS.items()}

@@ -1,4 +1,5 @@
-"""Frames through a profile: input checks, 8-bit handling, CPU chunking and per-device float32 copies.
+"""Frames through a profile: input checks, 8-bit handling, CPU chunking and per-device float32 copies; and the
+targets of a frame (masks, boxes, keypoints) through the same warp.
 
 The engine knows tensors ``(N, 3, H, W)`` and profiles, nothing of PIL, tv_tensors or sample structures (that is
 :mod:`camdegrade.transform`), so the dataset and batch modules use it without importing torchvision.
@@ -14,6 +15,8 @@ from torch import Tensor
 
 from camdegrade._fingerprint import module_tensors, tensors_fingerprint
 from camdegrade._pixels import NOT_FINITE, SCALE_HINT, as_unit, off_unit_scale, unit_to_bytes
+from camdegrade.effects.chain import chain_moved_points, chain_source_points, moves_pixels
+from camdegrade.functional.geometry import centered_coordinates, remap_labels
 from camdegrade.inference import Precision
 from camdegrade.profile import CameraProfile, EffectParams
 
@@ -108,6 +111,61 @@ def select_params(params: EffectParams, index: slice | Tensor) -> EffectParams:
 
 def params_on(params: EffectParams, device: torch.device) -> EffectParams:
     return [{key: value.to(device) for key, value in stage.items()} for stage in params]
+
+
+#: Points per box edge mapped through a warp: the enclosing box of the warped outline is within a small fraction
+#: of a pixel of the warped box's (the warps are smooth).
+BOX_EDGE_POINTS = 33
+
+
+def one_warp(
+    profile: CameraProfile, params: EffectParams, apply: Tensor, who: str = "CameraDegrade()"
+) -> EffectParams | None:
+    """The params of the one warp that moves every frame of a call, as a single frame's, for its targets; ``None``
+    when nothing moves (the profile moves no pixels, or no frame is degraded). A ``ValueError`` when frames move
+    differently (some degraded and some not, or per-frame draws of a moving stage): targets could not follow."""
+    if not moves_pixels(profile.effects) or not bool(apply.any()):
+        return None
+    moving = [stage for effect, stage in zip(profile.effects, params, strict=True) if effect.moves_pixels]
+    shared = bool(apply.all()) and all(bool((value == value[:1]).all()) for stage in moving for value in stage.values())
+    if not shared:
+        raise ValueError(
+            f"{who} cannot move targets (masks, boxes, keypoints) with {len(apply)} frames that profile "
+            f"{profile.name!r} moves differently (each is degraded or not, or draws its own shift); pass one image "
+            "per sample with its targets"
+        )
+    return select_params(params, slice(0, 1))
+
+
+def warp_mask(profile: CameraProfile, params: EffectParams, mask: Tensor) -> Tensor:
+    """``mask`` ``(..., H, W)`` (class ids, instance ids or booleans) moved by the profile's warp with ``params``
+    (one frame's): each output pixel takes the nearest value where the warp reads the image from, 0 outside."""
+    height, width = mask.shape[-2:]
+    x, y = centered_coordinates(height, width, torch.float64, mask.device)
+    x, y = chain_source_points(profile.effects, params, x.reshape(1, -1), y.reshape(1, -1), (height, width))
+    return remap_labels(mask, x.reshape(height, width), y.reshape(height, width))
+
+
+def warp_points(profile: CameraProfile, params: EffectParams, points: Tensor, size: tuple[int, int]) -> Tensor:
+    """Points ``(..., 2)`` as ``(x, y)`` in pixels from the top-left corner of a ``size = (H, W)`` image (pixel
+    ``(i, j)`` spans ``[j, j + 1] × [i, i + 1]``) moved where the profile's warp with ``params`` (one frame's) puts
+    them, as float64. Points may leave the frame."""
+    height, width = size
+    flat = points.reshape(1, -1, 2).to(torch.float64)
+    x, y = chain_moved_points(profile.effects, params, flat[..., 0] - width / 2, flat[..., 1] - height / 2, size)
+    return torch.stack((x + width / 2, y + height / 2), dim=-1).reshape(points.shape)
+
+
+def warp_boxes(profile: CameraProfile, params: EffectParams, boxes: Tensor, size: tuple[int, int]) -> Tensor:
+    """Boxes ``(K, 4)`` as ``(x0, y0, x1, y1)`` (coordinates as :func:`warp_points`) replaced by the boxes enclosing
+    their outlines moved by the warp, as float64, not clamped to the frame."""
+    t = torch.linspace(0.0, 1.0, BOX_EDGE_POINTS, dtype=torch.float64, device=boxes.device)
+    x0, y0, x1, y1 = (boxes.to(torch.float64)[:, k, None] for k in range(4))
+    xs, ys = x0 + t * (x1 - x0), y0 + t * (y1 - y0)
+    outline_x = torch.cat((xs, xs, x0.expand_as(ys), x1.expand_as(ys)), dim=1)
+    outline_y = torch.cat((y0.expand_as(xs), y1.expand_as(xs), ys, ys), dim=1)
+    moved = warp_points(profile, params, torch.stack((outline_x, outline_y), dim=-1), size)
+    return torch.cat((moved.amin(dim=1), moved.amax(dim=1)), dim=-1)
 
 
 class DeviceCopies:

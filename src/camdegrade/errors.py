@@ -11,6 +11,10 @@ class ProfileError(CamdegradeError, ValueError):
     """A profile file or profile name could not be used."""
 
 
+class ProfileTypeError(ProfileError, TypeError):
+    """A profile's metadata holds a value of the wrong JSON type (a string where a boolean belongs, say)."""
+
+
 class UnknownProfileError(ProfileError, KeyError):
     """A profile name is neither a built-in profile nor an existing file."""
 

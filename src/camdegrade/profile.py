@@ -20,20 +20,19 @@ from camdegrade._metadata import FORMAT_VERSION as FORMAT_VERSION
 from camdegrade._metadata import MAX_EFFECTS as MAX_EFFECTS
 from camdegrade._metadata import METADATA_KEY as METADATA_KEY
 from camdegrade._metadata import builtin_profiles_dir as builtin_profiles_dir
-from camdegrade._metadata import effect_name, effect_specs, network_config, parse_metadata, refuse_non_safetensors
 from camdegrade._metadata import list_profiles as list_profiles
+from camdegrade._metadata import read_header
 from camdegrade._metadata import resolve_profile_path as resolve_profile_path
 from camdegrade._metadata import serialize_metadata as serialize_metadata
 from camdegrade._pixels import bytes_to_unit
+from camdegrade._profile_check import listing, network_config
 from camdegrade._version import __version__
-from camdegrade.effects import EFFECTS, STAGES, Effect, build_effect
+from camdegrade.effects import STAGES, Effect, build_effect
 from camdegrade.effects.chain import apply_effects, check_chain, check_params
 from camdegrade.errors import ProfileError
 from camdegrade.inference import Precision, run_network
 from camdegrade.network import DomainShiftNet
 
-#: Names listed per kind of mismatch in an error (the rest are counted).
-_LISTED = 10
 EffectParams = list[dict[str, Tensor]]
 
 
@@ -170,7 +169,7 @@ class CameraProfile(nn.Module):
         label = f"cannot save profile {self.name or '(unnamed)'!r}"
         meta = [key for key, value in self.state_dict().items() if value.is_meta]
         if meta:
-            raise ValueError(f"{label}: tensors on the meta device hold no values ({_listing(meta)})")
+            raise ValueError(f"{label}: tensors on the meta device hold no values ({listing(meta)})")
         try:
             check_profile_values(self)
             metadata = serialize_metadata(self.metadata())  # before anything is written
@@ -235,24 +234,24 @@ def _storable(value: Tensor) -> Tensor:
 def load_profile(name_or_path: str | os.PathLike[str], device: torch.device | str | None = None) -> CameraProfile:
     """Load a built-in profile by name, or a profile file by path, strictly.
 
-    Only regular safetensors files are read (pickled checkpoints are refused, never unpickled). The format version
-    is checked; the network's width is bounded (:data:`~camdegrade.network.MAX_WIDTH`) and the network is built
-    without memory until the file's header shows every tensor the profile needs, with the right shape and a float
-    dtype, with nothing left over. Then the values are checked: network weights finite, every effect's values in
-    its ranges (:meth:`~camdegrade.effects.Effect.check_values`). Anything wrong is a one-line
-    :class:`~camdegrade.errors.ProfileError`.
+    Only regular safetensors files are read (pickled checkpoints are refused, never unpickled). The file is checked
+    whole before anything is built, as ``camdegrade info`` checks it (:func:`camdegrade._metadata.read_header`): the
+    format version; the network's width (at most :data:`~camdegrade.network.MAX_WIDTH`); each effect entry (a
+    known effect, its stage, its config keys, their types and ranges); every tensor the profile needs, with the
+    right shape and a float dtype, nothing left over; network weights finite; every effect value in its range.
+    Anything wrong is a one-line :class:`~camdegrade.errors.ProfileError`. The built profile's values are checked
+    once more (:meth:`~camdegrade.effects.Effect.check_values`).
 
     Examples:
         >>> load_profile("city100-iphonex").name
         'city100-iphonex'
     """
-    path = resolve_profile_path(name_or_path)
-    refuse_non_safetensors(path)
+    header = read_header(name_or_path)
+    header.check_values()
+    path = header.path
+    profile = _profile_from_metadata(header.metadata, path)
     try:
         with safe_open(str(path), framework="pt", device="cpu") as handle:
-            metadata = handle.metadata() or {}
-            profile = _profile_from_metadata(metadata, path)
-            _check_header(profile, handle, path)
             tensors = {key: handle.get_tensor(key) for key in handle.keys()}  # noqa: SIM118 - safe_open has no iter
     except SafetensorError as error:
         raise ProfileError(
@@ -260,10 +259,10 @@ def load_profile(name_or_path: str | os.PathLike[str], device: torch.device | st
         ) from error
     if profile.network is not None:
         profile.network.to_empty(device="cpu")  # built on the meta device; the file's weights fill it below
-    profile.load_state_dict(tensors, strict=True)
     try:
+        profile.load_state_dict(tensors, strict=True)
         check_profile_values(profile)
-    except ValueError as error:
+    except (RuntimeError, ValueError) as error:  # only if the file changed since read_header checked it
         raise ProfileError(f"profile {str(path)!r}: {error}") from None
     return profile if device is None else profile.to(device)
 
@@ -277,80 +276,25 @@ def as_profile(profile: CameraProfile | str | os.PathLike[str]) -> CameraProfile
     raise TypeError(f"profile must be a CameraProfile, a profile name or a path, got {type(profile).__name__}")
 
 
-def _profile_from_metadata(raw: Mapping[str, str], path: Path) -> CameraProfile:
-    metadata = parse_metadata(raw, path)
-    specs = effect_specs(metadata, path)
-    try:
-        network = _network_from_spec(metadata.get("network"), path)
-        effects = [_effect_from_spec(spec, path) for spec in specs]
-        return CameraProfile(
-            network,
-            effects,
-            name=str(metadata.get("name", "")),
-            description=str(metadata.get("description", "")),
-            fitted=metadata.get("fitted", {}),
-            quality=metadata.get("quality", {}),
-            package_version=str(metadata.get("package_version", "unknown")),
-        )
-    except (TypeError, ValueError, AttributeError, KeyError) as error:
-        if isinstance(error, ProfileError):
-            raise
-        raise ProfileError(f"profile {str(path)!r} has invalid metadata: {error}") from error
+def _profile_from_metadata(metadata: Mapping[str, Any], path: Path) -> CameraProfile:
+    """The profile the (checked) ``metadata`` describes: its network on the meta device, its effects with their
+    constructors' values (the file's tensors replace both)."""
+    network = _network_from_spec(metadata.get("network"), path)
+    effects = [build_effect(spec["name"], spec.get("config", {})) for spec in metadata.get("effects", [])]
+    return CameraProfile(
+        network,
+        effects,
+        name=str(metadata.get("name", "")),
+        description=str(metadata.get("description", "")),
+        fitted=metadata.get("fitted", {}),
+        quality=metadata.get("quality", {}),
+        package_version=str(metadata.get("package_version", "unknown")),
+    )
 
 
 def _network_from_spec(spec: Any, path: Path) -> DomainShiftNet | None:
     if spec is None:
         return None
     config = network_config(spec, path)
-    with torch.device("meta"):  # no memory until the file's header matches (see _check_header)
+    with torch.device("meta"):  # no memory spent on weights the file replaces
         return DomainShiftNet(**config)
-
-
-def _effect_from_spec(spec: Any, path: Path) -> Effect:
-    name = effect_name(spec, path, EFFECTS)
-    return build_effect(name, spec.get("config", {}))
-
-
-_FLOAT_DTYPES = ("F32", "F64")
-_DTYPE_PREFIXES = {"F": "float", "BF": "bfloat", "I": "int", "U": "uint"}
-
-
-def _listing(items: list[str]) -> str:
-    more = f" and {len(items) - _LISTED} more" if len(items) > _LISTED else ""
-    return ", ".join(items[:_LISTED]) + more
-
-
-def _dtype_name(code: str) -> str:
-    """A safetensors dtype code as torch names it: ``I32`` → ``int32``."""
-    prefix = code.rstrip("0123456789")
-    bits = code[len(prefix) :]
-    return f"{_DTYPE_PREFIXES[prefix]}{bits}" if prefix in _DTYPE_PREFIXES and bits else code.lower()
-
-
-def _check_header(profile: CameraProfile, handle: Any, path: Path) -> None:
-    """Compare the file's tensor names, shapes and dtypes (its header: nothing is read) with what the profile
-    needs; raise a :class:`ProfileError` listing every difference."""
-    expected = profile.state_dict()
-    header = {key: handle.get_slice(key) for key in handle.keys()}  # noqa: SIM118 - safe_open has no iter
-    shapes = {key: tuple(piece.get_shape()) for key, piece in header.items()}
-    missing = sorted(set(expected) - set(header))
-    unexpected = sorted(set(header) - set(expected))
-    wrong_shape = [
-        f"{key} {shapes[key]} (expected {tuple(expected[key].shape)})"
-        for key in sorted(set(expected) & set(header))
-        if shapes[key] != tuple(expected[key].shape)
-    ]
-    wrong_dtype = [
-        f"{key} has dtype {_dtype_name(header[key].get_dtype())}, expected float32 or float64"
-        for key in sorted(set(expected) & set(header))
-        if expected[key].is_floating_point() and header[key].get_dtype() not in _FLOAT_DTYPES
-    ]
-    kinds = (
-        ("missing tensors", missing),
-        ("unexpected tensors", unexpected),
-        ("wrong shapes", wrong_shape),
-        ("wrong dtypes", wrong_dtype),
-    )
-    problems = [f"{kind}: {_listing(items)}" for kind, items in kinds if items]
-    if problems:
-        raise ProfileError(f"profile {str(path)!r} does not match its own metadata; " + "; ".join(problems))

@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import math
 import os
+import warnings
 from typing import Any
 
+import numpy as np
 import PIL.Image
 import torch
 from torch import Tensor
@@ -17,15 +19,47 @@ from torchvision.transforms.v2 import functional as TF
 
 from camdegrade._checks import check_probability, check_seed
 from camdegrade._seeds import derive_seed
-from camdegrade.engine import DeviceCopies, check_image_shape, check_image_tensor, degrade_selected
+from camdegrade.engine import (
+    DeviceCopies,
+    check_image_shape,
+    check_image_tensor,
+    degrade_selected,
+    one_warp,
+    warp_boxes,
+    warp_mask,
+    warp_points,
+)
 from camdegrade.inference import Precision, resolve_precision
 from camdegrade.profile import CameraProfile, EffectParams, as_profile
 
 _MAIN_PROCESS = -1
+#: The targets that move with the image when a profile moves pixels (distortion, misalignment).
+TARGETS = (tv_tensors.Mask, tv_tensors.BoundingBoxes, tv_tensors.KeyPoints)
+#: Box formats whose boxes stay axis-aligned, so a warped box is the box enclosing the warped outline.
+_AXIS_ALIGNED = (
+    tv_tensors.BoundingBoxFormat.XYXY,
+    tv_tensors.BoundingBoxFormat.XYWH,
+    tv_tensors.BoundingBoxFormat.CXCYWH,
+)
+_NUMPY_DTYPES = (np.uint8, np.float16, np.float32, np.float64)
+
+
+class PlainTensorsWarning(UserWarning):
+    """A sample holds several plain image-shaped tensors and no explicit image: only the first is degraded
+    (torchvision's rule); wrap images in ``tv_tensors.Image`` to degrade them all."""
 
 
 def _is_plain_tensor(inpt: Any) -> bool:
     return isinstance(inpt, Tensor) and not isinstance(inpt, tv_tensors.TVTensor)
+
+
+def _is_numpy_image(inpt: Any) -> bool:
+    """A numpy array shaped ``(..., H, W, 3)``: an RGB image as albumentations and Hugging Face hold them."""
+    return isinstance(inpt, np.ndarray) and inpt.ndim >= 3 and inpt.shape[-1] == 3
+
+
+def _is_image_shaped(inpt: Any) -> bool:
+    return _is_plain_tensor(inpt) and inpt.ndim >= 3 and inpt.shape[-3] == 3
 
 
 class CameraDegrade(Transform):
@@ -33,9 +67,20 @@ class CameraDegrade(Transform):
 
     A drop-in torchvision v2 transform: put it in a ``v2.Compose`` before normalisation. Images are PIL RGB
     (returned as PIL), uint8 or float tensors ``[..., 3, H, W]`` (same dtype back; float in ``[0, 1]``), or
-    ``tv_tensors.Image`` / ``tv_tensors.Video`` (same type back). Boxes, masks, labels and anything else in a
-    sample pass through as the same objects, and dict/list/tuple samples keep their structure. Plain tensors follow
-    torchvision's rule: when a sample holds no explicit image, only the first plain tensor is treated as one.
+    ``tv_tensors.Image`` / ``tv_tensors.Video`` (same type back), or numpy arrays ``(..., H, W, 3)`` as
+    albumentations and Hugging Face datasets hold them (uint8, or float in ``[0, 1]``; a new numpy array of the
+    same dtype back). Labels and anything else in a sample pass through as the same objects, and dict/list/tuple
+    samples keep their structure. A sample with no image in it is refused with a ``TypeError``.
+
+    Targets travel with the image: when the profile moves pixels (distortion, misalignment), ``tv_tensors.Mask``
+    (nearest value, 0 where the frame had no content), ``tv_tensors.BoundingBoxes`` (the box enclosing the moved
+    outline, clamped as the boxes' ``clamping_mode`` says) and ``tv_tensors.KeyPoints`` (not clamped) are moved by
+    the same warp in the same call; rotated box formats are refused. Otherwise, and when a sample is not degraded,
+    they come back as the same objects.
+
+    Plain tensors follow torchvision's rule: when a sample holds no explicit image (PIL, ``tv_tensors.Image`` or
+    ``Video``, numpy), only the first plain tensor is treated as one, so ``CameraDegrade()([a, b])`` degrades ``a``
+    only (a :class:`PlainTensorsWarning` says so, once); wrap each in ``tv_tensors.Image`` to degrade both.
 
     All randomness of a call is drawn in :meth:`make_params` (whether each sample is degraded, with probability
     ``p``, and every stochastic effect's values), so ``t.transform(x, params)`` replays a call exactly. The work
@@ -59,7 +104,14 @@ class CameraDegrade(Transform):
         (torch.Size([3, 30, 40]), torch.uint8)
     """
 
-    _transformed_types = (tv_tensors.Image, tv_tensors.Video, PIL.Image.Image, _is_plain_tensor)
+    _transformed_types = (
+        tv_tensors.Image,
+        tv_tensors.Video,
+        PIL.Image.Image,
+        _is_plain_tensor,
+        _is_numpy_image,
+        *TARGETS,
+    )
 
     def __init__(
         self,
@@ -80,6 +132,30 @@ class CameraDegrade(Transform):
         self._generator = None if seed is None else torch.Generator().manual_seed(seed)
         self._generator_worker = _MAIN_PROCESS
         self._device_copies = DeviceCopies()
+        self._warned_plain_tensors = False
+
+    def _needs_transform_list(self, flat_inputs: list[Any]) -> list[bool]:
+        # torchvision's rule for plain tensors, with numpy images counted as explicit images (as PIL images are),
+        # and a warning (once) when it leaves image-shaped plain tensors undegraded beside the first.
+        needs = super()._needs_transform_list(flat_inputs)
+        if len(flat_inputs) == 1:  # a bare image: nothing beside it
+            return needs
+        skipped, degraded_plain = 0, False
+        for inpt, needed in zip(flat_inputs, needs, strict=True):
+            if isinstance(inpt, np.ndarray) and needed:  # a numpy image: plain tensors beside it are no images
+                return [wanted and not _is_plain_tensor(item) for item, wanted in zip(flat_inputs, needs, strict=True)]
+            if _is_plain_tensor(inpt):
+                degraded_plain |= needed
+                skipped += not needed and _is_image_shaped(inpt)
+        if skipped and degraded_plain and not self._warned_plain_tensors:
+            self._warned_plain_tensors = True
+            warnings.warn(
+                f"CameraDegrade() degrades only the first of {skipped + 1} plain image-shaped tensors in a sample "
+                "(torchvision's rule for plain tensors); wrap each image in tv_tensors.Image to degrade them all",
+                PlainTensorsWarning,
+                stacklevel=3,
+            )
+        return needs
 
     def make_params(self, flat_inputs: list[Any]) -> dict[str, Any]:
         """Draw this call's randomness from the transform's own generator (see :meth:`draw_params`)."""
@@ -105,20 +181,29 @@ class CameraDegrade(Transform):
     ) -> dict[str, Any]:
         """Draw a call's randomness from ``generator`` for the first image in ``flat_inputs`` (the others must share
         its shape): whether each sample is degraded (probability ``p``, default ``self.p``) and every stochastic
-        effect's values. The draws are the same whatever ``p`` is, so ``p`` only changes which samples change."""
+        effect's values. The draws are the same whatever ``p`` is, so ``p`` only changes which samples change.
+
+        When ``flat_inputs`` also holds targets (masks, boxes, keypoints), ``"warp"`` holds the one warp that moves
+        them (see :func:`camdegrade.engine.one_warp`); a ``TypeError`` when it holds no image.
+        """
         p = self.p if p is None else check_probability(p)
-        if not flat_inputs:
-            return {"apply": torch.zeros(0, dtype=torch.bool), "effects": [], "frames": (0, 3, 0, 0)}
-        first = flat_inputs[0]
+        images = [inpt for inpt in flat_inputs if not isinstance(inpt, TARGETS)]
+        if not images:
+            raise TypeError(
+                "CameraDegrade() found no image in the sample: it degrades PIL RGB images, tensors [..., 3, H, W], "
+                "tv_tensors.Image/Video and numpy arrays (..., H, W, 3); convert grayscale or channels-first numpy "
+                "images first"
+            )
+        first = images[0]
         frames = _frames_shape(first)
         samples = _decision_count(first)
         decisions = torch.rand(samples, generator=generator) < p
         frames_per_sample = frames[0] // samples if samples else 0
-        return {
-            "apply": decisions if frames_per_sample == 1 else decisions.repeat_interleave(frames_per_sample),
-            "effects": self.profile.make_params(frames, generator),
-            "frames": frames,
-        }
+        apply = decisions if frames_per_sample == 1 else decisions.repeat_interleave(frames_per_sample)
+        effects = self.profile.make_params(frames, generator)
+        has_targets = len(images) < len(flat_inputs)
+        warp = one_warp(self.profile, effects, apply) if has_targets else None
+        return {"apply": apply, "effects": effects, "frames": frames, "warp": warp}
 
     def degrade_with(self, *inputs: Any, generator: torch.Generator | None, p: float | None = None) -> Any:
         """Like calling the transform, but drawing from ``generator`` (and with probability ``p`` if given).
@@ -133,9 +218,53 @@ class CameraDegrade(Transform):
         return tree_unflatten(flat_outputs, spec)
 
     def transform(self, inpt: Any, params: dict[str, Any]) -> Any:
+        if isinstance(inpt, TARGETS):
+            return self._move_target(inpt, params)
         if isinstance(inpt, PIL.Image.Image):
             return self._transform_pil(inpt, params)
+        if isinstance(inpt, np.ndarray):
+            return self._transform_numpy(inpt, params)
         return self._transform_tensor(inpt, params)
+
+    def _transform_numpy(self, array: np.ndarray, params: dict[str, Any]) -> np.ndarray:
+        _check_numpy_image(array)
+        if not bool(params["apply"].any()):
+            return array
+        # torch shares only writeable, native-order, positively strided memory; this copy is never written.
+        usable = array.flags.writeable and array.dtype.isnative and all(step >= 0 for step in array.strides)
+        source = torch.from_numpy(array if usable else np.array(array, dtype=array.dtype.newbyteorder("=")))
+        degraded = self._transform_tensor(source.movedim(-1, -3), params)
+        return np.ascontiguousarray(degraded.movedim(-3, -1).numpy())
+
+    def _move_target(self, target: Any, params: dict[str, Any]) -> Any:
+        """``target`` moved by the call's warp (``params["warp"]``, one frame's params), or itself if none."""
+        warp = params.get("warp")
+        if warp is None:
+            return target
+        size = tuple(params["frames"][-2:])
+        plain = target.as_subclass(Tensor)
+        if isinstance(target, tv_tensors.Mask):
+            _check_size("a tv_tensors.Mask", tuple(target.shape[-2:]), size)
+            return tv_tensors.wrap(warp_mask(self.profile, warp, plain), like=target)
+        _check_size(f"a tv_tensors.{type(target).__name__}", tuple(target.canvas_size), size)
+        if isinstance(target, tv_tensors.KeyPoints):
+            # A keypoint's x = j is pixel j's centre (torchvision's flips map x to W - 1 - x); the engine measures
+            # from the frame's edge, where that centre is at j + 0.5.
+            moved = warp_points(self.profile, warp, plain + 0.5, size) - 0.5
+            return tv_tensors.wrap(_as_dtype(moved, target.dtype), like=target)
+        return self._move_boxes(target, warp, size)
+
+    def _move_boxes(self, boxes: tv_tensors.BoundingBoxes, warp: EffectParams, size: tuple[int, int]) -> Any:
+        if boxes.format not in _AXIS_ALIGNED:
+            raise ValueError(
+                f"CameraDegrade() cannot move rotated boxes (format {boxes.format.name}) exactly through profile "
+                f"{self.profile.name!r}'s warp; give them as axis-aligned boxes (XYXY, XYWH, CXCYWH) or as masks"
+            )
+        xyxy = TF.convert_bounding_box_format(boxes, new_format=tv_tensors.BoundingBoxFormat.XYXY)
+        moved = warp_boxes(self.profile, warp, xyxy.as_subclass(Tensor).reshape(-1, 4), size).reshape(xyxy.shape)
+        moved = tv_tensors.wrap(moved.to(xyxy.device), like=xyxy)
+        out = TF.convert_bounding_box_format(TF.clamp_bounding_boxes(moved), new_format=boxes.format)
+        return tv_tensors.wrap(_as_dtype(out.as_subclass(Tensor), boxes.dtype), like=boxes)
 
     def _transform_pil(self, image: PIL.Image.Image, params: dict[str, Any]) -> PIL.Image.Image:
         if image.mode != "RGB":
@@ -176,11 +305,36 @@ class CameraDegrade(Transform):
         return f"profile={self.profile.name!r}, p={self.p}, seed={self.seed}, precision={self.precision!r}"
 
 
+def _check_size(what: str, got: tuple[int, ...], size: tuple[int, ...]) -> None:
+    if got != size:
+        raise ValueError(
+            f"CameraDegrade() moves targets with their image, so {what} must match the image's size (H, W) = "
+            f"{size}, got {got}"
+        )
+
+
+def _as_dtype(values: Tensor, dtype: torch.dtype) -> Tensor:
+    """Moved coordinates in a target's dtype: integers are rounded, not truncated."""
+    return values.to(dtype) if dtype.is_floating_point else values.round().to(dtype)
+
+
+def _check_numpy_image(array: np.ndarray) -> None:
+    if array.dtype.type not in _NUMPY_DTYPES:
+        raise TypeError(
+            "CameraDegrade() supports numpy images of dtype uint8, float16, float32 or float64, "
+            f"got dtype={array.dtype}"
+        )
+
+
 def _frames_shape(inpt: Any) -> tuple[int, int, int, int]:
     """``(N, 3, H, W)``: the input seen as a flat batch of frames."""
     if isinstance(inpt, PIL.Image.Image):
         width, height = inpt.size
         return (1, 3, height, width)
+    if isinstance(inpt, np.ndarray):
+        _check_numpy_image(inpt)
+        *leading, height, width, channels = inpt.shape
+        return (math.prod(leading), channels, height, width)
     check_image_shape(inpt)
     *leading, channels, height, width = inpt.shape
     return (math.prod(leading), channels, height, width)
@@ -190,6 +344,8 @@ def _decision_count(inpt: Any) -> int:
     """How many independent degrade/keep decisions a sample takes: one per image, one per video."""
     if isinstance(inpt, PIL.Image.Image):
         return 1
+    if isinstance(inpt, np.ndarray):
+        return math.prod(inpt.shape[:-3])
     leading = inpt.shape[:-3]
     if isinstance(inpt, tv_tensors.Video) and leading:
         leading = leading[:-1]

@@ -7,7 +7,6 @@ every rank. A policy may repeat each source item (``copies``): :class:`Union` re
 
 from __future__ import annotations
 
-import warnings
 from collections.abc import Callable, Sequence
 from typing import ClassVar
 
@@ -60,18 +59,6 @@ class PairedViews(MixPolicy):
 
     def decide(self, index: int, copy: int, epoch: int, seed: int) -> Decision:
         return (False, True)
-
-
-class Pair(PairedViews):
-    """Deprecated name of :class:`PairedViews` (it clashed with ``camdegrade.fitting.Pair``, a file pair)."""
-
-    def __init__(self) -> None:
-        warnings.warn(
-            "camdegrade.data.Pair is deprecated and will be removed; use camdegrade.data.PairedViews "
-            "(or policy='pair')",
-            DeprecationWarning,
-            stacklevel=2,
-        )
 
 
 class Bernoulli(MixPolicy):

@@ -5,7 +5,6 @@ The registered names are the diagnosis vocabulary; each effect sits at a stage o
 effect follows is in :mod:`camdegrade.effects.base`; ``docs/effects.md`` describes each one.
 """
 
-from camdegrade.effects._noise_levels import NoiseLevels, noise_level_function
 from camdegrade.effects.base import (
     EFFECTS,
     SIGNATURES,
@@ -34,12 +33,10 @@ __all__ = [
     "Effect",
     "Misalignment",
     "Noise",
-    "NoiseLevels",
     "Pairs",
     "Tone",
     "Vignetting",
     "build_effect",
     "check_effect_names",
-    "noise_level_function",
     "register_effect",
 ]

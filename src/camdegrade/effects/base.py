@@ -55,9 +55,10 @@ class Effect(nn.Module):
     name elsewhere: :meth:`neutral` (the identity), :meth:`without_randomness` (its deterministic centre, or
     ``None`` for pure noise), :meth:`scaled` (its strength), :attr:`fit_budget` and :meth:`fit_options` (what its
     fitter affords), :meth:`fit_in_chain` (how it is fitted at its place in a profile), :attr:`explains` (the gap
-    signatures it can cause), :attr:`position_dependent` and :meth:`check_values` (the valid ranges of its values,
-    checked when a profile is loaded or saved). The registry-wide tests in ``tests/test_effects.py`` and
-    ``tests/test_architecture.py`` hold every registered effect to this contract.
+    signatures it can cause), :attr:`position_dependent`, :attr:`moves_pixels` with :meth:`source_points` and
+    :meth:`moved_points` (how it moves positions, so targets move with the image) and :meth:`check_values` (the
+    valid ranges of its values, checked when a profile is loaded or saved). The registry-wide tests in
+    ``tests/test_effects.py`` and ``tests/test_architecture.py`` hold every registered effect to this contract.
     """
 
     name: ClassVar[str] = ""
@@ -69,6 +70,9 @@ class Effect(nn.Module):
     #: Whether it varies over the frame, which a translation-equivariant network cannot learn: ``fit_profile``
     #: keeps such a stage only where it lowers the validation error.
     position_dependent: ClassVar[bool] = False
+    #: Whether it moves image content (a warp): such an effect says how it moves positions with
+    #: :meth:`source_points` and :meth:`moved_points`, and targets (masks, boxes, keypoints) are moved with it.
+    moves_pixels: ClassVar[bool] = False
 
     @classmethod
     def neutral(cls) -> Effect:
@@ -123,6 +127,24 @@ class Effect(nn.Module):
 
     def forward(self, image: Tensor, params: Mapping[str, Tensor] | None = None) -> Tensor:
         raise NotImplementedError
+
+    def source_points(
+        self, x: Tensor, y: Tensor, size: tuple[int, int], params: Mapping[str, Tensor]
+    ) -> tuple[Tensor, Tensor]:
+        """Where in this stage's input the output positions ``(x, y)`` read from (the sampling grid of a warp).
+
+        Positions are centred pixel coordinates (x right, y down, in pixels from the centre of an image of
+        ``size = (H, W)``), shaped ``(N, P)`` for the ``N`` frames ``params`` were drawn for (or ``(1, P)``).
+        Default: the same positions (a stage that does not move pixels, :attr:`moves_pixels` false).
+        """
+        return x, y
+
+    def moved_points(
+        self, x: Tensor, y: Tensor, size: tuple[int, int], params: Mapping[str, Tensor]
+    ) -> tuple[Tensor, Tensor]:
+        """Where this stage puts the input positions ``(x, y)``: the inverse of :meth:`source_points` (same
+        coordinates and shapes), which moves keypoints and boxes. Default: the same positions."""
+        return x, y
 
     def encodings(self) -> tuple[Encoding, Encoding]:
         """The encodings of :meth:`forward_encoded`'s input and output. sRGB for both unless overridden."""

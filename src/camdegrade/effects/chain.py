@@ -57,3 +57,38 @@ def _encode(image: Tensor, current: Encoding, wanted: Encoding) -> Tensor:
     if current == wanted:
         return image
     return srgb_to_linear_(image) if wanted == "linear" else linear_to_srgb_(image)
+
+
+def moves_pixels(effects: Sequence[Effect]) -> bool:
+    """Whether any stage of ``effects`` moves image content (so targets must move with it)."""
+    return any(effect.moves_pixels for effect in effects)
+
+
+def chain_source_points(
+    effects: Sequence[Effect],
+    params: Sequence[Mapping[str, Tensor]],
+    x: Tensor,
+    y: Tensor,
+    size: tuple[int, int],
+) -> tuple[Tensor, Tensor]:
+    """Where in the chain's input the output positions ``(x, y)`` read from: each moving stage's
+    :meth:`~Effect.source_points`, last stage first (coordinates as there)."""
+    for effect, effect_params in reversed(list(zip(effects, params, strict=True))):
+        if effect.moves_pixels:
+            x, y = effect.source_points(x, y, size, effect_params)
+    return x, y
+
+
+def chain_moved_points(
+    effects: Sequence[Effect],
+    params: Sequence[Mapping[str, Tensor]],
+    x: Tensor,
+    y: Tensor,
+    size: tuple[int, int],
+) -> tuple[Tensor, Tensor]:
+    """Where the chain puts its input positions ``(x, y)``: each moving stage's :meth:`~Effect.moved_points`, in
+    chain order (the inverse of :func:`chain_source_points`)."""
+    for effect, effect_params in zip(effects, params, strict=True):
+        if effect.moves_pixels:
+            x, y = effect.moved_points(x, y, size, effect_params)
+    return x, y

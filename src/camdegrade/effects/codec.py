@@ -39,7 +39,8 @@ class JPEG(Effect):
     def __init__(self, quality: int = 90, *, quality_jitter: int = 0, probability: float = 1.0) -> None:
         super().__init__()
         check_quality(torch.tensor(float(quality)))
-        if isinstance(quality_jitter, bool) or int(quality_jitter) != quality_jitter or quality_jitter < 0:
+        whole = isinstance(quality_jitter, int) or (isinstance(quality_jitter, float) and quality_jitter.is_integer())
+        if isinstance(quality_jitter, bool) or not whole or quality_jitter < 0:  # inf and NaN are not whole
             raise ValueError(f"quality_jitter must be a non-negative integer, got quality_jitter={quality_jitter!r}")
         if not 0.0 <= float(probability) <= 1.0:
             raise ValueError(f"probability must be in [0, 1], got probability={probability!r}")

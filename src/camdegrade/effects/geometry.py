@@ -23,7 +23,13 @@ from camdegrade.functional import (
     srgb_to_linear,
     vignetting_image,
 )
-from camdegrade.functional.geometry import vignetting_gain
+from camdegrade.functional.geometry import (
+    distortion_source,
+    distortion_target,
+    misalignment_source,
+    misalignment_target,
+    vignetting_gain,
+)
 
 
 @register_effect
@@ -98,13 +104,15 @@ class Vignetting(Effect):
 class Distortion(Effect):
     """Radial lens distortion in relative coordinates: the output at ``p`` samples the scene at
     ``p · (1 + k1 r² + k2 r⁴)``. ``k1 > 0`` is barrel (typical of wide, cheap lenses), ``k1 < 0`` pincushion;
-    zeros are neutral."""
+    zeros are neutral. It moves pixels: targets are moved by the same warp (:meth:`moved_points` inverts the
+    radial polynomial by Newton's method)."""
 
     name = "distortion"
     stage = "optics"
     explains = ("alignment",)
     fit_budget = 16
     position_dependent = True
+    moves_pixels = True
     k1: Tensor
     k2: Tensor
 
@@ -121,6 +129,16 @@ class Distortion(Effect):
 
     def forward(self, image: Tensor, params: Mapping[str, Tensor] | None = None) -> Tensor:
         return distortion_image(image, self.k1.to(image.device), self.k2.to(image.device))
+
+    def source_points(
+        self, x: Tensor, y: Tensor, size: tuple[int, int], params: Mapping[str, Tensor]
+    ) -> tuple[Tensor, Tensor]:
+        return distortion_source(x, y, size, self.k1.to(x), self.k2.to(x))
+
+    def moved_points(
+        self, x: Tensor, y: Tensor, size: tuple[int, int], params: Mapping[str, Tensor]
+    ) -> tuple[Tensor, Tensor]:
+        return distortion_target(x, y, size, self.k1.to(x), self.k2.to(x))
 
     @classmethod
     def fit(
@@ -144,7 +162,12 @@ class Distortion(Effect):
 @register_effect
 class ChromaticAberration(Effect):
     """Lateral chromatic aberration: red and blue planes magnified by ``1 + red`` and ``1 + blue`` about the
-    centre relative to green (typical magnitudes 1e-4 to 3e-3). Zeros are neutral."""
+    centre relative to green (typical magnitudes 1e-4 to 3e-3). Zeros are neutral.
+
+    It does not move targets (:attr:`moves_pixels` is false): green, the reference the magnifications are
+    measured against and most of an image's luminance, stays where it is, and red and blue move by a fraction of
+    a pixel about it (0.3 % of the distance from the centre at the most a real lens shows), so an object's mask,
+    box and keypoints stay where its luminance is."""
 
     name = "chromatic_aberration"
     stage = "optics"
@@ -199,12 +222,15 @@ class Misalignment(Effect):
     Args:
         shift_std: per-sample random shift (pixels, each axis) drawn in :meth:`make_params`. 0 disables it.
         angle_std: per-sample random rotation (degrees) drawn in :meth:`make_params`. 0 disables it.
+
+    It moves pixels: targets are moved by the same shift and rotation (the drawn ones included).
     """
 
     name = "misalignment"
     stage = "optics"
     explains = ("frequency", "alignment")
     fit_budget = 12
+    moves_pixels = True
     dx: Tensor
     dy: Tensor
     angle: Tensor
@@ -254,13 +280,31 @@ class Misalignment(Effect):
         return params
 
     def forward(self, image: Tensor, params: Mapping[str, Tensor] | None = None) -> Tensor:
-        drawn = resolve_params(self, image, params)
-        dx, dy, angle = (value.to(image.device) for value in (self.dx, self.dy, self.angle))
+        return misalignment_image(image, *self._motion(resolve_params(self, image, params), image.device))
+
+    def _motion(self, drawn: Mapping[str, Tensor], device: torch.device) -> tuple[Tensor, Tensor, Tensor]:
+        """``(dx, dy, angle)``: the fixed values plus the drawn ones (each ``(N,)`` when drawn, else 0-d)."""
+        dx, dy, angle = (value.to(device) for value in (self.dx, self.dy, self.angle))
         if "shift" in drawn:
-            dx, dy = dx + drawn["shift"][:, 0], dy + drawn["shift"][:, 1]
+            dx, dy = dx + drawn["shift"][:, 0].to(device), dy + drawn["shift"][:, 1].to(device)
         if "angle" in drawn:
-            angle = angle + drawn["angle"]
-        return misalignment_image(image, dx, dy, angle)
+            angle = angle + drawn["angle"].to(device)
+        return dx, dy, angle
+
+    def _motion_of_points(self, x: Tensor, params: Mapping[str, Tensor]) -> tuple[Tensor, Tensor, Tensor]:
+        """:meth:`_motion` in ``x``'s dtype, shaped to broadcast over positions ``(N, P)`` (angle in radians)."""
+        dx, dy, angle = (value.to(x).reshape(-1, 1) for value in self._motion(params, x.device))
+        return dx, dy, torch.deg2rad(angle)
+
+    def source_points(
+        self, x: Tensor, y: Tensor, size: tuple[int, int], params: Mapping[str, Tensor]
+    ) -> tuple[Tensor, Tensor]:
+        return misalignment_source(x, y, *self._motion_of_points(x, params))
+
+    def moved_points(
+        self, x: Tensor, y: Tensor, size: tuple[int, int], params: Mapping[str, Tensor]
+    ) -> tuple[Tensor, Tensor]:
+        return misalignment_target(x, y, *self._motion_of_points(x, params))
 
     @classmethod
     def fit(

@@ -14,6 +14,7 @@ from torch import Tensor
 from camdegrade._checks import check_non_negative
 from camdegrade._random import standard_normal
 from camdegrade.effects._common import batch_shape, resolve_params, vector
+from camdegrade.effects._noise_fit import calibrate, fit_noise, flat_noise_sums
 from camdegrade.effects.base import Effect, Encoding, Pairs, check_range, register_effect
 from camdegrade.functional import linear_to_srgb, srgb_to_linear
 from camdegrade.functional.noise import add_noise_, correlated_field, mix_channels, noise_std
@@ -128,13 +129,13 @@ class Noise(Effect):
     def from_config(cls, config: Mapping[str, Any]) -> Noise:
         """A stage with buffers of the shapes ``config`` describes (values to be loaded from a state dict)."""
         options = dict(config)
-        knots, taps = int(options.pop("knots", 0)), int(options.pop("taps", 0))
+        knots, taps = (_count(options.pop(key, 0), key) for key in ("knots", "taps"))
         if not (0 <= knots <= cls.MAX_KNOTS and 0 <= taps <= cls.MAX_TAPS):
             raise ValueError(
                 f"knots must be from 0 to {cls.MAX_KNOTS} and taps from 0 to {cls.MAX_TAPS}, got knots={knots}, "
                 f"taps={taps}"
             )
-        columns, mixing = bool(options.pop("columns", False)), bool(options.pop("mixing", False))
+        columns, mixing = (_flag(options.pop(key, False), key) for key in ("columns", "mixing"))
         impulse = torch.zeros(3, taps)
         if taps:
             impulse[:, taps // 2] = 1.0
@@ -316,8 +317,6 @@ class Noise(Effect):
         correlations within 0.05, channel correlations within 0.05, no banding on a camera without it (row σ below
         a tenth of the noise std), banding within 20 % where present.
         """
-        from camdegrade.effects._noise_fit import fit_noise
-
         return fit_noise(cls, source, target, estimator=estimator, taps=taps, banding=banding, rounds=rounds, seed=seed)
 
     @classmethod
@@ -339,8 +338,6 @@ class Noise(Effect):
         table, kernels and banding are corrected (two rounds, then the levels once more, then banding against a
         simulated no-banding null). What the tone curve and the codec do to the noise is measured, not assumed.
         """
-        from camdegrade.effects._noise_fit import calibrate, flat_noise_sums
-
         start = cls.fit(list(sources), list(captures), estimator="excess", rounds=0, banding=False, seed=seed)
         step = max(1, len(cleans) // calibration_pairs) if calibration_pairs else 1
         chosen = list(range(0, len(cleans), step))
@@ -358,6 +355,21 @@ class Noise(Effect):
         # A small std in linear light becomes std times the slope of the sRGB curve at that intensity.
         slope = (linear_to_srgb(x + 1e-4) - linear_to_srgb(x)) / 1e-4 if self.linear else torch.ones_like(x)
         return float((std * slope).mean()) * 255.0
+
+
+def _count(value: Any, name: str) -> int:
+    """A config count (knots, taps): a whole number, not a bool, a text or Infinity."""
+    whole = isinstance(value, int) or (isinstance(value, float) and value.is_integer())
+    if isinstance(value, bool) or not whole:
+        raise ValueError(f"{name} must be a whole number, got {name}={value!r}")
+    return int(value)
+
+
+def _flag(value: Any, name: str) -> bool:
+    """A config flag (columns, mixing): true or false, not the text "false" (which ``bool`` reads as true)."""
+    if not isinstance(value, bool):
+        raise TypeError(f"{name} must be True or False, got {name}={value!r} ({type(value).__name__})")
+    return value
 
 
 def _non_negative(tensor: Tensor, name: str) -> Tensor:

@@ -92,11 +92,39 @@ def distortion_image(image: Tensor, k1: ParamLike, k2: ParamLike = 0.0) -> Tenso
             return x.clone()
         height, width = x.shape[-2:]
         px, py = centered_coordinates(height, width, x.dtype, x.device)
-        r2 = relative_radius(height, width, x.dtype, x.device) ** 2
-        scale = radial_polynomial(r2, k1_t.to(x.dtype), k2_t.to(x.dtype))
-        return remap_image(_flatten(x), px * scale, py * scale).reshape(x.shape)
+        source_x, source_y = distortion_source(px, py, (height, width), k1_t.to(x.dtype), k2_t.to(x.dtype))
+        return remap_image(_flatten(x), source_x, source_y).reshape(x.shape)
 
     return apply_float(image, kernel)
+
+
+def distortion_source(x: Tensor, y: Tensor, size: tuple[int, int], k1: Tensor, k2: Tensor) -> tuple[Tensor, Tensor]:
+    """Where :func:`distortion_image` reads the output positions ``(x, y)`` from: ``p · (1 + k1 r² + k2 r⁴)``.
+
+    Positions are centred pixel coordinates (as :func:`centered_coordinates`) of an image of ``size = (H, W)``;
+    ``k1`` and ``k2`` broadcast against them.
+    """
+    half_diagonal = 0.5 * (size[0] ** 2 + size[1] ** 2) ** 0.5
+    r2 = (torch.sqrt(x**2 + y**2) / half_diagonal) ** 2
+    scale = radial_polynomial(r2, k1, k2)
+    return x * scale, y * scale
+
+
+def distortion_target(
+    x: Tensor, y: Tensor, size: tuple[int, int], k1: Tensor, k2: Tensor, iterations: int = 30
+) -> tuple[Tensor, Tensor]:
+    """Where :func:`distortion_image` puts the input positions ``(x, y)``: the inverse of
+    :func:`distortion_source`, solving ``ρ (1 + k1 ρ² + k2 ρ⁴) = ρ_in`` for the output radius by Newton's method
+    (positions, ``k1``, ``k2`` as there)."""
+    half_diagonal = 0.5 * (size[0] ** 2 + size[1] ** 2) ** 0.5
+    wanted = torch.sqrt(x**2 + y**2) / half_diagonal
+    rho = wanted.clone()
+    for _ in range(iterations):
+        value = rho * radial_polynomial(rho * rho, k1, k2) - wanted
+        slope = 1.0 + 3.0 * k1 * rho**2 + 5.0 * k2 * rho**4
+        rho = rho - value / slope.clamp_min(1e-3)
+    ratio = torch.where(wanted > 0, rho / wanted.clamp_min(1e-12), torch.ones_like(wanted))
+    return x * ratio, y * ratio
 
 
 def chromatic_aberration_image(image: Tensor, red: ParamLike, blue: ParamLike) -> Tensor:
@@ -140,13 +168,38 @@ def misalignment_image(image: Tensor, dx: ParamLike = 0.0, dy: ParamLike = 0.0, 
             return x.clone()
         height, width = x.shape[-2:]
         px, py = centered_coordinates(height, width, x.dtype, x.device)
-        qx, qy = px - dx_t.to(x.dtype), py - dy_t.to(x.dtype)
-        cos, sin = torch.cos(theta).to(x.dtype), torch.sin(theta).to(x.dtype)
-        source_x = qx * cos - qy * sin
-        source_y = qx * sin + qy * cos
+        source_x, source_y = misalignment_source(px, py, dx_t.to(x.dtype), dy_t.to(x.dtype), theta.to(x.dtype))
         return remap_image(_flatten(x), source_x, source_y).reshape(x.shape)
 
     return apply_float(image, kernel)
+
+
+def misalignment_source(x: Tensor, y: Tensor, dx: Tensor, dy: Tensor, theta: Tensor) -> tuple[Tensor, Tensor]:
+    """Where :func:`misalignment_image` reads the output positions ``(x, y)`` (centred pixel coordinates) from:
+    the shift undone, then the rotation by ``theta`` radians. ``dx``, ``dy``, ``theta`` broadcast against them."""
+    qx, qy = x - dx, y - dy
+    cos, sin = torch.cos(theta), torch.sin(theta)
+    return qx * cos - qy * sin, qx * sin + qy * cos
+
+
+def misalignment_target(x: Tensor, y: Tensor, dx: Tensor, dy: Tensor, theta: Tensor) -> tuple[Tensor, Tensor]:
+    """Where :func:`misalignment_image` puts the input positions ``(x, y)``: the exact inverse of
+    :func:`misalignment_source` (rotation by ``-theta``, then the shift)."""
+    cos, sin = torch.cos(theta), torch.sin(theta)
+    return x * cos + y * sin + dx, -x * sin + y * cos + dy
+
+
+def remap_labels(labels: Tensor, source_x: Tensor, source_y: Tensor) -> Tensor:
+    """``labels`` ``(..., H, W)`` (any dtype: class ids, instance ids, booleans) read at the pixel holding each of
+    the centred coordinates ``(H, W)``: nearest-neighbour, so values are never mixed, and 0 where a position falls
+    outside the frame. Values are gathered, not interpolated, so every dtype stays exact."""
+    height, width = labels.shape[-2:]
+    column = torch.floor(source_x + width / 2.0)
+    row = torch.floor(source_y + height / 2.0)
+    inside = (column >= 0) & (column < width) & (row >= 0) & (row < height)
+    index = (row.clamp(0, height - 1) * width + column.clamp(0, width - 1)).long().flatten()
+    gathered = labels.reshape(*labels.shape[:-2], height * width).index_select(-1, index).reshape(labels.shape)
+    return torch.where(inside, gathered, torch.zeros((), dtype=labels.dtype, device=labels.device))
 
 
 def shrink_to_max_side(image: Tensor, max_side: int | None) -> Tensor:

@@ -1,5 +1,0 @@
-"""Deprecated: moved to :mod:`camdegrade.fitting.fit` (the fitting flow lives in ``camdegrade.fitting``)."""
-
-from camdegrade._deprecated import moved_module
-
-__getattr__ = moved_module(__name__, "camdegrade.fitting.fit")
