@@ -14,20 +14,13 @@ from camdegrade.__main__ import main
 from camdegrade.diagnose import DiagnosisReport, diagnose
 from camdegrade.diagnose.attribute import HeldOut, add_effect
 from camdegrade.diagnose.report import REQUIRED_KEYS
-from camdegrade.diagnose.stats import (
-    FAMILIES,
-    StatisticSet,
-    bootstrap_indices,
-    family_gaps,
-    gap,
-    measurement_scale,
-)
 from camdegrade.effects import EFFECTS, JPEG, Noise, Tone, Vignetting
 from camdegrade.fitting.noise import fit_noise_stage
 from camdegrade.fitting.pairset import PairSet, simulate
 from camdegrade.functional.analysis import box_mean, flat_mask
 from camdegrade.functional.noise_stats import measure_set
 from camdegrade.io import write_image
+from camdegrade.measures import FAMILIES, StatisticSet, bootstrap_indices, family_gaps, gap, measurement_scale
 from camdegrade.profile import CameraProfile, load_profile
 from camdegrade.sim import VirtualCamera
 from effects_images import patch_chart, photo
@@ -296,7 +289,7 @@ def test_unpaired_mode(tmp_path: Path) -> None:
 
 
 def test_a_critic_with_one_answer_scores_chance_and_says_so() -> None:
-    from camdegrade.diagnose.critic import CriticNet, Patches, score
+    from camdegrade.measures.critic import CriticNet, Patches, score
 
     images = _content(3, 64, seed=5)
     sims = [image.clamp(0.01, 0.99) for image in images]

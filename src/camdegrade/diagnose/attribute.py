@@ -27,15 +27,6 @@ import torch
 from torch import Tensor
 
 from camdegrade._seeds import derive_seed
-from camdegrade.diagnose.stats import (
-    Scale,
-    StatisticSet,
-    bootstrap_indices,
-    family_gaps,
-    gap,
-    gap_spread,
-    measurement_scale,
-)
 from camdegrade.effects import EFFECTS, Effect, check_effect_names
 from camdegrade.effects.base import evenly_spaced
 from camdegrade.errors import CamdegradeError
@@ -43,6 +34,9 @@ from camdegrade.fitting.finetune import finetune_network
 from camdegrade.fitting.noise import fit_stage_in_chain, replace_stage
 from camdegrade.fitting.pairset import simulate
 from camdegrade.functional.analysis import flat_mask
+from camdegrade.measures import FAMILIES, StatisticSet, bootstrap_indices, family_gaps, gap, gap_spread
+from camdegrade.measures.gap import Scale, measurement_scale
+from camdegrade.measures.noise import NoiseLevel, noise_stage_text
 from camdegrade.profile import CameraProfile
 
 #: A reduction counts when it exceeds this many bootstrap standard errors ...
@@ -58,10 +52,6 @@ REFINE_PAIRS = 12
 NOISE_PAIRS = 32
 NOISE_PIXELS = 1 << 20
 MIN_NOISE_PAIRS = 8
-#: Signatures the network's own artifacts leave (the stride-2 transposed convolutions' 4-pixel pattern, its
-#: high-frequency transfer), which send the network to a fine-tune when significant. Effects explain them too
-#: (JPEG blocks, blur), so their candidates are tried beside it.
-NETWORK_SIGNATURES = ("blocks", "frequency")
 STRENGTHS = (0.6, 1.0, 1.6)
 
 Kind = Literal["add", "remove", "refit", "network"]
@@ -331,7 +321,9 @@ class Search:
             if set(stage.explains) & axes:  # a stage can be wrong only where the gap shows its signature
                 plans.append(("remove", stage.name, _remover(index)))
                 plans.append(("refit", stage.name, _refitter(index)))
-        if current.network is not None and axes & set(NETWORK_SIGNATURES):
+        # Families the network's own artefacts show (``network_fault``) send it to a fine-tune when significant;
+        # effects explain them too (JPEG blocks, blur), so their candidates are tried beside it.
+        if current.network is not None and any(FAMILIES[axis].network_fault for axis in axes):
             plans.append(("network", "network", _network_refit))
         return plans
 
@@ -415,8 +407,8 @@ def _remover(index: int) -> Callable[[_Context], tuple[CameraProfile, None, str]
     def make(context: _Context) -> tuple[CameraProfile, None, str]:
         stage = context.current.effects[index]
         chain = [e for i, e in enumerate(context.current.effects) if i != index]
-        if _describes_noise(stage):  # say what the stage does wrong, measured
-            description = _noise_text(stage.name, context.search.held.real, context.stats)
+        if NoiseLevel.describes(type(stage)):  # say what the stage does wrong, measured
+            description = noise_stage_text(stage.name, context.search.held.real, context.stats)
         else:
             description = f"{stage.name} stage is one the camera lacks"
         return context.current.with_chain(chain), None, description
@@ -474,20 +466,11 @@ def _prefer_simpler(ranked: list[Change]) -> list[Change]:
     return [simpler, *[change for change in ranked if change is not simpler]]
 
 
-#: The statistics family (``where`` axis) of the noise level on flat pixels; a signature, not an effect name.
-NOISE_AXIS = "noise"
-
-
-def _describes_noise(stage: Effect) -> bool:
-    """Whether the noise statistics say what this stage does (it explains the noise signature)."""
-    return NOISE_AXIS in type(stage).explains
-
-
 def _strength_text(old: Effect, new: Effect, context: _Context) -> str:
     """What was wrong with a refitted stage, in words: for noise, measured on the held-out flat pixels ("noise
     stage is 2.0× the camera's noise and banded"); otherwise from the stage's magnitude."""
-    if _describes_noise(old):
-        return _noise_text(old.name, context.search.held.real, context.stats)
+    if NoiseLevel.describes(type(old)):
+        return noise_stage_text(old.name, context.search.held.real, context.stats)
     before, after = old.magnitude(), new.magnitude()
     if after < 0.1 * before:
         return f"{old.name} stage is one the camera shows almost none of ({after / max(before, 1e-12):.0%} of it)"
@@ -495,18 +478,6 @@ def _strength_text(old: Effect, new: Effect, context: _Context) -> str:
         return f"{old.name} stage has the right strength but the wrong shape"
     ratio = before / after if before > after else after / max(before, 1e-12)
     return f"{old.name} stage is {ratio:.1f}× too {'strong' if before > after else 'weak'}"
-
-
-def _noise_text(name: str, real: StatisticSet, sim: StatisticSet) -> str:
-    """ "noise stage is 4.6× the camera's noise and banded (row means 9.5× the camera's)", from the pooled noise and
-    banding statistics of the flat pixels."""
-    real_values, sim_values = real.values(), sim.values()
-    real_std, sim_std = (float(torch.nanmean(v["noise"])) for v in (real_values, sim_values))
-    text = f"{name} stage is {sim_std / real_std:.1f}× the camera's noise" if real_std > 0 else f"{name} stage"
-    real_lines, sim_lines = (float(torch.nanmean(v["banding"][:3])) for v in (real_values, sim_values))
-    if real_lines > 0 and sim_lines / real_lines > 1.5:
-        text += f" and banded (row means {sim_lines / real_lines:.1f}× the camera's)"
-    return text
 
 
 def _measured(

@@ -17,11 +17,11 @@ from camdegrade.diagnose.attribute import (
     check_kinds,
     effect_params,
 )
-from camdegrade.diagnose.critic import CriticResult, critic_test
 from camdegrade.diagnose.report import DiagnosisReport, example_crops, flat_crops
 from camdegrade.diagnose.where import findings
 from camdegrade.errors import PairsError
 from camdegrade.fitting.pairset import PairSet, PairsSource, simulate
+from camdegrade.measures.critic import CriticResult, critic_test
 from camdegrade.profile import CameraProfile, as_profile
 
 #: Fewest pairs on each side of the split: below this a held-out gap has no spread to judge it by, and the

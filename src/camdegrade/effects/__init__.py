@@ -8,7 +8,6 @@ effect follows is in :mod:`camdegrade.effects.base`; ``docs/effects.md`` describ
 from camdegrade.effects._noise_levels import NoiseLevels, noise_level_function
 from camdegrade.effects.base import (
     EFFECTS,
-    SIGNATURES,
     STAGES,
     Effect,
     Pairs,
@@ -25,7 +24,6 @@ from camdegrade.effects.noise import Noise
 __all__ = [
     "EFFECTS",
     "JPEG",
-    "SIGNATURES",
     "STAGES",
     "Blur",
     "ChromaticAberration",
