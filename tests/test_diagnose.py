@@ -12,7 +12,8 @@ import torch.nn.functional as F
 
 from camdegrade.__main__ import main
 from camdegrade.diagnose import DiagnosisReport, diagnose
-from camdegrade.diagnose.attribute import HeldOut, add_effect
+from camdegrade.diagnose.changes import add_effect
+from camdegrade.diagnose.heldout import HeldOut
 from camdegrade.diagnose.report import REQUIRED_KEYS
 from camdegrade.effects import EFFECTS, JPEG, Noise, Tone, Vignetting
 from camdegrade.fitting.noise import fit_noise_stage

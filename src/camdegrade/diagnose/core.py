@@ -8,15 +8,8 @@ import os
 from collections.abc import Callable, Iterable
 
 from camdegrade._checks import check_seed
-from camdegrade.diagnose.attribute import (
-    KINDS,
-    Attribution,
-    Change,
-    attribute,
-    check_candidates,
-    check_kinds,
-    effect_params,
-)
+from camdegrade.diagnose.attribute import Attribution, attribute, check_candidates
+from camdegrade.diagnose.changes import KINDS, Change, check_kinds, effect_params
 from camdegrade.diagnose.report import DiagnosisReport, example_crops, flat_crops
 from camdegrade.diagnose.where import findings
 from camdegrade.errors import PairsError
@@ -75,7 +68,7 @@ def diagnose(
         PairsError: fewer than :data:`MIN_PAIRS` calibration or held-out pairs.
     """
     check_seed(seed)
-    kinds = check_kinds(KINDS if kinds is None else kinds)
+    kinds = check_kinds(tuple(KINDS) if kinds is None else kinds)
     candidates = check_candidates(candidates)  # before the pairs are loaded
     say = log or (lambda message: None)
     base = as_profile(profile)
