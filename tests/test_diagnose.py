@@ -306,3 +306,13 @@ def test_a_critic_with_one_answer_scores_chance_and_says_so() -> None:
     with torch.no_grad():
         torch.nn.init.constant_(net.head.bias, -float(net(patches.inputs).median()))  # about half each way
     assert not score(net, patches, seed=0).one_answer
+
+
+def test_captures_identical_to_the_clean_images_say_the_profile_degrades_more() -> None:
+    """Issue 26: a camera that changes nothing, a profile (network and effects) that degrades a lot. No single change
+    closes the gap, but the verdict must not call it unexplained: the profile degrades more than the camera."""
+    pairs = [(clean, clean.clone()) for clean in _content(16, 64, seed=5)]
+    report = diagnose(load_profile("city100-iphonex"), pairs[:8], held_out=pairs[8:], candidates=["tone"], critic=False)
+    assert report.accepted == []
+    assert report.verdict.startswith("The profile degrades more than the camera"), report.verdict
+    assert "Unexplained" not in report.verdict

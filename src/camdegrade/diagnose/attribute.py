@@ -26,7 +26,7 @@ from torch import Tensor
 
 from camdegrade.diagnose.changes import KINDS, Change, check_kinds
 from camdegrade.diagnose.heldout import Baseline, HeldOut, ImagePairs
-from camdegrade.diagnose.search import Log, Search
+from camdegrade.diagnose.search import Log, Round, Search
 from camdegrade.effects import EFFECTS, check_effect_names
 from camdegrade.fitting.pairset import simulate
 from camdegrade.measures import StatisticSet, family_gaps
@@ -46,6 +46,8 @@ class Attribution:
     final_stats: StatisticSet
     final_sims: list[Tensor]
     noise_floor: float
+    #: The clean images themselves measured as the simulation, when no change was accepted on a significant gap.
+    identity: Change | None = None
 
     @property
     def chosen(self) -> Change | None:
@@ -120,6 +122,11 @@ def attribute(
     else:
         final_stats, final_sims = baseline.stats, baseline.sims
     final_null, _ = held.statistics(final_profile, null=True)
+    identity = None
+    if baseline.significant and not accepted:  # nothing closes the gap: does the camera degrade less than the profile?
+        identity = Round(search, profile, baseline.stats, baseline.gap, [], say).measured(
+            "remove", "every stage and the network", CameraProfile(None, []), None
+        )
     return Attribution(
         baseline=baseline,
         held=held,
@@ -130,4 +137,5 @@ def attribute(
         final_stats=final_stats,
         final_sims=final_sims,
         noise_floor=held.gap_between(final_null, final_stats),
+        identity=identity,
     )

@@ -180,6 +180,13 @@ def _verdict(result: Attribution, where: list[dict], critics: dict[str, CriticRe
             f"No significant gap: the held-out gap {baseline.gap:.2f} is within the noise of the measurement "
             f"(profile against itself {baseline.null:.2f}, bootstrap SE {baseline.gap_se:.2f})."
         )
+    elif not result.accepted and result.identity is not None and result.identity.significant:
+        text = (
+            f"The profile degrades more than the camera: the held-out captures are closer to their clean images "
+            f"(gap {result.identity.gap_after:.2f}) than to the profile's simulations ({baseline.gap:.2f}; noise "
+            f"floor {result.noise_floor:.2f}), and no single change closes it: remove stages, or refit the profile "
+            "on these pairs (camdegrade fit PAIRS -o REFIT.safetensors)."
+        )
     elif not result.accepted:
         text = (
             f"Unexplained gap: {baseline.gap:.2f} (noise floor {result.noise_floor:.2f}), mostly in "
