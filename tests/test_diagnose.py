@@ -316,3 +316,25 @@ def test_captures_identical_to_the_clean_images_say_the_profile_degrades_more() 
     assert report.accepted == []
     assert report.verdict.startswith("The profile degrades more than the camera"), report.verdict
     assert "Unexplained" not in report.verdict
+
+
+def test_flat_images_with_a_colour_offset_are_explained_by_colour_and_say_what_cannot_be_measured() -> None:
+    """Issue 26: flat constant images, the captures differing only by a colour offset. The statistics that need
+    texture (transfer, block edges, displacement) or noise (its correlation) must say they cannot be measured rather
+    than report float rounding as a finding, and a colour change must explain the offset."""
+    generator = torch.Generator().manual_seed(0)
+    offset = torch.tensor([12.0, -8.0, 10.0])[:, None, None] / 255
+    pairs = []
+    for _ in range(16):
+        clean = ((torch.rand(3, 1, 1, generator=generator) * 0.6 + 0.2).expand(3, 64, 64) * 255).round() / 255
+        pairs.append((clean, ((clean + offset).clamp(0, 1) * 255).round() / 255))
+    report = diagnose(
+        CameraProfile(None, []), pairs[:8], held_out=pairs[8:], candidates=["jpeg", "color", "tone"], critic=False
+    )
+    assert report.accepted and report.accepted[0] in ("add color", "add tone"), report.verdict
+    assert "add jpeg" not in report.accepted
+    where = {entry["axis"]: entry for entry in report.where}
+    for axis in ("frequency", "blocks", "alignment", "noise_correlation"):
+        assert "not measurable" in where[axis]["finding"], where[axis]
+        assert not where[axis]["significant"]
+    assert where["spatial"]["significant"] and "R +12.0, G -8.0, B +10.0" in where["spatial"]["finding"]

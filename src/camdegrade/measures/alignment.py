@@ -69,6 +69,8 @@ class Alignment(PairedFamily):
         return shift.flatten(-3).float()
 
     def describe(self, real: Tensor, sim: Tensor, real_set: StatisticSet) -> str:
+        if not bool(torch.isfinite(real).any()):
+            return "displacement not measurable: the clean images have too little texture in every tile"
         shifts = (real - sim).reshape(SHIFT_TILES * SHIFT_TILES, 3, 2)
         mean = torch.nanmean(shifts[:, 1], 0)
         centers = (torch.arange(SHIFT_TILES) + 0.5) / SHIFT_TILES - 0.5

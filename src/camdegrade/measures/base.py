@@ -121,10 +121,10 @@ FAMILIES: dict[str, PairedFamily] = {}
 #: name → no-reference family (the unpaired diagnosis), in registration order.
 NO_REFERENCE: dict[str, NoReferenceFamily] = {}
 
-F = TypeVar("F", bound=type[Family])
+FamilyClass = TypeVar("FamilyClass", bound=type[Family])
 
 
-def register_family(cls: F) -> F:
+def register_family(cls: FamilyClass) -> FamilyClass:
     """Class decorator adding one instance of a family to :data:`FAMILIES` (paired) or :data:`NO_REFERENCE`."""
     if not cls.name:
         raise ValueError(f"{cls.__qualname__} must set a non-empty class attribute 'name'")

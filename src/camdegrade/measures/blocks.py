@@ -54,4 +54,6 @@ class Blocks(PairedFamily):
     def describe(self, real: Tensor, sim: Tensor, real_set: StatisticSet) -> str:
         edge = (real[7] + real[15]) / 2
         simulated = (sim[7] + sim[15]) / 2
+        if not bool(torch.isfinite(edge)):
+            return "block-edge energy not measurable: the captures have no gradients (too little texture)"
         return f"gradient energy on 8×8 block edges: real {edge:.2f}× the mean vs sim {simulated:.2f}×"

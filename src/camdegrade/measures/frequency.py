@@ -15,6 +15,9 @@ if TYPE_CHECKING:
     from camdegrade.measures.statistics import StatisticSet
 
 BANDS = 8
+#: Clean-image power in a band (summed over pairs) below which the transfer is not measured: float rounding of a
+#: flat image gives about 1e-13; 8-bit quantisation alone of a 64² image about 1e-4.
+MIN_POWER = 1e-8
 
 
 def band_index(height: int, width: int) -> Tensor:
@@ -54,12 +57,16 @@ class Frequency(PairedFamily):
         return (num / scale).float(), (den / scale).float()
 
     def reduce(self, num: Tensor, den: Tensor) -> Tensor:
-        h = ratio(num, den)
+        """Sums → the transfer in bands 1.. relative to band 0; NaN where the clean images have too little texture
+        (:data:`MIN_POWER`)."""
+        h = torch.where(den > MIN_POWER, ratio(num, den), torch.nan)
         return h[..., 1:] / h[..., :1]
 
     def describe(self, real: Tensor, sim: Tensor, real_set: StatisticSet) -> str:
         band = BANDS - 3  # well above the lowest band, below the noisy top one
         frequency = (band + 1 + 0.5) / BANDS * 0.5
+        if not bool(torch.isfinite(real[band])):
+            return f"transfer not measurable at {frequency:.2f} cycles/px: the clean images have too little texture"
         transfer = real[band] / sim[band] if float(sim[band]) != 0 else float("nan")
         kind = "softer (blur)" if transfer < 1 else "sharper"
         return f"real/sim transfer at {frequency:.2f} cycles/px: {transfer:.2f} ({kind} than simulated)"

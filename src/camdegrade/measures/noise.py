@@ -28,6 +28,9 @@ NOISE_BINS = 8
 NOISE_FLOOR = 0.5
 #: Line means are a small part of the noise (0.3 levels on real captures): their floor is lower.
 LINE_FLOOR = 0.1
+#: Residual energy per flat pixel (levels²) below which there is no noise to correlate: 8-bit quantisation alone
+#: gives 0.08; below this the residual is float rounding of a noise-free image, and its correlations mean nothing.
+MIN_ENERGY = 1e-6
 _CHANNELS = ("R", "G", "B")
 _CHANNEL_PAIRS = ((0, 1), (0, 2), (1, 2))
 
@@ -115,13 +118,16 @@ class NoiseCorrelation(PairedFamily):
 
     def reduce(self, num: Tensor, den: Tensor) -> Tensor:
         """Products and energies → correlations (lags, then channel pairs); all NaN where the flat pixels behind
-        them (the last component) are too few."""
+        them (the last component) are too few, and NaN where there is no noise (:data:`MIN_ENERGY`)."""
         values = ratio(num[..., :-1], den[..., :-1])
-        return torch.where(num[..., -1:] >= MIN_PIXELS, values, torch.nan)
+        noisy = den[..., :-1] > MIN_ENERGY * num[..., -1:]
+        return torch.where((num[..., -1:] >= MIN_PIXELS) & noisy, values, torch.nan)
 
     def describe(self, real: Tensor, sim: Tensor, real_set: StatisticSet) -> str:
         pixels = flat_pixels(real_set)
         if not bool(torch.isfinite(real).any()):
+            if pixels >= MIN_PIXELS:
+                return f"noise correlation not measurable: the captures hold no noise on {pixels:,} flat pixels"
             return f"noise correlation not measurable: {pixels:,} flat pixels (needs {MIN_PIXELS:,})"
 
         def lag1(values: Tensor) -> tuple[float, float]:
