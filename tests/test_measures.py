@@ -188,3 +188,19 @@ def test_a_second_family_of_one_name_is_refused() -> None:
 
     with pytest.raises(ValueError, match="already registered"):
         register_family(Again)
+
+
+def test_a_diagnosis_refuses_an_effect_naming_an_unknown_family() -> None:
+    from camdegrade.diagnose import diagnose
+    from camdegrade.effects import Effect, register_effect
+
+    class Misspelt(Effect):
+        name = "misspelt_for_tests"
+        explains = ("nosie",)
+
+    register_effect(Misspelt)
+    try:
+        with pytest.raises(ValueError, match=r"Misspelt.explains must hold statistic family names .* \['nosie'\]"):
+            diagnose("city100-iphonex", [])
+    finally:
+        del EFFECTS[Misspelt.name]

@@ -14,6 +14,7 @@ from camdegrade.diagnose.report import DiagnosisReport, example_crops, flat_crop
 from camdegrade.diagnose.where import findings
 from camdegrade.errors import PairsError
 from camdegrade.fitting.pairset import PairSet, PairsSource, simulate
+from camdegrade.measures import check_explains
 from camdegrade.measures.critic import CriticResult, critic_test
 from camdegrade.profile import CameraProfile, as_profile
 
@@ -70,6 +71,7 @@ def diagnose(
     check_seed(seed)
     kinds = check_kinds(tuple(KINDS) if kinds is None else kinds)
     candidates = check_candidates(candidates)  # before the pairs are loaded
+    check_explains()
     say = log or (lambda message: None)
     base = as_profile(profile)
     suffixes = {"clean_suffix": clean_suffix, "captured_suffix": captured_suffix}

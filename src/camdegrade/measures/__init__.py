@@ -14,6 +14,7 @@ from camdegrade.measures.base import (
     MeasuredPair,
     NoReferenceFamily,
     PairedFamily,
+    check_explains,
     register_family,
 )
 from camdegrade.measures.gap import bootstrap_indices, family_gaps, gap, gap_spread, measurement_scale
@@ -28,6 +29,7 @@ __all__ = [
     "PairedFamily",
     "StatisticSet",
     "bootstrap_indices",
+    "check_explains",
     "family_gaps",
     "gap",
     "gap_spread",

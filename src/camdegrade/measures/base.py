@@ -121,6 +121,18 @@ FAMILIES: dict[str, PairedFamily] = {}
 #: name → no-reference family (the unpaired diagnosis), in registration order.
 NO_REFERENCE: dict[str, NoReferenceFamily] = {}
 
+
+def check_explains() -> None:
+    """Raise ``ValueError`` naming the first registered effect whose ``explains`` names an unregistered family
+    (effects cannot import this package, so the check runs where families are used: at the start of a diagnosis)."""
+    for effect in EFFECTS.values():
+        unknown = [name for name in effect.explains if name not in FAMILIES]
+        if unknown:
+            raise ValueError(
+                f"{effect.__qualname__}.explains must hold statistic family names from {list(FAMILIES)}, got {unknown}"
+            )
+
+
 FamilyClass = TypeVar("FamilyClass", bound=type[Family])
 
 
