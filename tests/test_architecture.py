@@ -15,8 +15,9 @@ import torch
 
 import camdegrade
 from camdegrade._seeds import derive_seed, derived_generator
-from camdegrade.effects import EFFECTS, SIGNATURES, Effect
+from camdegrade.effects import EFFECTS, Effect
 from camdegrade.effects.base import STAGES
+from camdegrade.measures import FAMILIES
 from effects_images import photo_batch
 
 PACKAGE = Path(camdegrade.__file__).parent
@@ -28,7 +29,7 @@ REGISTERED = sorted(name for name, cls in EFFECTS.items() if cls.__module__.star
 def test_every_effect_states_its_facts(name: str) -> None:
     cls = EFFECTS[name]
     assert cls.stage in STAGES
-    assert set(cls.explains) <= set(SIGNATURES) and cls.explains, "every effect leaves some signature"
+    assert set(cls.explains) <= set(FAMILIES) and cls.explains, "every effect leaves some signature"
     assert cls.fit_budget is None or (isinstance(cls.fit_budget, int) and cls.fit_budget > 0)
     assert isinstance(cls.position_dependent, bool)
     assert isinstance(cls.fit_options(list(photo_batch())), dict)
@@ -104,7 +105,7 @@ def test_the_name_check_can_fail() -> None:
 def test_where_suspects_come_from_the_effect_classes() -> None:
     from camdegrade.diagnose.where import suspects
 
-    for axis in SIGNATURES:
+    for axis in FAMILIES:
         expected = [name for name in EFFECTS if axis in EFFECTS[name].explains]
         assert suspects(axis) == (", ".join(expected) or "the network")
     assert "blur" in suspects("frequency") and "noise" not in suspects("frequency")
@@ -132,6 +133,7 @@ FORBIDDEN = {
     "engine": ("transform", "data", "fitting", "diagnose", "sim"),
     "data": ("fitting", "diagnose", "sim"),
     "fitting": ("diagnose", "transform", "data"),
+    "measures": ("profile", "engine", "transform", "data", "fitting", "diagnose", "sim"),
     "synthetic": ("effects", "profile", "engine", "transform", "data", "fitting", "diagnose", "network", "inference"),
     "inference": ("effects", "profile", "engine", "transform", "data", "fitting", "diagnose", "sim", "io"),
 }

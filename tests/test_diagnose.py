@@ -12,22 +12,16 @@ import torch.nn.functional as F
 
 from camdegrade.__main__ import main
 from camdegrade.diagnose import DiagnosisReport, diagnose
-from camdegrade.diagnose.attribute import HeldOut, add_effect
+from camdegrade.diagnose.changes import add_effect
+from camdegrade.diagnose.heldout import HeldOut
 from camdegrade.diagnose.report import REQUIRED_KEYS
-from camdegrade.diagnose.stats import (
-    FAMILIES,
-    StatisticSet,
-    bootstrap_indices,
-    family_gaps,
-    gap,
-    measurement_scale,
-)
 from camdegrade.effects import EFFECTS, JPEG, Noise, Tone, Vignetting
 from camdegrade.fitting.noise import fit_noise_stage
 from camdegrade.fitting.pairset import PairSet, simulate
 from camdegrade.functional.analysis import box_mean, flat_mask
 from camdegrade.functional.noise_stats import measure_set
 from camdegrade.io import write_image
+from camdegrade.measures import FAMILIES, StatisticSet, bootstrap_indices, family_gaps, gap, measurement_scale
 from camdegrade.profile import CameraProfile, load_profile
 from camdegrade.sim import VirtualCamera
 from effects_images import patch_chart, photo
@@ -296,7 +290,7 @@ def test_unpaired_mode(tmp_path: Path) -> None:
 
 
 def test_a_critic_with_one_answer_scores_chance_and_says_so() -> None:
-    from camdegrade.diagnose.critic import CriticNet, Patches, score
+    from camdegrade.measures.critic import CriticNet, Patches, score
 
     images = _content(3, 64, seed=5)
     sims = [image.clamp(0.01, 0.99) for image in images]
@@ -312,3 +306,35 @@ def test_a_critic_with_one_answer_scores_chance_and_says_so() -> None:
     with torch.no_grad():
         torch.nn.init.constant_(net.head.bias, -float(net(patches.inputs).median()))  # about half each way
     assert not score(net, patches, seed=0).one_answer
+
+
+def test_captures_identical_to_the_clean_images_say_the_profile_degrades_more() -> None:
+    """Issue 26: a camera that changes nothing, a profile (network and effects) that degrades a lot. No single change
+    closes the gap, but the verdict must not call it unexplained: the profile degrades more than the camera."""
+    pairs = [(clean, clean.clone()) for clean in _content(16, 64, seed=5)]
+    report = diagnose(load_profile("city100-iphonex"), pairs[:8], held_out=pairs[8:], candidates=["tone"], critic=False)
+    assert report.accepted == []
+    assert report.verdict.startswith("The profile degrades more than the camera"), report.verdict
+    assert "Unexplained" not in report.verdict
+
+
+def test_flat_images_with_a_colour_offset_are_explained_by_colour_and_say_what_cannot_be_measured() -> None:
+    """Issue 26: flat constant images, the captures differing only by a colour offset. The statistics that need
+    texture (transfer, block edges, displacement) or noise (its correlation) must say they cannot be measured rather
+    than report float rounding as a finding, and a colour change must explain the offset."""
+    generator = torch.Generator().manual_seed(0)
+    offset = torch.tensor([12.0, -8.0, 10.0])[:, None, None] / 255
+    pairs = []
+    for _ in range(16):
+        clean = ((torch.rand(3, 1, 1, generator=generator) * 0.6 + 0.2).expand(3, 64, 64) * 255).round() / 255
+        pairs.append((clean, ((clean + offset).clamp(0, 1) * 255).round() / 255))
+    report = diagnose(
+        CameraProfile(None, []), pairs[:8], held_out=pairs[8:], candidates=["jpeg", "color", "tone"], critic=False
+    )
+    assert report.accepted and report.accepted[0] in ("add color", "add tone"), report.verdict
+    assert "add jpeg" not in report.accepted
+    where = {entry["axis"]: entry for entry in report.where}
+    for axis in ("frequency", "blocks", "alignment", "noise_correlation"):
+        assert "not measurable" in where[axis]["finding"], where[axis]
+        assert not where[axis]["significant"]
+    assert where["spatial"]["significant"] and "R +12.0, G -8.0, B +10.0" in where["spatial"]["finding"]

@@ -18,8 +18,8 @@ import torch
 from camdegrade import CameraDegrade, load_profile
 from camdegrade._pixels import as_unit
 from camdegrade.diagnose import DiagnosisReport, diagnose
-from camdegrade.diagnose.critic import critic_test
 from camdegrade.functional.analysis import flattest_window
+from camdegrade.measures.critic import critic_test
 from conftest import load_script
 
 pytestmark = [pytest.mark.realdata, pytest.mark.slow]

@@ -8,20 +8,14 @@ import os
 from collections.abc import Callable, Iterable
 
 from camdegrade._checks import check_seed
-from camdegrade.diagnose.attribute import (
-    KINDS,
-    Attribution,
-    Change,
-    attribute,
-    check_candidates,
-    check_kinds,
-    effect_params,
-)
-from camdegrade.diagnose.critic import CriticResult, critic_test
+from camdegrade.diagnose.attribute import Attribution, attribute, check_candidates
+from camdegrade.diagnose.changes import KINDS, Change, check_kinds, effect_params
 from camdegrade.diagnose.report import DiagnosisReport, example_crops, flat_crops
 from camdegrade.diagnose.where import findings
 from camdegrade.errors import PairsError
 from camdegrade.fitting.pairset import PairSet, PairsSource, simulate
+from camdegrade.measures import check_explains
+from camdegrade.measures.critic import CriticResult, critic_test
 from camdegrade.profile import CameraProfile, as_profile
 
 #: Fewest pairs on each side of the split: below this a held-out gap has no spread to judge it by, and the
@@ -75,8 +69,9 @@ def diagnose(
         PairsError: fewer than :data:`MIN_PAIRS` calibration or held-out pairs.
     """
     check_seed(seed)
-    kinds = check_kinds(KINDS if kinds is None else kinds)
+    kinds = check_kinds(tuple(KINDS) if kinds is None else kinds)
     candidates = check_candidates(candidates)  # before the pairs are loaded
+    check_explains()
     say = log or (lambda message: None)
     base = as_profile(profile)
     suffixes = {"clean_suffix": clean_suffix, "captured_suffix": captured_suffix}
@@ -186,6 +181,13 @@ def _verdict(result: Attribution, where: list[dict], critics: dict[str, CriticRe
         text = (
             f"No significant gap: the held-out gap {baseline.gap:.2f} is within the noise of the measurement "
             f"(profile against itself {baseline.null:.2f}, bootstrap SE {baseline.gap_se:.2f})."
+        )
+    elif not result.accepted and result.identity is not None and result.identity.significant:
+        text = (
+            f"The profile degrades more than the camera: the held-out captures are closer to their clean images "
+            f"(gap {result.identity.gap_after:.2f}) than to the profile's simulations ({baseline.gap:.2f}; noise "
+            f"floor {result.noise_floor:.2f}), and no single change closes it: remove stages, or refit the profile "
+            "on these pairs (camdegrade fit PAIRS -o REFIT.safetensors)."
         )
     elif not result.accepted:
         text = (

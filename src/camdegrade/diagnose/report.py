@@ -23,8 +23,12 @@ from torch import Tensor
 
 from camdegrade._files import atomic_path
 from camdegrade._pixels import unit_to_bytes
-from camdegrade.diagnose.stats import BANDS, FAMILIES, INTENSITY_BINS, NOISE_BINS, TILES
 from camdegrade.functional.analysis import flattest_window
+from camdegrade.measures import FAMILIES
+from camdegrade.measures.frequency import BANDS, Frequency
+from camdegrade.measures.intensity import INTENSITY_BINS
+from camdegrade.measures.noise import NOISE_BINS, NoiseLevel
+from camdegrade.measures.spatial import TILES
 from camdegrade.profile import CameraProfile
 
 #: Keys every JSON report has at the top level (more follow them).
@@ -248,7 +252,7 @@ def _fallback_tables(report: DiagnosisReport) -> str:
         return ""
     real, before, after = stats["real"], stats["before"], stats["after"]
     rows = []
-    for name in ("noise", "frequency"):
+    for name in (NoiseLevel.name, Frequency.name):
         for k in range(real[name].numel()):
             rows.append(
                 (

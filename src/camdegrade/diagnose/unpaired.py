@@ -1,11 +1,10 @@
 """Unpaired mode: clean images and real captures of *other* scenes. Only distribution-level statistics can be
 compared (no clean reference per capture), so this gives the "where" part of the report, not the attribution.
 
-Per image: luma radial profile relative to the centre (vignetting), R/G and B/G means (colour), luma quantiles
-(tone), log power in 8 radial frequency bands (blur, noise), 8×8 block-edge gradient energy (JPEG) and a
-no-reference noise level (std of the high-passed luma on the image's own flattest pixels, 4 brightness bins).
-Each component is compared as a difference of set means over its standard error (both sets), so content
-differences between the two sets only count when they exceed what the spread of the images explains.
+Per image: the no-reference families of :mod:`camdegrade.measures.no_reference` (a luma radial profile, colour
+ratios, tone quantiles, band power, block-edge energy, a flat-pixel noise level). Each component is compared as a
+difference of set means over its standard error (both sets), so content differences between the two sets only
+count when they exceed what the spread of the images explains.
 """
 
 from __future__ import annotations
@@ -18,67 +17,28 @@ from torch import Tensor
 
 from camdegrade._pixels import as_unit
 from camdegrade.diagnose.report import DiagnosisReport
-from camdegrade.diagnose.stats import BANDS, _band_index, _blocks
 from camdegrade.errors import ImageError
 from camdegrade.fitting.pairs import UNREADABLE
 from camdegrade.fitting.pairset import simulate
-from camdegrade.functional import relative_radius
-from camdegrade.functional.analysis import hann2d, high_pass, luma, relative_flat_mask
 from camdegrade.io import iter_images, read_image
+from camdegrade.measures import NO_REFERENCE, image_statistics
 from camdegrade.profile import CameraProfile, as_profile
-
-_FAMILIES = ("radial", "color", "tone", "spectrum", "blocks", "noise")
-_TAU = {"radial": 0.01, "color": 0.01, "tone": 0.01, "spectrum": 0.05, "blocks": 0.01, "noise": 0.002}
-
-
-def image_statistics(image: Tensor) -> dict[str, Tensor]:
-    """The no-reference statistics of one ``(3, H, W)`` float image."""
-    gray = luma(image)
-    height, width = gray.shape
-    radius = relative_radius(height, width, torch.float32, gray.device)
-    rings = (radius * 8).long().clamp(max=7)
-    ring_mean = torch.bincount(rings.flatten(), weights=gray.flatten(), minlength=8) / torch.bincount(
-        rings.flatten(), minlength=8
-    ).clamp_min(1)
-    means = image.mean((1, 2)).clamp_min(1e-4)
-    spectrum = torch.fft.rfft2((gray - gray.mean()) * hann2d(height, width)).abs().pow(2)
-    band = _band_index(height, width)
-    valid = band >= 0
-    power = torch.bincount(band[valid], weights=spectrum[valid], minlength=BANDS) / torch.bincount(
-        band[valid], minlength=BANDS
-    ).clamp_min(1)
-    num, den = _blocks(image, image)
-    mask = relative_flat_mask(image, 0.3)
-    residual = high_pass(gray)[mask]
-    level = gray[mask]
-    noise = torch.zeros(4)
-    for index in range(4):
-        chosen = residual[(level * 4).long().clamp(max=3) == index]
-        noise[index] = chosen.std() if chosen.numel() > 16 else float("nan")
-    return {
-        "radial": ring_mean / ring_mean[0].clamp_min(1e-4),
-        "color": torch.stack([means[0] / means[1], means[2] / means[1]]),
-        "tone": torch.quantile(gray.flatten()[:: max(1, gray.numel() // 50_000)], torch.linspace(0.05, 0.95, 9)),
-        "spectrum": power.clamp_min(1e-12).log10(),
-        "blocks": num / den.clamp_min(1e-12),
-        "noise": noise,
-    }
 
 
 def _stack(images: list[Tensor]) -> dict[str, Tensor]:
     per_image = [image_statistics(image) for image in images]
-    return {name: torch.stack([p[name] for p in per_image]) for name in _FAMILIES}
+    return {name: torch.stack([p[name] for p in per_image]) for name in NO_REFERENCE}
 
 
 def _scores(a: dict[str, Tensor], b: dict[str, Tensor]) -> dict[str, float]:
     out = {}
-    for name in _FAMILIES:
+    for name, family in NO_REFERENCE.items():
         x, y = a[name], b[name]
         se2 = (
             torch.nanmean((x - x.nanmean(0)) ** 2, 0) / x.shape[0]
             + torch.nanmean((y - y.nanmean(0)) ** 2, 0) / (y.shape[0])
         )
-        z = (x.nanmean(0) - y.nanmean(0)) / (se2 + _TAU[name] ** 2).sqrt()
+        z = (x.nanmean(0) - y.nanmean(0)) / (se2 + family.tau**2).sqrt()
         z = z[torch.isfinite(z)]
         out[name] = float(z.pow(2).mean().sqrt()) if z.numel() else 0.0
     return out
@@ -129,7 +89,7 @@ def diagnose_unpaired(
                 "null": round(floor_scores[name], 4),
                 "significant": scores[name] > max(3 * floor_scores[name], 3.0),
             }
-            for name in _FAMILIES
+            for name in NO_REFERENCE
         ),
         key=lambda entry: -entry["score"],
     )

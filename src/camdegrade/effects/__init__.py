@@ -7,7 +7,6 @@ effect follows is in :mod:`camdegrade.effects.base`; ``docs/effects.md`` describ
 
 from camdegrade.effects.base import (
     EFFECTS,
-    SIGNATURES,
     STAGES,
     Effect,
     Pairs,
@@ -24,7 +23,6 @@ from camdegrade.effects.noise import Noise
 __all__ = [
     "EFFECTS",
     "JPEG",
-    "SIGNATURES",
     "STAGES",
     "Blur",
     "ChromaticAberration",

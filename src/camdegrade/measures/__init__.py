@@ -1,0 +1,40 @@
+"""Measures of a camera's degradation shared by fitting and diagnosis (it imports neither): the statistic families
+in one registry (:mod:`camdegrade.measures.base`: what each measures, its tau, its description, which effects and
+which network faults it signals), the sets and the gap built on them, and the learned critic.
+
+The modules below are imported in the order the families are registered (the order of every report).
+"""
+
+from camdegrade.measures import spatial, intensity, noise, frequency, blocks, color, alignment  # noqa: F401, I001
+from camdegrade.measures import no_reference  # noqa: F401
+from camdegrade.measures.base import (
+    FAMILIES,
+    NO_REFERENCE,
+    Family,
+    MeasuredPair,
+    NoReferenceFamily,
+    PairedFamily,
+    check_explains,
+    register_family,
+)
+from camdegrade.measures.gap import bootstrap_indices, family_gaps, gap, gap_spread, measurement_scale
+from camdegrade.measures.statistics import StatisticSet, image_statistics, pair_statistics
+
+__all__ = [
+    "FAMILIES",
+    "NO_REFERENCE",
+    "Family",
+    "MeasuredPair",
+    "NoReferenceFamily",
+    "PairedFamily",
+    "StatisticSet",
+    "bootstrap_indices",
+    "check_explains",
+    "family_gaps",
+    "gap",
+    "gap_spread",
+    "image_statistics",
+    "measurement_scale",
+    "pair_statistics",
+    "register_family",
+]
