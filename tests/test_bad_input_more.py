@@ -19,7 +19,7 @@ from PIL import Image
 
 from bad_inputs import good_image, one_line_error, profile_file, run_cli
 from camdegrade import CameraProfile, DegradedDataset, load_profile
-from camdegrade._metadata import read_header
+from camdegrade._profile_format.header import read_header
 from camdegrade.data import BatchDegrade
 from camdegrade.effects import Vignetting
 from camdegrade.errors import ImageError, ProfileError

@@ -12,11 +12,16 @@ import pytest
 import torch
 
 import camdegrade
-import camdegrade._metadata as metadata_module
+import camdegrade._profile_format.header as metadata_module
 from bad_inputs import one_line_error, profile_file, run_cli
 from camdegrade import ProfileError, load_profile
-from camdegrade._metadata import read_header, running_versions
-from camdegrade._profile_check import DEFAULT_NETWORK_WIDTH, MAX_NETWORK_WIDTH, check_network_config, effect_facts
+from camdegrade._profile_format.check import (
+    DEFAULT_NETWORK_WIDTH,
+    MAX_NETWORK_WIDTH,
+    check_network_config,
+    effect_facts,
+)
+from camdegrade._profile_format.header import read_header, running_versions
 from camdegrade.effects import EFFECTS
 from camdegrade.network import MAX_WIDTH, DomainShiftNet
 from profiles_for_tests import deterministic_profile, stochastic_profile
@@ -69,7 +74,7 @@ def test_the_entry_point_module_imports_no_torch_for_info() -> None:
     )
     assert run.returncode == 0, run.stderr
     imported = {line.split("|")[-1].strip() for line in run.stderr.splitlines() if line.startswith("import time:")}
-    assert "camdegrade._metadata" in imported  # the measurement works
+    assert "camdegrade._profile_format.header" in imported  # the measurement works
     assert not imported & set(HEAVY)
 
 

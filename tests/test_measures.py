@@ -31,6 +31,8 @@ from effects_images import photo
 
 PACKAGE = Path(camdegrade.__file__).parent
 NAMES = set(FAMILIES) | set(NO_REFERENCE)
+#: Effect names that are no family's name.
+EFFECT_ONLY = set(EFFECTS) - NAMES
 
 
 def _pair(height: int, width: int, seed: int) -> tuple[Tensor, Tensor]:
@@ -97,8 +99,10 @@ def _family_facts(tree: ast.AST) -> list[str]:
             continue
         items = node.keys if isinstance(node, ast.Dict) else getattr(node, "elts", None)
         if isinstance(node, (ast.Tuple, ast.List, ast.Set, ast.Dict)) and items is not None:
-            names = [i.value for i in items if isinstance(i, ast.Constant) and i.value in NAMES]
-            if len(names) >= 2:
+            constants = [i.value for i in items if isinstance(i, ast.Constant)]
+            names = [value for value in constants if value in NAMES]
+            # A table of effects (blur, jpeg, ...) names the effects called like families (color, noise, tone).
+            if len(names) >= 2 and not EFFECT_ONLY.intersection(constants):
                 found.append(", ".join(names))
         if isinstance(node, ast.Compare):
             found += [
@@ -123,6 +127,7 @@ def test_no_family_fact_lives_outside_the_registry() -> None:
 def test_the_family_fact_check_can_fail() -> None:
     assert _family_facts(ast.parse('TAU = {"radial": 0.01, "tone": 0.01}')) == ["radial, tone"]
     assert _family_facts(ast.parse('SIGNATURES = ("blocks", "frequency")')) == ["blocks, frequency"]
+    assert _family_facts(ast.parse('FACTS = {"blur": 1, "color": 2, "noise": 3}')) == []  # an effect table
     assert _family_facts(ast.parse('if axis == "banding": pass')) == ["banding"]
     assert _family_facts(ast.parse('class Blur:\n    explains = ("frequency", "alignment")')) == []
 

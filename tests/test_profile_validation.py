@@ -25,8 +25,8 @@ import torch
 
 from bad_inputs import one_line_error, run_cli
 from camdegrade import CameraProfile, DomainShiftNet, list_profiles, load_profile
-from camdegrade._effect_facts import BUILT_IN, Bound
-from camdegrade._profile_check import network_shapes
+from camdegrade._profile_format.check import network_shapes
+from camdegrade._profile_format.effect_facts import BUILT_IN, Bound
 from camdegrade.effects import EFFECTS, JPEG, Effect, Noise
 from camdegrade.errors import ProfileError
 from camdegrade.profile import METADATA_KEY, builtin_profiles_dir

@@ -18,7 +18,7 @@ import importlib
 import importlib.util
 from typing import TYPE_CHECKING, Any
 
-from camdegrade._metadata import list_profiles
+from camdegrade._profile_format.header import list_profiles
 from camdegrade._version import __version__
 from camdegrade.errors import BatchError, CamdegradeError, ImageError, PairsError, ProfileError, UnknownProfileError
 

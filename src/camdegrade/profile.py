@@ -15,17 +15,17 @@ from safetensors.torch import save_file
 from torch import Tensor, nn
 
 from camdegrade._files import atomic_path
-from camdegrade._metadata import FORMAT_NAME as FORMAT_NAME
-from camdegrade._metadata import FORMAT_VERSION as FORMAT_VERSION
-from camdegrade._metadata import MAX_EFFECTS as MAX_EFFECTS
-from camdegrade._metadata import METADATA_KEY as METADATA_KEY
-from camdegrade._metadata import builtin_profiles_dir as builtin_profiles_dir
-from camdegrade._metadata import list_profiles as list_profiles
-from camdegrade._metadata import read_header
-from camdegrade._metadata import resolve_profile_path as resolve_profile_path
-from camdegrade._metadata import serialize_metadata as serialize_metadata
 from camdegrade._pixels import bytes_to_unit
-from camdegrade._profile_check import listing, network_config
+from camdegrade._profile_format.check import listing, network_config
+from camdegrade._profile_format.header import FORMAT_NAME as FORMAT_NAME
+from camdegrade._profile_format.header import FORMAT_VERSION as FORMAT_VERSION
+from camdegrade._profile_format.header import MAX_EFFECTS as MAX_EFFECTS
+from camdegrade._profile_format.header import METADATA_KEY as METADATA_KEY
+from camdegrade._profile_format.header import builtin_profiles_dir as builtin_profiles_dir
+from camdegrade._profile_format.header import list_profiles as list_profiles
+from camdegrade._profile_format.header import read_header
+from camdegrade._profile_format.header import resolve_profile_path as resolve_profile_path
+from camdegrade._profile_format.header import serialize_metadata as serialize_metadata
 from camdegrade._version import __version__
 from camdegrade.effects import STAGES, Effect, build_effect
 from camdegrade.effects.chain import apply_effects, check_chain, check_params
@@ -235,12 +235,13 @@ def load_profile(name_or_path: str | os.PathLike[str], device: torch.device | st
     """Load a built-in profile by name, or a profile file by path, strictly.
 
     Only regular safetensors files are read (pickled checkpoints are refused, never unpickled). The file is checked
-    whole before anything is built, as ``camdegrade info`` checks it (:func:`camdegrade._metadata.read_header`): the
-    format version; the network's width (at most :data:`~camdegrade.network.MAX_WIDTH`); each effect entry (a
-    known effect, its stage, its config keys, their types and ranges); every tensor the profile needs, with the
-    right shape and a float dtype, nothing left over; network weights finite; every effect value in its range.
-    Anything wrong is a one-line :class:`~camdegrade.errors.ProfileError`. The built profile's values are checked
-    once more (:meth:`~camdegrade.effects.Effect.check_values`).
+    whole before anything is built, as ``camdegrade info`` checks it
+    (:func:`camdegrade._profile_format.header.read_header`): the format version; the network's width (at most
+    :data:`~camdegrade.network.MAX_WIDTH`); each effect entry (a known effect, its stage, its config keys, their
+    types and ranges); every tensor the profile needs, with the right shape and a float dtype, nothing left over;
+    network weights finite; every effect value in its range. Anything wrong is a one-line
+    :class:`~camdegrade.errors.ProfileError`. The built profile's values are checked once more
+    (:meth:`~camdegrade.effects.Effect.check_values`).
 
     Examples:
         >>> load_profile("city100-iphonex").name

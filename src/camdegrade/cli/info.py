@@ -1,5 +1,5 @@
 """``camdegrade info PROFILE`` and ``camdegrade list``: what a profile file says about itself, read without torch
-(:mod:`camdegrade._metadata`). Names and descriptions come from files, so every one is shown escaped
+(:mod:`camdegrade._profile_format.header`). Names and descriptions come from files, so every one is shown escaped
 (:func:`~camdegrade._text.printable`): no profile can clear the screen or forge a line of the output."""
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ def add_parsers(commands: argparse._SubParsersAction) -> None:
 
 
 def run_info(args: argparse.Namespace) -> int:
-    from camdegrade._metadata import read_header
+    from camdegrade._profile_format.header import read_header
 
     header = read_header(args.profile)  # no torch: the metadata and a few small tensors
     print(_escaped(header).describe())
@@ -29,7 +29,7 @@ def run_info(args: argparse.Namespace) -> int:
 
 
 def run_list(args: argparse.Namespace) -> int:
-    from camdegrade._metadata import list_profiles, read_header
+    from camdegrade._profile_format.header import list_profiles, read_header
 
     for name in list_profiles():
         print(f"{printable(name):24s} {printable(read_header(name).description)}")

@@ -23,7 +23,7 @@ import torch.distributed as dist
 
 from camdegrade._device import check_device
 from camdegrade._distributed import is_main_process
-from camdegrade._metadata import running_versions
+from camdegrade._profile_format.header import running_versions
 from camdegrade._recipes import FAST
 from camdegrade._threads import torch_threads
 from camdegrade._version import __version__

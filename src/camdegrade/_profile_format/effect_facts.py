@@ -1,7 +1,7 @@
 """What a profile file holds for each built-in effect, read without torch: the effect's stage, its config keys (JSON
 type, default, range), its tensors (shape from the config, range) and the rules between its values.
 
-:mod:`camdegrade._profile_check` checks every profile file against this table before ``camdegrade info`` shows it
+:mod:`camdegrade._profile_format.check` checks every profile file against this table before ``camdegrade info`` shows it
 or :func:`~camdegrade.load_profile` builds it. The effect classes stay the source of truth (their constructors,
 ``config()`` and ``check_values()``): ``tests/test_profile_validation.py`` holds this table to them, every effect,
 every key, every range, so that a file one of them refuses the other refuses too.

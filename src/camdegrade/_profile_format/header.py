@@ -1,7 +1,7 @@
 """Profile files read without torch: the safetensors header, the profile's metadata, a few small tensors.
 
 ``camdegrade list`` and ``camdegrade info`` answer from here in a fraction of a second (importing torch takes
-seconds). :func:`read_header` reads a file and checks it (:mod:`camdegrade._profile_check`: metadata, effect
+seconds). :func:`read_header` reads a file and checks it (:mod:`camdegrade._profile_format.check`: metadata, effect
 entries, tensor names, dtypes and shapes; the values when they are shown or loaded); :func:`camdegrade.load_profile`
 reads every profile through it before it builds anything, so the two refuse the same files. Nothing here imports
 torch; numpy reads the tensors (``camdegrade list`` reads none).
@@ -22,12 +22,11 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
-from camdegrade._effect_facts import json_value
-from camdegrade._profile_check import DEFAULT_NETWORK_WIDTH as DEFAULT_NETWORK_WIDTH
-from camdegrade._profile_check import MAX_EFFECTS as MAX_EFFECTS
-from camdegrade._profile_check import MAX_NETWORK_WIDTH as MAX_NETWORK_WIDTH
-from camdegrade._profile_check import TensorEntry as TensorEntry
-from camdegrade._profile_check import (
+from camdegrade._profile_format.check import DEFAULT_NETWORK_WIDTH as DEFAULT_NETWORK_WIDTH
+from camdegrade._profile_format.check import MAX_EFFECTS as MAX_EFFECTS
+from camdegrade._profile_format.check import MAX_NETWORK_WIDTH as MAX_NETWORK_WIDTH
+from camdegrade._profile_format.check import TensorEntry as TensorEntry
+from camdegrade._profile_format.check import (
     check_profile,
     check_values,
     effect_facts,
@@ -35,6 +34,7 @@ from camdegrade._profile_check import (
     read_arrays,
     tensor_entries,
 )
+from camdegrade._profile_format.effect_facts import json_value
 from camdegrade._version import __version__
 from camdegrade.errors import ProfileError, ProfileTypeError, UnknownProfileError
 
@@ -270,8 +270,8 @@ def _stage(name: str) -> str:
 
 def read_header(name_or_path: str | os.PathLike[str]) -> ProfileHeader:
     """A built-in profile's or a profile file's header and metadata, checked before anything is shown or built
-    (file kind, header size, format, version, then :func:`~camdegrade._profile_check.check_profile`: the network and
-    effect entries, the tensors' names, dtypes, shapes and byte ranges); the values are checked by
+    (file kind, header size, format, version, then :func:`~camdegrade._profile_format.check.check_profile`: the
+    network and effect entries, the tensors' names, dtypes, shapes and byte ranges); the values are checked by
     :meth:`ProfileHeader.check_values`, which :meth:`~ProfileHeader.describe` (``camdegrade info``) and
     :func:`~camdegrade.load_profile` call. Anything wrong is a one-line :class:`ProfileError`.
 

@@ -1,17 +1,17 @@
 """The one check of a profile file, without torch: whatever :func:`~camdegrade.load_profile` refuses,
 ``camdegrade info`` refuses too, with the same one-line :class:`~camdegrade.errors.ProfileError`.
 
-:func:`check_profile` takes what :func:`camdegrade._metadata.read_header` read (the metadata and the header's
-tensor entries) and checks, in order: the network entry (architecture, width), every effect entry (a known effect,
-its recorded stage, its config keys, their JSON types and ranges), the byte layout of the tensors (each dtype's size
-times its shape, no gaps or overlaps), the tensors against what the metadata declares (names, shapes, float dtypes;
-nothing missing, nothing extra). :func:`check_values` then reads the tensors with safetensors' numpy loader and
-checks the values (network weights finite, every effect value in its range); ``camdegrade info`` and
+:func:`check_profile` takes what :func:`~camdegrade._profile_format.header.read_header` read (the metadata and the
+header's tensor entries) and checks, in order: the network entry (architecture, width), every effect entry (a known
+effect, its recorded stage, its config keys, their JSON types and ranges), the byte layout of the tensors (each
+dtype's size times its shape, no gaps or overlaps), the tensors against what the metadata declares (names, shapes,
+float dtypes; nothing missing, nothing extra). :func:`check_values` then reads the tensors with safetensors' numpy
+loader and checks the values (network weights finite, every effect value in its range); ``camdegrade info`` and
 ``load_profile`` run both, ``camdegrade list`` (which shows no value) the first.
 
-Built-in effects are checked against :data:`camdegrade._effect_facts.BUILT_IN`; an effect registered by other code
-(a plugin, a test) is asked of its class, which is only possible where the registry has been imported (and torch
-with it): a ``camdegrade info`` process has neither, and knows only the built-ins.
+Built-in effects are checked against :data:`~camdegrade._profile_format.effect_facts.BUILT_IN`; an effect registered
+by other code (a plugin, a test) is asked of its class, which is only possible where the registry has been imported
+(and torch with it): a ``camdegrade info`` process has neither, and knows only the built-ins.
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol
 
-from camdegrade._effect_facts import BUILT_IN, json_value
+from camdegrade._profile_format.effect_facts import BUILT_IN, json_value
 from camdegrade._version import __version__
 from camdegrade.errors import ProfileError, ProfileTypeError
 
@@ -65,7 +65,8 @@ class TensorEntry:
 
 
 class Facts(Protocol):
-    """What the check asks of an effect: :class:`~camdegrade._effect_facts.EffectFacts` for the built-ins."""
+    """What the check asks of an effect (for the built-ins:
+    :class:`~camdegrade._profile_format.effect_facts.EffectFacts`)."""
 
     stage: str
 
