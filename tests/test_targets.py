@@ -236,3 +236,15 @@ def test_boxes_and_keypoints_are_refused_where_the_distortion_folds_within_the_f
         with pytest.raises(ValueError, match=r"k1=-0.5, k2=0 folds the image within the frame \(at 0.816"):
             degrade({"image": sample["image"], key: sample[key]})
     assert degrade({"image": sample["image"], "mask": sample["mask"]})["mask"].shape == (H, W)
+
+
+def test_params_drawn_for_the_image_alone_still_move_its_targets() -> None:
+    """Replaying a call recorded without targets (``make_params([image])``) moves them too, never passes them."""
+    profile = warp_only(Misalignment(6.0, 4.0, 2.0, shift_std=2.0))
+    sample = square_sample(54, 38)
+    degrade = CameraDegrade(profile, seed=3)
+    expected = degrade.transform(sample["boxes"], degrade.make_params([sample["image"], sample["boxes"]]))
+    params = CameraDegrade(profile, seed=3).make_params([sample["image"]])
+    for key in ("mask", "boxes", "keypoints"):
+        assert not torch.equal(degrade.transform(sample[key], params), sample[key])
+    torch.testing.assert_close(degrade.transform(sample["boxes"], params), expected, atol=0, rtol=0)

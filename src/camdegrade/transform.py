@@ -239,6 +239,8 @@ class CameraDegrade(Transform):
     def _move_target(self, target: Any, params: dict[str, Any]) -> Any:
         """``target`` moved by the call's warp (``params["warp"]``, one frame's params), or itself if none."""
         warp = params.get("warp")
+        if warp is None:  # nothing moves, or params drawn for the image alone (a replay): find the warp now
+            warp = one_warp(self.profile, params["effects"], params["apply"])
         if warp is None:
             return target
         size = tuple(params["frames"][-2:])
