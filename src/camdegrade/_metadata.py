@@ -22,7 +22,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
-from camdegrade._effect_facts import json_value
+from camdegrade._effect_facts import json_value, short_repr
 from camdegrade._profile_check import DEFAULT_NETWORK_WIDTH as DEFAULT_NETWORK_WIDTH
 from camdegrade._profile_check import MAX_EFFECTS as MAX_EFFECTS
 from camdegrade._profile_check import MAX_NETWORK_WIDTH as MAX_NETWORK_WIDTH
@@ -127,7 +127,7 @@ def parse_metadata(raw: Mapping[str, str], path: Path) -> dict[str, Any]:
         raise ProfileError(f"{str(path)!r} is not a camdegrade profile (metadata 'format' is not {FORMAT_NAME!r})")
     version = metadata.get("format_version")
     if isinstance(version, bool) or not isinstance(version, int):
-        raise ProfileError(f"profile {str(path)!r} has format_version {version!r}, expected an integer")
+        raise ProfileError(f"profile {str(path)!r} has format_version {short_repr(version)}, expected an integer")
     if version < 1:
         raise ProfileError(
             f"profile {str(path)!r} has format_version {version}, expected an integer from 1 to {FORMAT_VERSION}"
