@@ -306,6 +306,10 @@ HUGE_METADATA: dict[str, Corruption] = {
     "stage": lambda p: _effects(p)[0].update(stage="x" * HUGE),
     "config-keys": lambda p: _effects(p)[0]["config"].update({f"k{i}": i for i in range(HUGE)}),
     "format-version": lambda p: p.metadata.update(format_version="x" * HUGE),
+    "format-version-number": lambda p: p.metadata.update(format_version=10**4000),
+    "tensor-name": lambda p: p.add_tensor("x" * HUGE, [0.0], []),
+    "tensor-dtype": lambda p: p.header["effects.0.k1"].update(dtype="x" * HUGE),
+    "tensor-shape": lambda p: p.header["effects.0.k1"].update(shape=[2**62] * 300),
 }
 
 

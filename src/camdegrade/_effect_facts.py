@@ -30,8 +30,10 @@ JSON_TYPES: dict[type, str] = {
 
 
 def short_repr(value: Any) -> str:
-    """``repr(value)`` shortened to 80 characters: a file's metadata is quoted in messages, and its size is the
-    file's to choose."""
+    """``repr(value)`` shortened to 80 characters (an integer too long for that named by its size): a file's
+    metadata is quoted in messages, and its size is the file's to choose."""
+    if isinstance(value, int) and value.bit_length() > 256:  # also beyond what repr converts (4300 digits)
+        return f"an integer of {value.bit_length()} bits"
     text = repr(value)
     return text if len(text) <= 80 else text[:77] + "..."
 

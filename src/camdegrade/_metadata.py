@@ -130,12 +130,13 @@ def parse_metadata(raw: Mapping[str, str], path: Path) -> dict[str, Any]:
         raise ProfileError(f"profile {str(path)!r} has format_version {short_repr(version)}, expected an integer")
     if version < 1:
         raise ProfileError(
-            f"profile {str(path)!r} has format_version {version}, expected an integer from 1 to {FORMAT_VERSION}"
+            f"profile {str(path)!r} has format_version {short_repr(version)}, expected an integer from 1 to "
+            f"{FORMAT_VERSION}"
         )
     if version > FORMAT_VERSION:
         raise ProfileError(
-            f"profile {str(path)!r} has format version {version}, newer than this camdegrade ({__version__}) reads "
-            f"(up to {FORMAT_VERSION}); upgrade camdegrade"
+            f"profile {str(path)!r} has format version {short_repr(version)}, newer than this camdegrade "
+            f"({__version__}) reads (up to {FORMAT_VERSION}); upgrade camdegrade"
         )
     _check_field_types(metadata, path)
     return metadata

@@ -322,14 +322,19 @@ def check_layout(tensors: Mapping[str, TensorEntry], path: Path) -> None:
     for key, entry in sorted(tensors.items(), key=lambda item: item[1].offsets):
         size = DTYPE_SIZES.get(entry.dtype)
         if size is None:
-            raise ProfileError(f"{corrupt} (tensor {key!r} has dtype {entry.dtype!r}, which no profile holds)")
+            raise ProfileError(
+                f"{corrupt} (tensor {short_repr(key)} has dtype {short_repr(entry.dtype)}, which no profile holds)"
+            )
         start, stop = entry.offsets
         if start != end:
-            raise ProfileError(f"{corrupt} (tensor {key!r} starts at byte {start} of the data, expected {end})")
+            raise ProfileError(
+                f"{corrupt} (tensor {short_repr(key)} starts at byte {start} of the data, expected {end})"
+            )
         if stop - start != entry.numel * size:
             raise ProfileError(
-                f"{corrupt} (tensor {key!r} holds {stop - start} bytes, but {entry.numel} values of dtype "
-                f"{dtype_name(entry.dtype)} take {entry.numel * size}); fit or copy it again"
+                f"{corrupt} (tensor {short_repr(key)} holds {stop - start} bytes, but {short_repr(entry.numel)} "
+                f"values of dtype {dtype_name(entry.dtype)} take {short_repr(entry.numel * size)}); fit or copy it "
+                "again"
             )
         end = stop
 
@@ -375,8 +380,9 @@ def read_arrays(path: Path, keys: Sequence[str]) -> dict[str, np.ndarray]:
 
 
 def listing(items: list[str]) -> str:
+    """The first :data:`LISTED` of ``items``, each shortened to 80 characters, and how many more."""
     more = f" and {len(items) - LISTED} more" if len(items) > LISTED else ""
-    return ", ".join(items[:LISTED]) + more
+    return ", ".join(item if len(item) <= 80 else item[:77] + "..." for item in items[:LISTED]) + more
 
 
 _DTYPE_PREFIXES = {"F": "float", "BF": "bfloat", "I": "int", "U": "uint", "C": "complex"}
