@@ -324,6 +324,16 @@ def test_errors_quote_huge_metadata_shortened(tmp_path: Path, corrupt: Corruptio
         assert len(str(refused.value)) < 400 + len(str(path)), str(refused.value)[:400]
 
 
+def test_a_safetensors_file_of_other_metadata_is_named_shortly(tmp_path: Path) -> None:
+    header = json.dumps({"__metadata__": {f"key{i}": "" for i in range(HUGE)}}).encode()
+    path = tmp_path / "other.safetensors"
+    path.write_bytes(len(header).to_bytes(8, "little") + header)
+    for read in (load_profile, read_header):
+        with pytest.raises(ProfileError, match="not a camdegrade profile") as refused:
+            read(path)
+        assert len(str(refused.value)) < 400 + len(str(path))
+
+
 @pytest.mark.parametrize("name", list_profiles())
 def test_every_built_in_profile_passes_both(tmp_path: Path, name: str, capsys: pytest.CaptureFixture[str]) -> None:
     """The built-ins, and their copies through this test's reader and writer (so that what the cases above refuse

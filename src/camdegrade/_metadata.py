@@ -120,7 +120,7 @@ def parse_metadata(raw: Mapping[str, str], path: Path) -> dict[str, Any]:
     if METADATA_KEY not in raw:
         raise ProfileError(
             f"{str(path)!r} is a safetensors file but not a camdegrade profile (no {METADATA_KEY!r} metadata; "
-            f"found keys: {sorted(raw) or 'none'})"
+            f"found keys: {short_repr(sorted(raw)) if raw else 'none'})"
         )
     metadata = _json(raw[METADATA_KEY], f"profile {str(path)!r} has invalid JSON metadata", "JSON metadata", path)
     if not isinstance(metadata, dict) or metadata.get("format") != FORMAT_NAME:
