@@ -27,6 +27,7 @@ from bad_inputs import one_line_error, run_cli
 from camdegrade import CameraProfile, DomainShiftNet, list_profiles, load_profile
 from camdegrade._profile_format.check import network_shapes
 from camdegrade._profile_format.effect_facts import BUILT_IN, Bound
+from camdegrade._profile_format.header import read_header
 from camdegrade.effects import EFFECTS, JPEG, Effect, Noise
 from camdegrade.errors import ProfileError
 from camdegrade.profile import METADATA_KEY, builtin_profiles_dir
@@ -291,6 +292,46 @@ def test_a_value_of_the_wrong_json_type_is_a_type_error(tmp_path: Path, case: st
     _, builtin, corrupt, _ = next(entry for entry in CASES if entry[0] == case)
     with pytest.raises(TypeError):
         load_profile(_corrupted(tmp_path, builtin, corrupt))
+
+
+HUGE = 100_000
+#: Metadata a file can make as large as it likes, in every place an error quotes it.
+HUGE_METADATA: dict[str, Corruption] = {
+    "network": lambda p: p.metadata.update(network=list(range(HUGE))),
+    "network-config-keys": lambda p: p.metadata["network"].update(config={f"k{i}": i for i in range(HUGE)}),
+    "width": lambda p: p.metadata["network"]["config"].update(width="x" * HUGE),
+    "effect-entry": lambda p: _effects(p).__setitem__(0, list(range(HUGE))),
+    "effect-entry-keys": lambda p: _effects(p)[0].update({f"k{i}": i for i in range(HUGE)}),
+    "effect-name": lambda p: _effects(p)[0].update(name="x" * HUGE),
+    "stage": lambda p: _effects(p)[0].update(stage="x" * HUGE),
+    "config-keys": lambda p: _effects(p)[0]["config"].update({f"k{i}": i for i in range(HUGE)}),
+    "format-version": lambda p: p.metadata.update(format_version="x" * HUGE),
+    "format-version-number": lambda p: p.metadata.update(format_version=10**4000),
+    "tensor-name": lambda p: p.add_tensor("x" * HUGE, [0.0], []),
+    "tensor-dtype": lambda p: p.header["effects.0.k1"].update(dtype="x" * HUGE),
+    "tensor-shape": lambda p: p.header["effects.0.k1"].update(shape=[2**62] * 300),
+}
+
+
+@pytest.mark.parametrize("corrupt", HUGE_METADATA.values(), ids=HUGE_METADATA.keys())
+def test_errors_quote_huge_metadata_shortened(tmp_path: Path, corrupt: Corruption) -> None:
+    """A file's metadata is the attacker's to size: the one-line error quotes it in at most a few hundred
+    characters (80 per value, 10 names per list), never whole."""
+    path = _corrupted(tmp_path, "lowcost-robot-sim", corrupt)
+    for read in (load_profile, lambda path: read_header(path).describe()):
+        with pytest.raises(ProfileError) as refused:
+            read(path)
+        assert len(str(refused.value)) < 400 + len(str(path)), str(refused.value)[:400]
+
+
+def test_a_safetensors_file_of_other_metadata_is_named_shortly(tmp_path: Path) -> None:
+    header = json.dumps({"__metadata__": {f"key{i}": "" for i in range(HUGE)}}).encode()
+    path = tmp_path / "other.safetensors"
+    path.write_bytes(len(header).to_bytes(8, "little") + header)
+    for read in (load_profile, read_header):
+        with pytest.raises(ProfileError, match="not a camdegrade profile") as refused:
+            read(path)
+        assert len(str(refused.value)) < 400 + len(str(path))
 
 
 @pytest.mark.parametrize("name", list_profiles())

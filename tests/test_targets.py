@@ -211,3 +211,40 @@ def test_masks_keep_their_values_and_dtype() -> None:
         )["m"]
         assert out.dtype == dtype and out.shape == values.shape
         assert set(out.unique().tolist()) <= set(values.unique().tolist())
+
+
+@pytest.mark.parametrize("k1, k2", [(-0.2, 0.0), (-0.3, 0.0), (-0.25, 0.02)])
+def test_points_the_warp_pushes_out_of_view_leave_the_frame_not_nan(k1: float, k2: float) -> None:
+    """Pincushion distortion shows no part of the scene beyond some radius: a frame-filling box is the frame, the
+    corners' keypoints lie outside it, and visible points still land where the image shows them."""
+    image = tv_tensors.Image(torch.zeros(3, H, W))
+    boxes = tv_tensors.BoundingBoxes([[0.0, 0.0, W, H]], format="XYXY", canvas_size=(H, W))
+    corners = tv_tensors.KeyPoints([[0.0, 0.0], [W - 1.0, H - 1.0], [W / 2 - 0.5, H / 2 - 0.5]], canvas_size=(H, W))
+    out = CameraDegrade(warp_only(Distortion(k1, k2)), seed=0)({"image": image, "boxes": boxes, "k": corners})
+    assert out["boxes"].tolist() == [[0.0, 0.0, W, H]]
+    assert torch.isfinite(out["k"]).all()
+    assert out["k"][0, 0] < 0 and out["k"][0, 1] < 0 and out["k"][1, 0] > W - 1 and out["k"][1, 1] > H - 1
+    torch.testing.assert_close(out["k"][2], corners[2].as_subclass(Tensor), atol=1e-6, rtol=0)
+
+
+def test_boxes_and_keypoints_are_refused_where_the_distortion_folds_within_the_frame() -> None:
+    """Strong pincushion folds the image (a scene point may show twice): masks still move (each output pixel reads
+    one place), boxes and keypoints are refused rather than moved to one of two places."""
+    sample = square_sample(12, 10)
+    degrade = CameraDegrade(warp_only(Distortion(-0.5)), seed=0)
+    for key in ("boxes", "keypoints"):
+        with pytest.raises(ValueError, match=r"k1=-0.5, k2=0 folds the image within the frame \(at 0.816"):
+            degrade({"image": sample["image"], key: sample[key]})
+    assert degrade({"image": sample["image"], "mask": sample["mask"]})["mask"].shape == (H, W)
+
+
+def test_params_drawn_for_the_image_alone_still_move_its_targets() -> None:
+    """Replaying a call recorded without targets (``make_params([image])``) moves them too, never passes them."""
+    profile = warp_only(Misalignment(6.0, 4.0, 2.0, shift_std=2.0))
+    sample = square_sample(54, 38)
+    degrade = CameraDegrade(profile, seed=3)
+    expected = degrade.transform(sample["boxes"], degrade.make_params([sample["image"], sample["boxes"]]))
+    params = CameraDegrade(profile, seed=3).make_params([sample["image"]])
+    for key in ("mask", "boxes", "keypoints"):
+        assert not torch.equal(degrade.transform(sample[key], params), sample[key])
+    torch.testing.assert_close(degrade.transform(sample["boxes"], params), expected, atol=0, rtol=0)

@@ -156,6 +156,12 @@ def warp_points(profile: CameraProfile, params: EffectParams, points: Tensor, si
     return torch.stack((x + width / 2, y + height / 2), dim=-1).reshape(points.shape)
 
 
+def warp_keypoints(profile: CameraProfile, params: EffectParams, points: Tensor, size: tuple[int, int]) -> Tensor:
+    """:func:`warp_points` for keypoints ``(..., 2)`` in pixel-index coordinates, as torchvision and albumentations
+    hold them (pixel ``j``'s centre at ``x = j``: flips map ``x`` to ``W - 1 - x``), as float64."""
+    return warp_points(profile, params, points.to(torch.float64) + 0.5, size) - 0.5
+
+
 def warp_boxes(profile: CameraProfile, params: EffectParams, boxes: Tensor, size: tuple[int, int]) -> Tensor:
     """Boxes ``(K, 4)`` as ``(x0, y0, x1, y1)`` (coordinates as :func:`warp_points`) replaced by the boxes enclosing
     their outlines moved by the warp, as float64, not clamped to the frame."""

@@ -26,8 +26,8 @@ from camdegrade.engine import (
     degrade_selected,
     one_warp,
     warp_boxes,
+    warp_keypoints,
     warp_mask,
-    warp_points,
 )
 from camdegrade.inference import Precision, resolve_precision
 from camdegrade.profile import CameraProfile, EffectParams, as_profile
@@ -239,6 +239,8 @@ class CameraDegrade(Transform):
     def _move_target(self, target: Any, params: dict[str, Any]) -> Any:
         """``target`` moved by the call's warp (``params["warp"]``, one frame's params), or itself if none."""
         warp = params.get("warp")
+        if warp is None:  # nothing moves, or params drawn for the image alone (a replay): find the warp now
+            warp = one_warp(self.profile, params["effects"], params["apply"])
         if warp is None:
             return target
         size = tuple(params["frames"][-2:])
@@ -248,9 +250,7 @@ class CameraDegrade(Transform):
             return tv_tensors.wrap(warp_mask(self.profile, warp, plain), like=target)
         _check_size(f"a tv_tensors.{type(target).__name__}", tuple(target.canvas_size), size)
         if isinstance(target, tv_tensors.KeyPoints):
-            # A keypoint's x = j is pixel j's centre (torchvision's flips map x to W - 1 - x); the engine measures
-            # from the frame's edge, where that centre is at j + 0.5.
-            moved = warp_points(self.profile, warp, plain + 0.5, size) - 0.5
+            moved = warp_keypoints(self.profile, warp, plain, size)
             return tv_tensors.wrap(_as_dtype(moved, target.dtype), like=target)
         return self._move_boxes(target, warp, size)
 

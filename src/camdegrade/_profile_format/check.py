@@ -22,7 +22,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol
 
-from camdegrade._profile_format.effect_facts import BUILT_IN, json_value
+from camdegrade._profile_format.effect_facts import BUILT_IN, json_value, short_repr
 from camdegrade._version import __version__
 from camdegrade.errors import ProfileError, ProfileTypeError
 
@@ -141,7 +141,7 @@ def network_config(spec: Any, path: Path) -> Any:
     if not isinstance(spec, dict) or spec.get("arch") != "DomainShiftNet":
         raise ProfileError(
             f"profile {str(path)!r} metadata 'network' must be null or {{'arch': 'DomainShiftNet', 'config': ...}}, "
-            f"got {spec!r}"
+            f"got {short_repr(spec)}"
         )
     return spec.get("config", {})
 
@@ -152,10 +152,10 @@ def check_network_config(config: Any) -> None:
         raise TypeError(f"the network config must be a mapping, got {type(config).__name__}")
     unexpected = sorted(set(config) - {"width"})
     if unexpected:
-        raise TypeError(f"unexpected network config keys {unexpected}")
+        raise TypeError(f"unexpected network config keys {short_repr(unexpected)}")
     width = config.get("width", DEFAULT_NETWORK_WIDTH)
     if isinstance(width, bool) or not isinstance(width, int) or not 1 <= width <= MAX_NETWORK_WIDTH:
-        raise ValueError(f"width must be an integer from 1 to {MAX_NETWORK_WIDTH}, got width={width!r}")
+        raise ValueError(f"width must be an integer from 1 to {MAX_NETWORK_WIDTH}, got width={short_repr(width)}")
 
 
 def network_shapes(width: int) -> dict[str, tuple[int, ...]]:
@@ -217,7 +217,9 @@ def known_effects() -> list[str]:
 def named_effect(spec: Any, path: Path) -> tuple[str, Facts]:
     """The registered name of one ``effects`` metadata entry, and what the check knows of that effect."""
     if not isinstance(spec, dict) or not isinstance(spec.get("config", {}), dict):
-        raise ProfileError(f"profile {str(path)!r} has an effect entry that is not {{'name', 'config'}}: {spec!r}")
+        raise ProfileError(
+            f"profile {str(path)!r} has an effect entry that is not {{'name', 'config'}}: {short_repr(spec)}"
+        )
     name = spec.get("name")
     if not isinstance(name, str):
         raise ProfileTypeError(
@@ -226,7 +228,7 @@ def named_effect(spec: Any, path: Path) -> tuple[str, Facts]:
     facts = effect_facts(name)
     if facts is None:
         raise ProfileError(
-            f"profile {str(path)!r} uses effect {name!r}, unknown to camdegrade {__version__} "
+            f"profile {str(path)!r} uses effect {short_repr(name)}, unknown to camdegrade {__version__} "
             f"(known: {', '.join(known_effects())}); upgrade camdegrade"
         )
     return name, facts
@@ -238,10 +240,13 @@ def _checked_stage(index: int, spec: Any, path: Path) -> _Stage:
     label, invalid = f"effect {index} ({name})", f"profile {str(path)!r} has invalid metadata"
     unknown = sorted(set(spec) - set(EFFECT_ENTRY_KEYS))
     if unknown:
-        raise ProfileError(f"{invalid}: {label} has unknown keys {unknown} (an entry holds 'name', 'stage', 'config')")
+        raise ProfileError(
+            f"{invalid}: {label} has unknown keys {short_repr(unknown)} (an entry holds 'name', 'stage', 'config')"
+        )
     if "stage" in spec and spec["stage"] != facts.stage:
         raise ProfileError(
-            f"{invalid}: {label} is recorded at stage {spec['stage']!r}, but {name} belongs to stage {facts.stage!r}"
+            f"{invalid}: {label} is recorded at stage {short_repr(spec['stage'])}, but {name} belongs to stage "
+            f"{facts.stage!r}"
         )
     try:
         config = facts.check_config(spec.get("config", {}))
@@ -318,14 +323,19 @@ def check_layout(tensors: Mapping[str, TensorEntry], path: Path) -> None:
     for key, entry in sorted(tensors.items(), key=lambda item: item[1].offsets):
         size = DTYPE_SIZES.get(entry.dtype)
         if size is None:
-            raise ProfileError(f"{corrupt} (tensor {key!r} has dtype {entry.dtype!r}, which no profile holds)")
+            raise ProfileError(
+                f"{corrupt} (tensor {short_repr(key)} has dtype {short_repr(entry.dtype)}, which no profile holds)"
+            )
         start, stop = entry.offsets
         if start != end:
-            raise ProfileError(f"{corrupt} (tensor {key!r} starts at byte {start} of the data, expected {end})")
+            raise ProfileError(
+                f"{corrupt} (tensor {short_repr(key)} starts at byte {start} of the data, expected {end})"
+            )
         if stop - start != entry.numel * size:
             raise ProfileError(
-                f"{corrupt} (tensor {key!r} holds {stop - start} bytes, but {entry.numel} values of dtype "
-                f"{dtype_name(entry.dtype)} take {entry.numel * size}); fit or copy it again"
+                f"{corrupt} (tensor {short_repr(key)} holds {stop - start} bytes, but {short_repr(entry.numel)} "
+                f"values of dtype {dtype_name(entry.dtype)} take {short_repr(entry.numel * size)}); fit or copy it "
+                "again"
             )
         end = stop
 
@@ -371,8 +381,9 @@ def read_arrays(path: Path, keys: Sequence[str]) -> dict[str, np.ndarray]:
 
 
 def listing(items: list[str]) -> str:
+    """The first :data:`LISTED` of ``items``, each shortened to 80 characters, and how many more."""
     more = f" and {len(items) - LISTED} more" if len(items) > LISTED else ""
-    return ", ".join(items[:LISTED]) + more
+    return ", ".join(item if len(item) <= 80 else item[:77] + "..." for item in items[:LISTED]) + more
 
 
 _DTYPE_PREFIXES = {"F": "float", "BF": "bfloat", "I": "int", "U": "uint", "C": "complex"}

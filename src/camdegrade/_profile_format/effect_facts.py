@@ -29,13 +29,19 @@ JSON_TYPES: dict[type, str] = {
 }
 
 
+def short_repr(value: Any) -> str:
+    """``repr(value)`` shortened to 80 characters (an integer too long for that named by its size): a file's
+    metadata is quoted in messages, and its size is the file's to choose."""
+    if isinstance(value, int) and value.bit_length() > 256:  # also beyond what repr converts (4300 digits)
+        return f"an integer of {value.bit_length()} bits"
+    text = repr(value)
+    return text if len(text) <= 80 else text[:77] + "..."
+
+
 def json_value(value: Any) -> str:
     """``value`` as a message names it: its JSON type, then its value shortened to 80 characters (``null``)."""
     kind = JSON_TYPES.get(type(value), type(value).__name__)
-    if value is None:
-        return kind
-    shown = repr(value) if len(repr(value)) <= 80 else repr(value)[:77] + "..."
-    return f"{kind} {shown}"
+    return kind if value is None else f"{kind} {short_repr(value)}"
 
 
 def shown(values: np.ndarray) -> str:
@@ -145,7 +151,7 @@ class EffectFacts:
         unknown = sorted(set(config) - set(self.settings))
         if unknown:
             known = ", ".join(self.settings) or "none"
-            raise TypeError(f"unknown config keys {unknown} (known: {known})")
+            raise TypeError(f"unknown config keys {short_repr(unknown)} (known: {known})")
         for key, value in config.items():
             self.settings[key].check(key, value)
         filled = {key: config.get(key, setting.default) for key, setting in self.settings.items()}

@@ -34,7 +34,7 @@ from camdegrade._profile_format.check import (
     read_arrays,
     tensor_entries,
 )
-from camdegrade._profile_format.effect_facts import json_value
+from camdegrade._profile_format.effect_facts import json_value, short_repr
 from camdegrade._version import __version__
 from camdegrade.errors import ProfileError, ProfileTypeError, UnknownProfileError
 
@@ -120,22 +120,23 @@ def parse_metadata(raw: Mapping[str, str], path: Path) -> dict[str, Any]:
     if METADATA_KEY not in raw:
         raise ProfileError(
             f"{str(path)!r} is a safetensors file but not a camdegrade profile (no {METADATA_KEY!r} metadata; "
-            f"found keys: {sorted(raw) or 'none'})"
+            f"found keys: {short_repr(sorted(raw)) if raw else 'none'})"
         )
     metadata = _json(raw[METADATA_KEY], f"profile {str(path)!r} has invalid JSON metadata", "JSON metadata", path)
     if not isinstance(metadata, dict) or metadata.get("format") != FORMAT_NAME:
         raise ProfileError(f"{str(path)!r} is not a camdegrade profile (metadata 'format' is not {FORMAT_NAME!r})")
     version = metadata.get("format_version")
     if isinstance(version, bool) or not isinstance(version, int):
-        raise ProfileError(f"profile {str(path)!r} has format_version {version!r}, expected an integer")
+        raise ProfileError(f"profile {str(path)!r} has format_version {short_repr(version)}, expected an integer")
     if version < 1:
         raise ProfileError(
-            f"profile {str(path)!r} has format_version {version}, expected an integer from 1 to {FORMAT_VERSION}"
+            f"profile {str(path)!r} has format_version {short_repr(version)}, expected an integer from 1 to "
+            f"{FORMAT_VERSION}"
         )
     if version > FORMAT_VERSION:
         raise ProfileError(
-            f"profile {str(path)!r} has format version {version}, newer than this camdegrade ({__version__}) reads "
-            f"(up to {FORMAT_VERSION}); upgrade camdegrade"
+            f"profile {str(path)!r} has format version {short_repr(version)}, newer than this camdegrade "
+            f"({__version__}) reads (up to {FORMAT_VERSION}); upgrade camdegrade"
         )
     _check_field_types(metadata, path)
     return metadata

@@ -24,6 +24,7 @@ from camdegrade.functional import (
     vignetting_image,
 )
 from camdegrade.functional.geometry import (
+    distortion_fold,
     distortion_source,
     distortion_target,
     misalignment_source,
@@ -105,7 +106,8 @@ class Distortion(Effect):
     """Radial lens distortion in relative coordinates: the output at ``p`` samples the scene at
     ``p · (1 + k1 r² + k2 r⁴)``. ``k1 > 0`` is barrel (typical of wide, cheap lenses), ``k1 < 0`` pincushion;
     zeros are neutral. It moves pixels: targets are moved by the same warp (:meth:`moved_points` inverts the
-    radial polynomial by Newton's method)."""
+    radial polynomial; scene points pushed out of view leave the frame, and boxes and keypoints are refused where
+    the warp folds within the frame)."""
 
     name = "distortion"
     stage = "optics"
@@ -138,6 +140,13 @@ class Distortion(Effect):
     def moved_points(
         self, x: Tensor, y: Tensor, size: tuple[int, int], params: Mapping[str, Tensor]
     ) -> tuple[Tensor, Tensor]:
+        fold = float(distortion_fold(self.k1.double(), self.k2.double()))
+        if fold < 1.0:  # relative radius 1 is the frame's corner
+            raise ValueError(
+                f"distortion with k1={float(self.k1):.6g}, k2={float(self.k2):.6g} folds the image within the frame "
+                f"(at {fold:.3g} of the half-diagonal), so a point may show twice: boxes and keypoints cannot be "
+                "moved exactly; give them as masks"
+            )
         return distortion_target(x, y, size, self.k1.to(x), self.k2.to(x))
 
     @classmethod

@@ -111,20 +111,44 @@ def distortion_source(x: Tensor, y: Tensor, size: tuple[int, int], k1: Tensor, k
 
 
 def distortion_target(
-    x: Tensor, y: Tensor, size: tuple[int, int], k1: Tensor, k2: Tensor, iterations: int = 30
+    x: Tensor, y: Tensor, size: tuple[int, int], k1: Tensor, k2: Tensor, iterations: int = 64
 ) -> tuple[Tensor, Tensor]:
     """Where :func:`distortion_image` puts the input positions ``(x, y)``: the inverse of
-    :func:`distortion_source`, solving ``ρ (1 + k1 ρ² + k2 ρ⁴) = ρ_in`` for the output radius by Newton's method
-    (positions, ``k1``, ``k2`` as there)."""
+    :func:`distortion_source`, solving ``ρ (1 + k1 ρ² + k2 ρ⁴) = ρ_in`` for the output radius by bisection below
+    :func:`distortion_fold`, where the map increases (positions, ``k1``, ``k2`` as there). A position the warp shows
+    nowhere (pincushion pushes the scene's corners out of view) goes to the fold radius, outside the frame unless
+    the warp folds within it."""
     half_diagonal = 0.5 * (size[0] ** 2 + size[1] ** 2) ** 0.5
     wanted = torch.sqrt(x**2 + y**2) / half_diagonal
-    rho = wanted.clone()
+
+    def radius(rho: Tensor) -> Tensor:
+        return rho * radial_polynomial(rho * rho, k1, k2)
+
+    fold = distortion_fold(k1, k2).to(wanted)
+    high = torch.maximum(wanted, torch.ones_like(wanted))
+    for _ in range(iterations):  # without a fold the map grows without bound: double until it passes
+        high = torch.where(radius(high) < wanted, 2.0 * high, high)
+    high = torch.where(torch.isfinite(fold), fold, high).expand_as(wanted)
+    low = torch.zeros_like(high)
     for _ in range(iterations):
-        value = rho * radial_polynomial(rho * rho, k1, k2) - wanted
-        slope = 1.0 + 3.0 * k1 * rho**2 + 5.0 * k2 * rho**4
-        rho = rho - value / slope.clamp_min(1e-3)
+        middle = 0.5 * (low + high)
+        below = radius(middle) < wanted
+        low, high = torch.where(below, middle, low), torch.where(below, high, middle)
+    rho = 0.5 * (low + high)
     ratio = torch.where(wanted > 0, rho / wanted.clamp_min(1e-12), torch.ones_like(wanted))
     return x * ratio, y * ratio
+
+
+def distortion_fold(k1: Tensor, k2: Tensor) -> Tensor:
+    """The smallest relative radius at which the radial map ``ρ (1 + k1 ρ² + k2 ρ⁴)`` of :func:`distortion_source`
+    stops increasing (``inf`` where it never does): within it, every scene position shows at most once. It is the
+    smallest positive root ``u`` of ``1 + 3 k1 u + 5 k2 u²`` (``u = ρ²``), written ``2 / (-b ∓ √(b² - 4a))``."""
+    a, b = 5.0 * k2, 3.0 * k1
+    discriminant = b * b - 4.0 * a
+    root = torch.sqrt(discriminant.clamp_min(0.0))
+    roots = torch.stack((2.0 / (-b - root), 2.0 / (-b + root)))
+    smallest = torch.where(roots > 0, roots, torch.inf).amin(dim=0)
+    return torch.sqrt(torch.where(discriminant >= 0, smallest, torch.inf))
 
 
 def chromatic_aberration_image(image: Tensor, red: ParamLike, blue: ParamLike) -> Tensor:

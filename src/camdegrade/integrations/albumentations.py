@@ -22,7 +22,7 @@ except ModuleNotFoundError as error:  # pragma: no cover - only without the extr
     ) from error
 
 from camdegrade._checks import check_probability
-from camdegrade.engine import one_warp, warp_boxes, warp_mask, warp_points
+from camdegrade.engine import one_warp, warp_boxes, warp_keypoints, warp_mask
 from camdegrade.inference import Precision
 from camdegrade.profile import CameraProfile, EffectParams
 from camdegrade.transform import CameraDegrade
@@ -186,13 +186,13 @@ class AlbumentationsCameraDegrade(DualTransform):
         if warp is None or len(keypoints) == 0:
             return keypoints
         size = tuple(shape[:2])
-        points = torch.from_numpy(keypoints[:, :2].astype(np.float64)) + 0.5
+        points = torch.from_numpy(keypoints[:, :2].astype(np.float64))
         angle = torch.from_numpy(keypoints[:, _ANGLE].astype(np.float64))
         step = 1e-3 * torch.stack((torch.cos(angle), torch.sin(angle)), dim=-1)
-        moved = warp_points(self.degrade.profile, warp, torch.stack((points, points + step)), size)
+        moved = warp_keypoints(self.degrade.profile, warp, torch.stack((points, points + step)), size)
         direction = (moved[1] - moved[0]) / 1e-3
         out = keypoints.copy()
-        out[:, :2] = (moved[0] - 0.5).numpy()
+        out[:, :2] = moved[0].numpy()
         out[:, _ANGLE] = (torch.atan2(direction[:, 1], direction[:, 0]) % (2 * torch.pi)).numpy()
         out[:, _SCALE] = keypoints[:, _SCALE] * direction.norm(dim=-1).numpy()
         return out
