@@ -209,3 +209,25 @@ def test_a_diagnosis_refuses_an_effect_naming_an_unknown_family() -> None:
             diagnose("city100-iphonex", [])
     finally:
         del EFFECTS[Misspelt.name]
+
+
+class _Values:
+    """Stands in for a StatisticSet: pooled noise std and row-mean std per flat-pixel bin (levels)."""
+
+    def __init__(self, std: float, lines: float) -> None:
+        self.std, self.lines = std, lines
+
+    def values(self) -> dict[str, Tensor]:
+        return {"noise": torch.full((4,), self.std), "banding": torch.full((4,), self.lines)}
+
+
+def test_a_noise_stage_on_a_camera_without_noise_is_named_as_such_not_as_a_huge_ratio() -> None:
+    """Issue 26: flat constant captures hold no noise; the old text read "noise stage is 99047.0× the camera's"."""
+    from camdegrade.measures.noise import noise_stage_text
+
+    text = noise_stage_text("noise", _Values(1e-5, 0.0), _Values(1.5, 0.4))
+    assert text == "noise stage adds noise where the camera shows none (1.50 levels on its flat pixels)"
+    assert noise_stage_text("noise", _Values(1.0, 0.3), _Values(4.0, 0.9)) == (
+        "noise stage is 4.0× the camera's noise and banded (row means 3.0× the camera's)"
+    )
+    assert noise_stage_text("noise", _Values(float("nan"), 0.0), _Values(1.5, 0.4)) == "noise stage"  # not measured

@@ -179,6 +179,8 @@ def noise_stage_text(name: str, real: StatisticSet, sim: StatisticSet) -> str:
     4.6× the camera's noise and banded (row means 9.5× the camera's)"."""
     real_values, sim_values = real.values(), sim.values()
     real_std, sim_std = (float(torch.nanmean(v[NoiseLevel.name])) for v in (real_values, sim_values))
+    if real_std == real_std and real_std**2 <= MIN_ENERGY:  # measured (not NaN), and nothing there
+        return f"{name} stage adds noise where the camera shows none ({sim_std:.2f} levels on its flat pixels)"
     text = f"{name} stage is {sim_std / real_std:.1f}× the camera's noise" if real_std > 0 else f"{name} stage"
     real_lines, sim_lines = (float(torch.nanmean(v[Banding.name][:3])) for v in (real_values, sim_values))
     if real_lines > 0 and sim_lines / real_lines > 1.5:
