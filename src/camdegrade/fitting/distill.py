@@ -32,7 +32,7 @@ from camdegrade._threads import torch_threads
 from camdegrade._version import __version__
 from camdegrade.effects.base import evenly_spaced
 from camdegrade.errors import ImageError
-from camdegrade.fitting.fit import finite_or_none
+from camdegrade.fitting.fit import record_quality
 from camdegrade.fitting.training import EpochResult, FitConfig, ImagePair, fit_network, resolve_recipe
 from camdegrade.functional.geometry import shrink_to_max_side
 from camdegrade.inference import run_network
@@ -123,12 +123,7 @@ def distill_profile(
     )
     fast.fitted = _record(teacher, source, len(train), len(val), config, history, minutes)
     quality = _quality(student, [pairs[i] for i in val])
-    warnings = student_warnings(quality)
-    if warnings:
-        fast.fitted["warnings"] = warnings
-    for warning in warnings:
-        say(f"warning: {warning}")
-    fast.quality = finite_or_none(quality)
+    record_quality(fast, quality, student_warnings(quality), say)
     return fast
 
 

@@ -136,12 +136,7 @@ def fit_profile(
         profile.fitted["init_from"] = init_label
         profile.fitted["trained_in"] = str(training_dtype(config.precision, torch.device(device))).split(".")[-1]
         quality = _quality(profile, val) if len(val) else {}
-        warnings = quality_warnings(quality)
-        if warnings:
-            profile.fitted["warnings"] = warnings
-        for warning in warnings:
-            say(f"warning: {warning}")
-        profile.quality = finite_or_none(quality)
+        record_quality(profile, quality, quality_warnings(quality), say)
         return profile
 
 
@@ -175,6 +170,16 @@ def quality_warnings(quality: dict[str, Any]) -> list[str]:
 
 def _db(value: float) -> str:
     return f"{value:.2f} dB" if math.isfinite(value) else f"{value} dB"
+
+
+def record_quality(profile: CameraProfile, quality: dict[str, Any], warnings: list[str], say: Log) -> None:
+    """Give a fitted profile its validation scores (strict JSON: :func:`finite_or_none`) and say every warning they
+    raise, on the log and in ``profile.fitted['warnings']`` (absent when there is none)."""
+    if warnings:
+        profile.fitted["warnings"] = warnings
+    for warning in warnings:
+        say(f"warning: {warning}")
+    profile.quality = finite_or_none(quality)
 
 
 def finite_or_none(values: dict[str, Any]) -> dict[str, Any]:
