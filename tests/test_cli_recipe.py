@@ -7,10 +7,15 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import inspect
+import sys
+from collections import Counter
+from pathlib import Path
 
 import pytest
 
+import camdegrade
 import camdegrade.fitting.pairs as pairs_module
+import camdegrade.fitting.training as training_module
 from camdegrade._recipes import FAST, FIELDS, PAPER, TRAINING_FIELDS, recipe_default
 from camdegrade.cli import diagnose as diagnose_command
 from camdegrade.cli import distill as distill_command
@@ -93,6 +98,59 @@ def test_a_fit_discovers_its_pairs_once(tmp_path, monkeypatch) -> None:
     folder = make_pairs_folder(tmp_path / "pairs", count=4)
     assert main(["fit", str(folder), "-o", str(tmp_path / "cam.safetensors"), *QUICK, "--epochs", "1"]) == 0
     assert len(calls) == 1
+
+
+class _FirstStep(Exception):
+    """Raised where training would take its first step: the walk being measured ends there."""
+
+
+def _carries_pairs(value: object, folder: Path) -> bool:
+    """Whether a call's argument is the pairs in one of their forms: the folder, its report, a pair set, pairs."""
+    if type(value).__name__ in ("PairReport", "PairSet", "Pair"):
+        return True
+    if isinstance(value, (str, Path)):
+        return str(value) == str(folder)
+    return isinstance(value, (list, tuple)) and bool(value) and type(value[0]).__name__ in ("Pair", "PairSet")
+
+
+def _rooms_the_pairs_walk_through(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> list[str]:
+    """The modules ("rooms") of the package that receive the pairs as an argument, from ``camdegrade fit PAIRS`` to
+    the first training step, a new entry each time the walk comes back to a room it had left (leaf helpers such as
+    ``_text`` are part of the room that calls them)."""
+    folder = make_pairs_folder(tmp_path / "pairs", count=4)
+
+    def first_step(*args, **kwargs):
+        raise _FirstStep
+
+    monkeypatch.setattr(training_module, "_train_one_epoch", first_step)
+    package = str(Path(camdegrade.__file__).parent)
+    rooms: list[str] = []
+
+    def follow(frame, event, arg) -> None:
+        if event != "call" or not frame.f_code.co_filename.startswith(package):
+            return
+        if any(_carries_pairs(value, folder) for value in frame.f_locals.values()):
+            room = str(Path(frame.f_code.co_filename).relative_to(package))
+            if room.startswith("_"):
+                return  # a leaf helper (_text, _files, ...) called from the room the walk is in
+            if not rooms or rooms[-1] != room:
+                rooms.append(room)
+
+    sys.setprofile(follow)
+    try:
+        with pytest.raises(_FirstStep):
+            main(["fit", str(folder), "-o", str(tmp_path / "cam.safetensors"), *QUICK, "--epochs", "1"])
+    finally:
+        sys.setprofile(None)
+    return rooms
+
+
+def test_the_pairs_enter_no_room_more_than_twice_on_their_way_to_training(tmp_path, monkeypatch) -> None:
+    """Issue 22: followed as a value from the CLI's fit to the first training step (before: pairs.py and
+    pairset.py three times each, the files discovered twice)."""
+    rooms = _rooms_the_pairs_walk_through(tmp_path, monkeypatch)
+    assert rooms[0] == "fitting/pairs.py" and "fitting/fit.py" in rooms, rooms  # the walk was seen
+    assert max(Counter(rooms).values()) <= 2, rooms
 
 
 def test_a_recipe_changes_by_replace_and_refuses_unknown_fields() -> None:
