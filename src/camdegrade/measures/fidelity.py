@@ -181,7 +181,9 @@ def measure_fidelity(sims: Sequence[Tensor], reals: Sequence[Tensor], cleans: Se
     for sim, real, clean in zip(sims, reals, cleans, strict=True):
         grids.append((grid_rms(sim), grid_rms(real)))
         powers.append((band_power(sim)[0], band_power(real)[0]))
-        sim_sums, real_sums = sim_sums + noise_sums(sim, clean), real_sums + noise_sums(real, clean)
+        mask = flat_mask(clean)
+        sim_sums = sim_sums + NoiseSums.measure(sim.to(torch.float32), clean, mask)
+        real_sums = real_sums + NoiseSums.measure(real.to(torch.float32), clean, mask)
         errors.append(float((sim.double() - real.double()).pow(2).mean()))
     grid_sim = sum(g for g, _ in grids) / len(grids)
     grid_real = sum(g for _, g in grids) / len(grids)
