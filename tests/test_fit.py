@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 import sys
@@ -44,6 +45,20 @@ def test_fit_profile_records_how_it_was_made(tmp_path):
     assert "noise" in profile.effect_names
     assert profile.quality["validation_pairs"] == 2 and "network_psnr_db" in profile.quality
     assert any("6 pair" in line for line in lines)
+    fidelity = profile.quality["fidelity"]
+    assert fidelity["frames"] == 2 and fidelity["pixels"] == 2 * 32 * 32 and len(fidelity["bands"]) == 5
+    assert fidelity["grid_ratio"] > 0 and fidelity["noise_ratio"] is None  # 32² random images: nothing flat
+    json.dumps(profile.quality, allow_nan=False)
+    assert load_profile(profile.save(tmp_path / "tiny.safetensors")).quality["fidelity"] == fidelity
+
+
+def test_camdegrade_info_shows_the_fidelity_of_a_new_fit(tmp_path, capsys):
+    folder = make_pairs_folder(tmp_path / "pairs")
+    recipe = FitConfig.recipe("fast").replace(epochs=1, crop=16, batch_size=4, crops_per_pair=1, val_fraction=0.34)
+    path = fit_profile(folder, recipe, name="tiny").save(tmp_path / "tiny.safetensors")
+    capsys.readouterr()
+    assert main(["info", str(path)]) == 0
+    assert '"fidelity": {' in capsys.readouterr().out
 
 
 def test_fit_profile_threads_apply_during_the_fit_and_are_restored(tmp_path):

@@ -39,6 +39,7 @@ from camdegrade.fitting.training import (
     resolve_recipe,
     training_dtype,
 )
+from camdegrade.measures.fidelity import measure_fidelity
 from camdegrade.metrics import psnr
 from camdegrade.network import DomainShiftNet
 from camdegrade.profile import CameraProfile, as_profile
@@ -295,8 +296,10 @@ def _mean_squared_error(predictions: Sequence[torch.Tensor], targets: Sequence[t
     return total / sum(t.numel() for t in targets)
 
 
-def _quality(profile: CameraProfile, val: PairSet) -> dict[str, float]:
-    """Validation PSNR of identity, network mean and the full (stochastic, seeded) profile against the captures."""
+def _quality(profile: CameraProfile, val: PairSet) -> dict[str, Any]:
+    """Validation PSNR of identity, network mean and the full (stochastic, seeded) profile against the captures,
+    and how close the sampled profile looks to the captures (``fidelity``: grid ratio, band log2 power ratios, flat
+    noise and banding ratios, :mod:`camdegrade.measures.fidelity`; ``None`` where not measurable)."""
     identity, network, full = [], [], []
     sampled = simulate(profile, val.cleans(), seed=0, stream="quality")
     with torch.no_grad():
@@ -309,7 +312,16 @@ def _quality(profile: CameraProfile, val: PairSet) -> dict[str, float]:
         "identity_psnr_db": round(sum(identity) / len(identity), 3),
         "network_psnr_db": round(sum(network) / len(network), 3),
         "profile_psnr_db": round(sum(full) / len(full), 3),
+        "fidelity": _fidelity(sampled, val),
     }
+
+
+def _fidelity(sampled: Sequence[torch.Tensor], val: PairSet) -> dict[str, Any]:
+    """The cheap fidelity numbers of the sampled profile on the validation pairs (not the critic: it trains a CNN)."""
+    cleans, captures = zip(*val.unit_pairs(), strict=True)
+    report = measure_fidelity(list(sampled), list(captures), list(cleans)).to_dict(digits=3)
+    report.pop("psnr")  # profile_psnr_db already
+    return report
 
 
 def init_distributed_from_env(device: torch.device | str = "cpu") -> torch.device:

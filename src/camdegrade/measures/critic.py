@@ -10,6 +10,10 @@ interval comes from a bootstrap over held-out *pairs* (patches of one image are 
 Where it decides is reported by the patch's distance from the frame centre, its clean intensity, and whether it is
 flat (most of its pixels on :func:`~camdegrade.functional.analysis.flat_mask`) or textured.
 
+With ``image_only=True`` the critic sees only the image's own planes (RGB and its fine detail; no clean patch, no
+residual, no position): what a model trained on the simulation sees. The patches, the split and the scoring are
+the same.
+
 References:
     D. Lopez-Paz, M. Oquab, "Revisiting Classifier Two-Sample Tests", ICLR 2017.
 """
@@ -45,19 +49,21 @@ FLAT_SHARE = 0.5
 #: Input planes: clean RGB, residual RGB (image − clean), the image's fine detail RGB (image minus its 3×3
 #: mean, where noise and blocking live), and the position (y, x) in the frame.
 PLANES = 11
+#: Input planes of the image-only critic: the image's RGB and its fine detail RGB.
+IMAGE_ONLY_PLANES = 6
 
 
 class CriticNet(nn.Module):
-    """:data:`PLANES` input planes → one logit (real vs simulated). Inputs are standardised per plane with the
-    training patches' mean and std (:meth:`standardise`), so small signals (a few levels of noise) are not drowned
-    by large ones (a tone shift)."""
+    """``planes`` input planes (:data:`PLANES`, or :data:`IMAGE_ONLY_PLANES`) → one logit (real vs simulated).
+    Inputs are standardised per plane with the training patches' mean and std (:meth:`standardise`), so small
+    signals (a few levels of noise) are not drowned by large ones (a tone shift)."""
 
-    def __init__(self, width: int = 12) -> None:
+    def __init__(self, width: int = 12, planes: int = PLANES) -> None:
         super().__init__()
-        self.register_buffer("mean", torch.zeros(PLANES, 1, 1))
-        self.register_buffer("std", torch.ones(PLANES, 1, 1))
+        self.register_buffer("mean", torch.zeros(planes, 1, 1))
+        self.register_buffer("std", torch.ones(planes, 1, 1))
         self.features = nn.Sequential(
-            nn.Conv2d(PLANES, width, 3, padding=1),
+            nn.Conv2d(planes, width, 3, padding=1),
             nn.ReLU(),
             nn.Conv2d(width, 2 * width, 3, stride=2, padding=1),
             nn.ReLU(),
@@ -79,7 +85,8 @@ class CriticNet(nn.Module):
 
 @dataclass
 class Patches:
-    """Critic inputs ``(M, 8, PATCH, PATCH)``, labels (1 real), the pair each came from, and its attributes."""
+    """Critic inputs ``(M, PLANES or IMAGE_ONLY_PLANES, PATCH, PATCH)``, labels (1 real), the pair each came from,
+    and its attributes."""
 
     inputs: Tensor
     labels: Tensor
@@ -90,10 +97,16 @@ class Patches:
 
     @classmethod
     def sample(
-        cls, cleans: Sequence[Tensor], reals: Sequence[Tensor], sims: Sequence[Tensor], seed: int, stream: str
+        cls,
+        cleans: Sequence[Tensor],
+        reals: Sequence[Tensor],
+        sims: Sequence[Tensor],
+        seed: int,
+        stream: str,
+        image_only: bool = False,
     ) -> Patches:
         parts = [
-            _pair_patches(index, clean, real, sim, derived_generator(seed, stream, index))
+            _pair_patches(index, clean, real, sim, derived_generator(seed, stream, index), image_only)
             for index, (clean, real, sim) in enumerate(zip(cleans, reals, sims, strict=True))
         ]
         parts = [part for part in parts if part is not None]
@@ -106,7 +119,7 @@ class Patches:
 
 
 def _pair_patches(
-    index: int, clean: Tensor, real: Tensor, sim: Tensor, generator: torch.Generator
+    index: int, clean: Tensor, real: Tensor, sim: Tensor, generator: torch.Generator, image_only: bool = False
 ) -> tuple[Tensor, ...] | None:
     height, width = clean.shape[-2:]
     if min(height, width) < PATCH:
@@ -123,8 +136,11 @@ def _pair_patches(
         window = (..., slice(top, top + PATCH), slice(left, left + PATCH))
         position = torch.stack([ys[window], xs[window]])
         for label, image in ((1.0, real), (0.0, sim)):
-            residual = image[window] - clean[window]
-            inputs.append(torch.cat([clean[window], residual, detail[label][window], position]))
+            if image_only:
+                inputs.append(torch.cat([image[window], detail[label][window]]))
+            else:
+                residual = image[window] - clean[window]
+                inputs.append(torch.cat([clean[window], residual, detail[label][window], position]))
             labels.append(label)
         centre_y, centre_x = (top + PATCH / 2) / height - 0.5, (left + PATCH / 2) / width - 0.5
         patch_radius = math.hypot(centre_y, centre_x) / math.hypot(0.5, 0.5)
@@ -181,7 +197,7 @@ def train_critic(patches: Patches, seed: int, steps: int = STEPS) -> CriticNet:
     """The critic fitted to ``patches`` with Adam, minibatches drawn from a seeded generator."""
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(derive_seed(seed, "critic-init"))
-        net = CriticNet()
+        net = CriticNet(planes=patches.inputs.shape[1])
     net.standardise(patches.inputs)
     optimizer = torch.optim.Adam(net.parameters(), lr=LEARNING_RATE)
     generator = derived_generator(seed, "critic-batches")
@@ -235,9 +251,13 @@ def critic_test(
     held_out: tuple[Sequence[Tensor], Sequence[Tensor], Sequence[Tensor]],
     seed: int,
     steps: int = STEPS,
+    image_only: bool = False,
 ) -> CriticResult:
-    """Train on ``calibration`` = (cleans, reals, sims) and score on ``held_out`` (the same three lists)."""
+    """Train on ``calibration`` = (cleans, reals, sims) and score on ``held_out`` (the same three lists).
+
+    ``image_only``: the critic sees the image alone (the clean images still place the patches and group them
+    flat or textured in the report, and never reach the critic)."""
     started = time.perf_counter()
-    net = train_critic(Patches.sample(*calibration, seed, "critic-calibration"), seed, steps)
-    held = Patches.sample(*held_out, seed, "critic-held-out")
+    net = train_critic(Patches.sample(*calibration, seed, "critic-calibration", image_only), seed, steps)
+    held = Patches.sample(*held_out, seed, "critic-held-out", image_only)
     return score(net, held, seed, time.perf_counter() - started)
