@@ -10,6 +10,7 @@ import pytest
 import torch
 from torchvision import tv_tensors
 
+import camdegrade
 from camdegrade import CameraDegrade, DegradedDataset
 from camdegrade.data import PairedViews, Union
 from camdegrade.transform import PlainTensorsWarning
@@ -106,3 +107,4 @@ def test_several_plain_image_tensors_warn_once_that_only_the_first_is_degraded()
         CameraDegrade(stochastic_profile(), seed=0)([first, torch.zeros(2)])  # a plain tensor that is no image
         CameraDegrade(stochastic_profile(), seed=0)([tv_tensors.Image(first), tv_tensors.Image(second)])
     assert issubclass(PlainTensorsWarning, UserWarning)
+    assert camdegrade.PlainTensorsWarning is PlainTensorsWarning  # exported where users import from

@@ -20,7 +20,16 @@ from typing import TYPE_CHECKING, Any
 
 from camdegrade._profile_format.header import list_profiles
 from camdegrade._version import __version__
-from camdegrade.errors import BatchError, CamdegradeError, ImageError, PairsError, ProfileError, UnknownProfileError
+from camdegrade.errors import (
+    BatchError,
+    CamdegradeError,
+    ImageError,
+    PairsError,
+    PlainTensorsWarning,
+    ProfileError,
+    ProfileTypeError,
+    UnknownProfileError,
+)
 
 if TYPE_CHECKING:  # what type checkers and IDEs see; at run time, __getattr__ imports these on first use
     from camdegrade.data import BatchDegrade, DegradedDataset, DegradedIterableDataset, IndexedDataset
@@ -57,7 +66,9 @@ __all__ = [
     "ImageError",
     "IndexedDataset",
     "PairsError",
+    "PlainTensorsWarning",
     "ProfileError",
+    "ProfileTypeError",
     "UnknownProfileError",
     "VirtualCamera",
     "__version__",

@@ -45,3 +45,8 @@ class BatchError(CamdegradeError):
         super().__init__(message)
         self.failed = failed
         self.done = done
+
+
+class PlainTensorsWarning(UserWarning):
+    """A sample holds several plain image-shaped tensors and no explicit image: only the first is degraded
+    (torchvision's rule); wrap images in ``tv_tensors.Image`` to degrade them all."""

@@ -29,6 +29,7 @@ from camdegrade.engine import (
     warp_keypoints,
     warp_mask,
 )
+from camdegrade.errors import PlainTensorsWarning
 from camdegrade.inference import Precision, resolve_precision
 from camdegrade.profile import CameraProfile, EffectParams, as_profile
 
@@ -42,11 +43,6 @@ _AXIS_ALIGNED = (
     tv_tensors.BoundingBoxFormat.CXCYWH,
 )
 _NUMPY_DTYPES = (np.uint8, np.float16, np.float32, np.float64)
-
-
-class PlainTensorsWarning(UserWarning):
-    """A sample holds several plain image-shaped tensors and no explicit image: only the first is degraded
-    (torchvision's rule); wrap images in ``tv_tensors.Image`` to degrade them all."""
 
 
 def _is_plain_tensor(inpt: Any) -> bool:
