@@ -108,15 +108,6 @@ def _mean_log2(sim_power: Tensor, real_power: Tensor) -> list[float | None]:
     return [float(value) if ok else None for value, ok in zip(ratios.tolist(), measurable.tolist(), strict=True)]
 
 
-def noise_sums(image: Tensor, clean: Tensor) -> NoiseSums:
-    """The flat-region noise sums of each frame of ``image`` on its ``clean`` frame's flat mask, added up."""
-    image, clean = _batched(image, "image"), _batched(clean, "clean")
-    total = NoiseSums.zeros()
-    for frame, source in zip(image, clean, strict=True):
-        total = total + NoiseSums.measure(frame, source, flat_mask(source))
-    return total
-
-
 def noise_ratios(sim: NoiseSums, real: NoiseSums) -> tuple[float | None, float | None]:
     """``(noise, banding)``: the flat-pixel noise std of ``sim`` over ``real``'s, and the same of the std of the
     per-row means (row banding, RMS over channels); ``None`` where either is not measurable (too few flat pixels
