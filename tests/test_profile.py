@@ -204,7 +204,7 @@ def test_with_effects_inserts_in_physical_order():
 
 
 def test_constructor_checks_types():
-    with pytest.raises(TypeError, match="network must be a DomainShiftNet or None, got Linear"):
+    with pytest.raises(TypeError, match="network must be a DomainShiftNet, a LocalAffineNet or None, got Linear"):
         CameraProfile(torch.nn.Linear(2, 2))
     with pytest.raises(TypeError, match=r"effects\[0\] must be a camdegrade Effect"):
         CameraProfile(None, [torch.nn.Identity()])

@@ -24,12 +24,14 @@ import pytest
 import torch
 
 from bad_inputs import one_line_error, run_cli
-from camdegrade import CameraProfile, DomainShiftNet, list_profiles, load_profile
-from camdegrade._profile_format.check import network_shapes
+from camdegrade import CameraProfile, list_profiles, load_profile
+from camdegrade import network as network_module
+from camdegrade._profile_format.check import FIELD_CHANNELS, LINEAR_TAPS, NETWORK_CLASSES, network_shapes
 from camdegrade._profile_format.effect_facts import BUILT_IN, Bound
 from camdegrade._profile_format.header import read_header
 from camdegrade.effects import EFFECTS, JPEG, Effect, Noise
 from camdegrade.errors import ProfileError
+from camdegrade.network import ARCHITECTURES
 from camdegrade.profile import METADATA_KEY, builtin_profiles_dir
 from test_effects import REGISTERED, strong
 
@@ -550,12 +552,18 @@ def test_the_table_and_the_class_accept_the_same_config_values(name: str) -> Non
     assert compared >= len(facts.settings)
 
 
+@pytest.mark.parametrize("arch", list(ARCHITECTURES))
 @pytest.mark.parametrize("width", [1, 3, 64, 1024])
-def test_the_network_shapes_are_the_networks(width: int) -> None:
+def test_the_network_shapes_are_the_networks(width: int, arch: str) -> None:
     with torch.device("meta"):
-        network = DomainShiftNet(width)
+        network = ARCHITECTURES[arch](width)
     shapes = {f"network.{key}": tuple(value.shape) for key, value in network.state_dict().items()}
-    assert network_shapes(width) == shapes
+    assert network_shapes(width, type(network).__name__) == shapes
+
+
+def test_the_format_knows_every_network_class_and_its_constants() -> None:
+    assert tuple(cls.__name__ for cls in ARCHITECTURES.values()) == NETWORK_CLASSES
+    assert (LINEAR_TAPS, FIELD_CHANNELS) == (network_module.LINEAR_TAPS, network_module.FIELD_CHANNELS)
 
 
 def test_info_refuses_without_importing_torch(tmp_path: Path) -> None:

@@ -34,7 +34,7 @@ from camdegrade.errors import (
 if TYPE_CHECKING:  # what type checkers and IDEs see; at run time, __getattr__ imports these on first use
     from camdegrade.data import BatchDegrade, DegradedDataset, DegradedIterableDataset, IndexedDataset
     from camdegrade.fitting import fit_profile
-    from camdegrade.network import DomainShiftNet
+    from camdegrade.network import DomainShiftNet, LocalAffineNet
     from camdegrade.profile import CameraProfile, load_profile
     from camdegrade.sim import VirtualCamera, simulate_pairs
     from camdegrade.transform import CameraDegrade
@@ -47,6 +47,7 @@ _LAZY: dict[str, str] = {
     "IndexedDataset": "camdegrade.data",
     "fit_profile": "camdegrade.fitting",
     "DomainShiftNet": "camdegrade.network",
+    "LocalAffineNet": "camdegrade.network",
     "CameraProfile": "camdegrade.profile",
     "load_profile": "camdegrade.profile",
     "VirtualCamera": "camdegrade.sim",
@@ -65,6 +66,7 @@ __all__ = [
     "DomainShiftNet",
     "ImageError",
     "IndexedDataset",
+    "LocalAffineNet",
     "PairsError",
     "PlainTensorsWarning",
     "ProfileError",

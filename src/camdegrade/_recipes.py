@@ -26,6 +26,7 @@ FAST: dict[str, Any] = {
     "patience": 4,
     "precision": "auto",
     "width": 64,
+    "arch": "local_affine",
     "val_fraction": 0.15,
     "effects": ("noise", "vignetting"),
 }
@@ -40,6 +41,7 @@ PAPER: dict[str, Any] = {
     "crops_per_pair": 8,
     "schedule": "step",
     "patience": 0,
+    "arch": "paper",
 }
 RECIPES: dict[str, dict[str, Any]] = {"fast": FAST, "paper": PAPER}
 
@@ -65,6 +67,8 @@ class RecipeField:
 
 
 SCHEDULES: tuple[str, ...] = ("step", "cosine")
+#: The network architectures (``camdegrade.network.ARCHITECTURES``, which imports torch; a test keeps them equal).
+ARCHS: tuple[str, ...] = ("paper", "local_affine")
 TRAIN_PRECISIONS: tuple[str, ...] = ("auto", "float32", "bfloat16")
 
 FIELDS: tuple[RecipeField, ...] = (
@@ -88,6 +92,12 @@ FIELDS: tuple[RecipeField, ...] = (
         TRAIN_PRECISIONS,
     ),
     RecipeField("width", "count", "network width (32 runs about 4x cheaper, see 'camdegrade distill')"),
+    RecipeField(
+        "arch",
+        "choice",
+        "network: local_affine (no 4-pixel grid, starts from a least-squares linear baseline) or the paper's",
+        ARCHS,
+    ),
     RecipeField("val_fraction", "fraction", "share of scenes held out to choose the best epoch"),
     RecipeField("effects", "names", "effect stages fitted after the network, from the registry (none: network only)"),
 )

@@ -13,7 +13,7 @@ from torch import Tensor
 
 from camdegrade._fingerprint import module_tensors, tensors_fingerprint
 from camdegrade._pixels import bytes_to_unit
-from camdegrade.network import SIZE_MULTIPLE, DomainShiftNet
+from camdegrade.network import SIZE_MULTIPLE, DomainShiftNet, ShiftNetwork
 from camdegrade.synthetic import dead_leaves_images
 
 #: How the network runs at inference: ``"float32"`` is the reference; ``"bfloat16"`` runs the convolutions and
@@ -52,7 +52,7 @@ def resolve_precision(precision: Precision, device: torch.device) -> str:
     return precision
 
 
-def run_network(network: DomainShiftNet, image: Tensor, precision: Precision = "float32") -> Tensor:
+def run_network(network: ShiftNetwork, image: Tensor, precision: Precision = "float32") -> Tensor:
     """The network's float32 output for ``image`` (float in [0, 1], or uint8 read as ``value / 255``), computed at
     ``precision`` (see :data:`Precision`).
 
@@ -72,9 +72,12 @@ def run_network(network: DomainShiftNet, image: Tensor, precision: Precision = "
     return output.float().contiguous()
 
 
-def _plan_applies(network: DomainShiftNet, image: Tensor, concrete: str) -> bool:
-    """Whether :class:`CpuInference` can stand in for the module: float32 weights and a uint8 or float32 image on
-    the CPU, bfloat16 only where the CPU computes it natively, and no graph to build."""
+def _plan_applies(network: ShiftNetwork, image: Tensor, concrete: str) -> bool:
+    """Whether :class:`CpuInference` can stand in for the module: the paper's network (the plan replaces its
+    transposed convolutions), float32 weights and a uint8 or float32 image on the CPU, bfloat16 only where the CPU
+    computes it natively, and no graph to build."""
+    if type(network) is not DomainShiftNet:
+        return False
     if image.device.type != "cpu" or image.dtype not in (torch.uint8, torch.float32):
         return False
     if concrete == "bfloat16" and not native_bfloat16(image.device):

@@ -16,7 +16,7 @@ from torch import Tensor, nn
 
 from camdegrade._files import atomic_path
 from camdegrade._pixels import bytes_to_unit
-from camdegrade._profile_format.check import listing, network_config
+from camdegrade._profile_format.check import listing, network_class, network_config
 from camdegrade._profile_format.header import FORMAT_NAME as FORMAT_NAME
 from camdegrade._profile_format.header import FORMAT_VERSION as FORMAT_VERSION
 from camdegrade._profile_format.header import MAX_EFFECTS as MAX_EFFECTS
@@ -31,7 +31,7 @@ from camdegrade.effects import STAGES, Effect, build_effect
 from camdegrade.effects.chain import apply_effects, check_chain, check_params
 from camdegrade.errors import ProfileError
 from camdegrade.inference import Precision, run_network
-from camdegrade.network import DomainShiftNet
+from camdegrade.network import ARCHITECTURES, ShiftNetwork
 
 EffectParams = list[dict[str, Tensor]]
 
@@ -40,7 +40,8 @@ class CameraProfile(nn.Module):
     """A camera's degradation: the clean → captured network, then its effect stages, plus metadata.
 
     Args:
-        network: the fitted :class:`DomainShiftNet`, or ``None`` for a profile made of effect stages only.
+        network: the fitted network (:class:`DomainShiftNet` or :class:`LocalAffineNet`), or ``None`` for a
+            profile made of effect stages only.
         effects: effect stages applied after the network, in physical order (optics → sensor → ISP → codec).
         name: short identifier, e.g. ``"city100-iphonex"``.
         description: one line for humans.
@@ -59,7 +60,7 @@ class CameraProfile(nn.Module):
 
     def __init__(
         self,
-        network: DomainShiftNet | None,
+        network: ShiftNetwork | None,
         effects: Sequence[Effect] = (),
         *,
         name: str = "",
@@ -69,8 +70,8 @@ class CameraProfile(nn.Module):
         package_version: str = __version__,
     ) -> None:
         super().__init__()
-        if network is not None and not isinstance(network, DomainShiftNet):
-            raise TypeError(f"network must be a DomainShiftNet or None, got {type(network).__name__}")
+        if network is not None and not isinstance(network, ShiftNetwork):
+            raise TypeError(f"network must be a DomainShiftNet, a LocalAffineNet or None, got {type(network).__name__}")
         check_chain(effects)
         for label, text in (("name", name), ("description", description), ("package_version", package_version)):
             if not isinstance(text, str):  # a profile file stores text; None would come back as 'None'
@@ -146,7 +147,8 @@ class CameraProfile(nn.Module):
         """Everything but the tensors. Stored as canonical JSON under the one safetensors metadata key
         :data:`METADATA_KEY` (safetensors writes several keys in arbitrary order, which would make equal profiles
         differ in bytes)."""
-        network = None if self.network is None else {"arch": "DomainShiftNet", "config": self.network.config()}
+        network = self.network
+        network = None if network is None else {"arch": type(network).__name__, "config": network.config()}
         return {
             "format": FORMAT_NAME,
             "format_version": FORMAT_VERSION,
@@ -189,7 +191,7 @@ class CameraProfile(nn.Module):
 
     def describe(self) -> str:
         """A few lines for humans: name, network, effect chain, how it was fitted, held-out quality."""
-        network = "none" if self.network is None else f"DomainShiftNet({self.network.config()})"
+        network = "none" if self.network is None else f"{type(self.network).__name__}({self.network.config()})"
         lines = [
             f"name:        {self.name or '(unnamed)'}",
             f"description: {self.description or '-'}",
@@ -293,9 +295,10 @@ def _profile_from_metadata(metadata: Mapping[str, Any], path: Path) -> CameraPro
     )
 
 
-def _network_from_spec(spec: Any, path: Path) -> DomainShiftNet | None:
+def _network_from_spec(spec: Any, path: Path) -> ShiftNetwork | None:
     if spec is None:
         return None
+    cls = next(cls for cls in ARCHITECTURES.values() if cls.__name__ == network_class(spec, path))
     config = network_config(spec, path)
     with torch.device("meta"):  # no memory spent on weights the file replaces
-        return DomainShiftNet(**config)
+        return cls(**config)

@@ -136,18 +136,33 @@ def _declared(
 # --- the network --------------------------------------------------------------------------------------------------
 
 
-def network_config(spec: Any, path: Path) -> Any:
-    """The constructor arguments of the network a (non-null) ``network`` metadata entry declares."""
-    if not isinstance(spec, dict) or spec.get("arch") != "DomainShiftNet":
+#: The network classes a profile may declare in its ``network`` entry (``camdegrade.network``'s classes, which import
+#: torch; a test keeps the two in step), each with the tensors it holds for a width.
+NETWORK_CLASSES = ("DomainShiftNet", "LocalAffineNet")
+#: Taps of ``LocalAffineNet``'s full-resolution filter and channels of its colour field (``camdegrade.network``).
+LINEAR_TAPS, FIELD_CHANNELS = 7, 12
+
+
+def network_class(spec: Any, path: Path) -> str:
+    """The class name a (non-null) ``network`` metadata entry declares, refused unless it is one of
+    :data:`NETWORK_CLASSES`."""
+    if not isinstance(spec, dict) or spec.get("arch") not in NETWORK_CLASSES:
+        choices = " or ".join(repr(name) for name in NETWORK_CLASSES)
         raise ProfileError(
-            f"profile {str(path)!r} metadata 'network' must be null or {{'arch': 'DomainShiftNet', 'config': ...}}, "
+            f"profile {str(path)!r} metadata 'network' must be null or {{'arch': {choices}, 'config': ...}}, "
             f"got {short_repr(spec)}"
         )
+    return spec["arch"]
+
+
+def network_config(spec: Any, path: Path) -> Any:
+    """The constructor arguments of the network a (non-null) ``network`` metadata entry declares."""
+    network_class(spec, path)
     return spec.get("config", {})
 
 
 def check_network_config(config: Any) -> None:
-    """Raise as ``DomainShiftNet(**config)`` would for a config it refuses (a test keeps the two in step)."""
+    """Raise as the network's constructor would for a config it refuses (a test keeps the two in step)."""
     if not isinstance(config, dict):
         raise TypeError(f"the network config must be a mapping, got {type(config).__name__}")
     unexpected = sorted(set(config) - {"width"})
@@ -158,14 +173,25 @@ def check_network_config(config: Any) -> None:
         raise ValueError(f"width must be an integer from 1 to {MAX_NETWORK_WIDTH}, got width={short_repr(width)}")
 
 
-def network_shapes(width: int) -> dict[str, tuple[int, ...]]:
-    """The tensors of a ``DomainShiftNet(width)`` in a profile (a test compares them with the module's)."""
+def network_shapes(width: int, arch: str = "DomainShiftNet") -> dict[str, tuple[int, ...]]:
+    """The tensors of the network class ``arch`` at ``width`` in a profile (a test compares them with the module's)."""
     double = 2 * width
-    return {
+    shapes = {
         "network.encode1.weight": (width, 3, 3, 3),
         "network.encode1.bias": (width,),
         "network.encode2.weight": (double, width, 3, 3),
         "network.encode2.bias": (double,),
+    }
+    if arch == "LocalAffineNet":
+        return shapes | {
+            "network.linear.weight": (3, 3, LINEAR_TAPS, LINEAR_TAPS),
+            "network.linear.bias": (3,),
+            "network.decode1.weight": (width, double, 1, 1),
+            "network.decode1.bias": (width,),
+            "network.decode2.weight": (FIELD_CHANNELS, width, 1, 1),
+            "network.decode2.bias": (FIELD_CHANNELS,),
+        }
+    return shapes | {
         "network.decode1.weight": (double, width, 2, 2),
         "network.decode1.bias": (width,),
         "network.decode2.weight": (width, 3, 2, 2),
@@ -182,7 +208,7 @@ def network_shapes_of(spec: Any, path: Path) -> dict[str, tuple[int, ...]]:
         check_network_config(config)
     except (TypeError, ValueError) as error:
         raise ProfileError(f"profile {str(path)!r} has invalid metadata: {error}") from None
-    return network_shapes(config.get("width", DEFAULT_NETWORK_WIDTH))
+    return network_shapes(config.get("width", DEFAULT_NETWORK_WIDTH), spec["arch"])
 
 
 # --- the effects --------------------------------------------------------------------------------------------------

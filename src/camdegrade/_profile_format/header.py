@@ -30,6 +30,7 @@ from camdegrade._profile_format.check import (
     check_profile,
     check_values,
     effect_facts,
+    network_class,
     network_config,
     read_arrays,
     tensor_entries,
@@ -208,7 +209,7 @@ class ProfileHeader:
         self.check_values()
         metadata = self.metadata
         spec = metadata.get("network")
-        network = "none" if spec is None else f"DomainShiftNet({network_config(spec, self.path)})"
+        network = "none" if spec is None else f"{network_class(spec, self.path)}({network_config(spec, self.path)})"
         lines = [
             f"name:        {self.name or '(unnamed)'}",
             f"description: {self.description or '-'}",

@@ -3,7 +3,7 @@ the profile's network gives on clean images (knowledge distillation), and the ef
 
 Steps: clean images (a folder, tensors, or generated dead-leaves images) → split by image into training and
 validation → the teacher network's float32 output on each → :func:`~camdegrade.fitting.training.fit_network` of a
-``DomainShiftNet(width)`` on (clean, teacher output) with the given recipe → a :class:`CameraProfile` with the
+a network of ``width`` on (clean, teacher output) with the given recipe → a :class:`CameraProfile` with the
 student network and copies of the teacher's effect stages, whose metadata records how it was made and how close
 the student came to the teacher on the validation images.
 
@@ -77,7 +77,7 @@ def distill_profile(
         images: clean images like those the profile will degrade: a folder (read recursively; files that cannot
             be read are skipped and logged), or ``(3, H, W)`` tensors (uint8, or float in [0, 1]). ``None``:
             :data:`SYNTHETIC_IMAGES` generated dead-leaves images (:mod:`camdegrade.synthetic`).
-        width: the student network's width (:class:`~camdegrade.network.DomainShiftNet`); ``None``: 32, or a
+        width: the student network's width (its architecture is the recipe's ``arch``); ``None``: 32, or a
             :class:`FitConfig` recipe's own.
         recipe, epochs: the training recipe (:class:`FitConfig` or a name of its recipes) and its epochs; the
             recipe's ``val_fraction`` is the share of the images (at least one) that choose the best epoch and give

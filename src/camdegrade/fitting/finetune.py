@@ -16,7 +16,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from camdegrade.network import DomainShiftNet
+from camdegrade.network import ShiftNetwork
 from camdegrade.profile import CameraProfile
 
 #: Full-batch Adam steps on the decoder, over calibration pairs of about ``PIXELS`` pixels in all.
@@ -32,12 +32,13 @@ def finetune_network(
     *,
     steps: int = STEPS,
     pixels: int = PIXELS,
-) -> DomainShiftNet:
+) -> ShiftNetwork:
     """A copy of ``profile.network`` whose decoder is trained ``steps`` full-batch Adam steps (L2) so that the
     profile's deterministic output matches ``captures`` (float ``(3, H, W)`` in [0, 1]) on evenly chosen pairs of
     about ``pixels`` pixels in all.
 
-    The decoder alone (the two transposed convolutions, where block and checkerboard patterns come from), and the
+    The decoder alone (the paper's two transposed convolutions, where block and checkerboard patterns come from;
+    a :class:`~camdegrade.network.LocalAffineNet`'s colour-field convolutions and full-resolution filter), and the
     whole batch at every step: a few pairs' noise would otherwise steer small crops, and the fine-tune would fit the
     noise of the calibration captures rather than the network's error.
 
@@ -50,7 +51,7 @@ def finetune_network(
     tuned = copy.deepcopy(profile.without_randomness())
     network = tuned.network
     assert network is not None  # a copy of a profile with a network
-    decoder = [*network.decode1.parameters(), *network.decode2.parameters()]
+    decoder = [parameter for name, parameter in network.named_parameters() if not name.startswith("encode")]
     for parameter in decoder:
         parameter.requires_grad_(True)
     optimizer = torch.optim.Adam(decoder, lr=LEARNING_RATE)

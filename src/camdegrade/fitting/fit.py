@@ -28,6 +28,7 @@ from camdegrade._recipes import FAST
 from camdegrade._threads import torch_threads
 from camdegrade._version import __version__
 from camdegrade.effects import EFFECTS, STAGES
+from camdegrade.fitting.baseline import baseline_psnr, fit_linear_baseline
 from camdegrade.fitting.noise import CALIBRATION_PAIRS, fit_stage_in_chain
 from camdegrade.fitting.pairs import MISSING, UNREADABLE
 from camdegrade.fitting.pairset import PairSet, PairsSource, simulate
@@ -36,12 +37,13 @@ from camdegrade.fitting.training import (
     FitConfig,
     ImagePair,
     fit_network,
+    new_network,
     resolve_recipe,
     training_dtype,
 )
 from camdegrade.measures.fidelity import measure_fidelity
 from camdegrade.metrics import psnr
-from camdegrade.network import DomainShiftNet
+from camdegrade.network import LocalAffineNet, ShiftNetwork
 from camdegrade.profile import CameraProfile, as_profile
 
 __all__ = [
@@ -96,7 +98,7 @@ def fit_profile(
         init_from: start the network from this profile's network (a :class:`CameraProfile`, a built-in name or a
             path) instead of a fresh initialisation from the recipe's seed: a refit on new pairs, usually with fewer
             epochs and a lower ``lr`` (e.g. 20 and 0.001). Its width must be the recipe's. Recorded in
-            ``fitted['init_from']``.
+            ``fitted['init_from']``. The fit keeps that network's architecture (``arch``).
         checkpoint: training state written after every epoch; with ``resume=True`` the fit continues from it.
         callback: called with an :class:`EpochResult` after every epoch (notebooks, Lightning loggers).
         log: called with human-readable progress lines (pairs found, shifts, effect fits, warnings).
@@ -110,7 +112,9 @@ def fit_profile(
     config = resolve_recipe(recipe)
     _check_arguments(pairs, name, description)
     check_device(device)
-    initial, init_label = _initial_network(init_from, config.width)
+    initial, init_label = _initial_network(init_from, config)
+    if initial is not None:  # a refit continues the network it starts from, whatever the recipe's default
+        config = config.replace(arch=initial.arch)
     with torch_threads(threads):
         pair_set = pairs if isinstance(pairs, PairSet) else PairSet.load(pairs, log=say)
         train, val = pair_set.validation_split(config.val_fraction, config.seed)
@@ -118,6 +122,9 @@ def fit_profile(
         if config.patience and not len(val):
             say("no validation pairs: the fit runs every epoch (early stopping needs validation)")
         started = time.perf_counter()
+        baseline = fit_linear_baseline(train.images, seed=config.seed)
+        if initial is None and config.arch == LocalAffineNet.arch:
+            initial = _from_baseline(config, baseline)
         network, history = fit_network(
             train.images,
             val.images,
@@ -136,7 +143,7 @@ def fit_profile(
         profile.fitted = _record(pair_set, train, val, config, history, minutes, effect_notes)
         profile.fitted["init_from"] = init_label
         profile.fitted["trained_in"] = str(training_dtype(config.precision, torch.device(device))).split(".")[-1]
-        quality = _quality(profile, val) if len(val) else {}
+        quality = _quality(profile, val, baseline) if len(val) else {}
         record_quality(profile, quality, quality_warnings(quality), say)
         return profile
 
@@ -158,15 +165,27 @@ def _check_arguments(pairs: Any, name: Any, description: Any) -> None:
 
 def quality_warnings(quality: dict[str, Any]) -> list[str]:
     """What a fit's validation scores (:func:`_quality`'s) say is wrong: a network that does worse than passing the
-    clean image through unchanged (too few epochs, too few pairs, or pairs that show no difference)."""
+    clean image through unchanged (too few epochs, too few pairs, or pairs that show no difference), or worse than
+    the least-squares linear baseline (:mod:`camdegrade.fitting.baseline`: a simple answer it should beat)."""
     network, identity = quality.get("network_psnr_db"), quality.get("identity_psnr_db")
-    if network is None or identity is None or not network < identity:
-        return []
-    return [
-        f"the fitted network is worse than the identity on the validation pairs ({_db(network)} vs {_db(identity)} "
-        "for the clean images unchanged): fit longer (--epochs), on more pairs, or check that the captures differ "
-        "from the clean images"
-    ]
+    baseline = quality.get("baseline_psnr_db")
+    if network is not None and identity is not None and network < identity:
+        return [
+            f"the fitted network is worse than the identity on the validation pairs ({_db(network)} vs "
+            f"{_db(identity)} for the clean images unchanged): fit longer (--epochs), on more pairs, or check that "
+            "the captures differ from the clean images"
+        ]
+    if network is not None and baseline is not None and network < baseline - BASELINE_TOLERANCE_DB:
+        return [
+            f"the fitted network is worse than a linear colour filter fitted by least squares on the same pairs "
+            f"({_db(network)} vs {_db(baseline)} on the validation pairs): fit longer (--epochs), or use "
+            "--arch local_affine, which starts from that filter"
+        ]
+    return []
+
+
+#: A network within this much of the baseline's validation PSNR is not warned about (float and crop noise).
+BASELINE_TOLERANCE_DB = 0.05
 
 
 def _db(value: float) -> str:
@@ -260,9 +279,19 @@ def _record(
     }
 
 
+def _from_baseline(config: FitConfig, baseline: tuple[torch.Tensor, torch.Tensor]) -> ShiftNetwork:
+    """A fresh :class:`LocalAffineNet` (seeded) whose full-resolution filter is the least-squares baseline: the fit
+    starts at the simple answer and can only keep or improve on it."""
+    network = new_network(config)
+    with torch.no_grad():
+        network.linear.weight.copy_(baseline[0])
+        network.linear.bias.copy_(baseline[1])
+    return network
+
+
 def _initial_network(
-    init_from: CameraProfile | str | os.PathLike[str] | None, width: int
-) -> tuple[DomainShiftNet | None, str | None]:
+    init_from: CameraProfile | str | os.PathLike[str] | None, config: FitConfig
+) -> tuple[ShiftNetwork | None, str | None]:
     """The network ``init_from`` names (checked before any pair is loaded) and how the metadata records it: the name
     or path as given, or a profile object's name."""
     if init_from is None:
@@ -275,10 +304,10 @@ def _initial_network(
     label = (profile.name or "(unnamed profile)") if isinstance(init_from, CameraProfile) else os.fspath(init_from)
     if profile.network is None:
         raise ValueError(f"init_from: profile {label!r} has no network to start from (it holds effect stages only)")
-    if profile.network.width != width:
+    if profile.network.width != config.width:
         raise ValueError(
             f"init_from: profile {label!r} has a network of width {profile.network.width}; this fit's width is "
-            f"{width}, so it cannot start from it (pass width={profile.network.width})"
+            f"{config.width}, so it cannot start from it (pass width={profile.network.width})"
         )
     return profile.network, label
 
@@ -296,10 +325,11 @@ def _mean_squared_error(predictions: Sequence[torch.Tensor], targets: Sequence[t
     return total / sum(t.numel() for t in targets)
 
 
-def _quality(profile: CameraProfile, val: PairSet) -> dict[str, Any]:
-    """Validation PSNR of identity, network mean and the full (stochastic, seeded) profile against the captures,
-    and how close the sampled profile looks to the captures (``fidelity``: grid ratio, band log2 power ratios, flat
-    noise and banding ratios, :mod:`camdegrade.measures.fidelity`; ``None`` where not measurable)."""
+def _quality(profile: CameraProfile, val: PairSet, baseline: tuple[torch.Tensor, torch.Tensor]) -> dict[str, Any]:
+    """Validation PSNR of identity, the least-squares linear baseline (:mod:`camdegrade.fitting.baseline`), network
+    mean and the full (stochastic, seeded) profile against the captures, and how close the sampled profile looks to
+    the captures (``fidelity``: grid ratio, band log2 power ratios, flat noise and banding ratios,
+    :mod:`camdegrade.measures.fidelity`; ``None`` where not measurable)."""
     identity, network, full = [], [], []
     sampled = simulate(profile, val.cleans(), seed=0, stream="quality")
     with torch.no_grad():
@@ -310,6 +340,7 @@ def _quality(profile: CameraProfile, val: PairSet) -> dict[str, Any]:
     return {
         "validation_pairs": len(val),
         "identity_psnr_db": round(sum(identity) / len(identity), 3),
+        "baseline_psnr_db": round(baseline_psnr(*baseline, val.unit_pairs()), 3),
         "network_psnr_db": round(sum(network) / len(network), 3),
         "profile_psnr_db": round(sum(full) / len(full), 3),
         "fidelity": _fidelity(sampled, val),

@@ -34,7 +34,7 @@ from camdegrade.errors import CamdegradeError
 from camdegrade.fitting.checkpoint import TrainingState, capture_state, load_checkpoint, save_checkpoint
 from camdegrade.inference import native_bfloat16, run_network
 from camdegrade.metrics import psnr
-from camdegrade.network import MAX_WIDTH, SIZE_MULTIPLE, DomainShiftNet
+from camdegrade.network import ARCHITECTURES, MAX_WIDTH, SIZE_MULTIPLE, ShiftNetwork, build_network
 
 #: One aligned pair: (clean, captured), ``(3, H, W)`` each, same size: uint8 (as read), or float in [0, 1].
 ImagePair = tuple[Tensor, Tensor]
@@ -69,7 +69,9 @@ class FitConfig:
             stops early. The best epoch's weights are returned either way.
         schedule: one of :data:`SCHEDULES`; ``lr_halving_epochs`` is used by ``"step"`` only.
         precision: one of :data:`TRAIN_PRECISIONS`.
-        width: the network's width (:class:`DomainShiftNet`; the paper's 64).
+        width: the network's width (the paper's 64).
+        arch: the network (:data:`~camdegrade.network.ARCHITECTURES`): ``"local_affine"`` (the fast recipe's; no
+            4-pixel grid) or ``"paper"`` (the paper recipe's, :class:`~camdegrade.network.DomainShiftNet`).
         val_fraction: share of *scenes* held out for choosing the best epoch and checking the effect stages
             (``fit_profile``; ``distill_profile`` holds out that share of its images, at least one).
         effects: effect stages ``fit_profile`` fits after the network (names from ``EFFECTS``; ``()``: network only).
@@ -87,6 +89,7 @@ class FitConfig:
     patience: int = FAST["patience"]
     precision: str = FAST["precision"]
     width: int = FAST["width"]
+    arch: str = FAST["arch"]
     val_fraction: float = FAST["val_fraction"]
     effects: tuple[str, ...] = FAST["effects"]
 
@@ -103,7 +106,7 @@ class FitConfig:
             raise ValueError(f"crop must be a multiple of {SIZE_MULTIPLE}, got crop={self.crop}")
         if not (isinstance(self.lr, (int, float)) and math.isfinite(self.lr) and self.lr > 0):
             raise ValueError(f"lr must be a positive number, got lr={self.lr!r}")
-        for name, allowed in (("schedule", SCHEDULES), ("precision", TRAIN_PRECISIONS)):
+        for name, allowed in (("schedule", SCHEDULES), ("precision", TRAIN_PRECISIONS), ("arch", tuple(ARCHITECTURES))):
             if getattr(self, name) not in allowed:
                 raise ValueError(f"{name} must be one of {allowed}, got {name}={getattr(self, name)!r}")
         share = self.val_fraction
@@ -173,7 +176,7 @@ def random_crop_batch(pairs: Sequence[ImagePair], crop: int, count: int, generat
     return as_unit(torch.stack(clean_crops)), as_unit(torch.stack(captured_crops))
 
 
-def evaluate_psnr(network: DomainShiftNet, pairs: Sequence[ImagePair], device: torch.device | str = "cpu") -> float:
+def evaluate_psnr(network: ShiftNetwork, pairs: Sequence[ImagePair], device: torch.device | str = "cpu") -> float:
     """Mean PSNR (dB) of the network's output against the captures, over full-size pairs."""
     if not pairs:
         return float("nan")
@@ -197,10 +200,10 @@ def fit_network(
     resume: bool = False,
     progress: bool = False,
     pair_names: Sequence[str] | None = None,
-    initial: DomainShiftNet | None = None,
-) -> tuple[DomainShiftNet, list[EpochResult]]:
-    """Train a :class:`DomainShiftNet` mapping clean → captured; return the best epoch's weights (by ``val`` PSNR,
-    or by training loss when ``val`` is empty) and the per-epoch history.
+    initial: ShiftNetwork | None = None,
+) -> tuple[ShiftNetwork, list[EpochResult]]:
+    """Train a network of ``config.arch`` mapping clean → captured; return the best epoch's weights (by ``val``
+    PSNR, or by training loss when ``val`` is empty) and the per-epoch history.
 
     Same pairs, config and machine → identical weights: initialisation and crops come from ``config.seed``.
     With ``config.patience``, the fit stops once the validation PSNR has not risen by 0.01 dB for that many
@@ -213,9 +216,11 @@ def fit_network(
     ``progress`` shows a bar over the fit's steps with the time left.
 
     ``initial``: start from this network's weights (copied; it is not changed) instead of a fresh initialisation
-    from ``config.seed``, e.g. to refit a profile's network on new pairs. It must have the width of the network
-    trained here (``config.width``), else a ``ValueError``. A resumed fit continues from its
-    checkpoint's weights.
+    from ``config.seed``, e.g. to refit a profile's network on new pairs, or a linear baseline. It must have the
+    architecture and width of the network trained here (``config.arch``, ``config.width``), else a
+    ``ValueError``. Its validation PSNR is the score every epoch must beat: a fit that never does returns it
+    unchanged (best epoch 0), never worse than where it started. A resumed fit continues from its checkpoint's
+    weights.
     """
     config = config or FitConfig()
     _check_pairs(train, config.crop)
@@ -227,7 +232,8 @@ def fit_network(
         check_writable(checkpoint)  # before training, not after its first epoch
     fingerprint = pairs_fingerprint(train, val, pair_names)
     network, optimizer, scheduler, generator = _new_training(config, device, initial)
-    state = _initial_state(network, optimizer, scheduler, generator, config, checkpoint, resume, fingerprint)
+    start = _starting_score(network, val, device) if initial is not None else None
+    state = _initial_state(network, optimizer, scheduler, generator, config, checkpoint, resume, fingerprint, start)
     step = _TrainStep(_distributed(network, device) if world > 1 else network, optimizer, config, device, world)
     bar = _progress_bar(config, len(train), state.epoch, enabled=progress and rank == 0)
     try:
@@ -300,20 +306,34 @@ def _progress_bar(config: FitConfig, pairs: int, done_epochs: int, *, enabled: b
     )
 
 
-def _check_initial(initial: DomainShiftNet | None) -> None:
-    if initial is not None and not isinstance(initial, DomainShiftNet):
-        raise TypeError(f"initial must be a DomainShiftNet or None, got {type(initial).__name__}")
+def _check_initial(initial: ShiftNetwork | None) -> None:
+    if initial is not None and not isinstance(initial, ShiftNetwork):
+        raise TypeError(f"initial must be a DomainShiftNet, a LocalAffineNet or None, got {type(initial).__name__}")
 
 
-def _new_training(config: FitConfig, device: torch.device | str, initial: DomainShiftNet | None = None):
+def _starting_score(network: ShiftNetwork, val: Sequence[ImagePair], device) -> tuple[float, dict[str, Tensor]] | None:
+    """The validation PSNR of the network a fit starts from and its weights: the score to beat (``None`` without
+    validation pairs)."""
+    if not val:
+        return None
+    score = _from_rank0(evaluate_psnr(network, val, device), device)
+    return score, {k: v.detach().clone() for k, v in network.state_dict().items()}
+
+
+def new_network(config: FitConfig) -> ShiftNetwork:
+    """A network of ``config.arch`` and ``config.width``, initialised from ``config.seed``."""
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(derive_seed(config.seed, "network-init"))
-        network = DomainShiftNet(config.width)
+        return build_network(config.arch, config.width)
+
+
+def _new_training(config: FitConfig, device: torch.device | str, initial: ShiftNetwork | None = None):
+    network = new_network(config)
     if initial is not None:
-        if initial.width != network.width:
+        if initial.arch != network.arch or initial.width != network.width:
             raise ValueError(
-                f"initial must be a DomainShiftNet of width {network.width} (the recipe's width), got "
-                f"width={initial.width}"
+                f"initial must be a network of arch {network.arch!r} and width {network.width} (the recipe's), "
+                f"got arch={initial.arch!r}, width={initial.width}"
             )
         network.load_state_dict(initial.state_dict())  # copies the values, from any device
     network.to(device)
@@ -347,16 +367,17 @@ _SAMPLED_PIXELS = 4096
 
 
 def _initial_state(
-    network, optimizer, scheduler, generator, config, checkpoint, resume, fingerprint: str
+    network, optimizer, scheduler, generator, config, checkpoint, resume, fingerprint: str, start=None
 ) -> TrainingState:
+    best_score, best_network = start if start is not None else (-math.inf, None)
     fresh = capture_state(
         network,
         optimizer,
         scheduler,
         generator,
         epoch=0,
-        best_score=-math.inf,
-        best_network=None,
+        best_score=best_score,
+        best_network=best_network,
         config=config.training_dict(),
         data=fingerprint,
     )
@@ -437,7 +458,7 @@ def _train_one_epoch(step: _TrainStep, train, generator, rank: int, bar: tqdm) -
     return loss_sum / total_crops
 
 
-def _distributed(network: DomainShiftNet, device: torch.device | str) -> torch.nn.Module:
+def _distributed(network: ShiftNetwork, device: torch.device | str) -> torch.nn.Module:
     device = torch.device(device)
     device_ids = (
         [device.index if device.index is not None else torch.cuda.current_device()] if device.type == "cuda" else None

@@ -1,0 +1,132 @@
+"""The grid-free network (``arch="local_affine"``) and the least-squares linear baseline it starts from."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+import torch.nn.functional as F
+
+from camdegrade import CameraProfile, load_profile
+from camdegrade._recipes import ARCHS, FAST, PAPER
+from camdegrade.fitting import FitConfig
+from camdegrade.fitting.baseline import apply_linear_baseline, baseline_psnr, fit_linear_baseline
+from camdegrade.fitting.training import fit_network
+from camdegrade.measures.fidelity import grid_rms
+from camdegrade.network import ARCHITECTURES, DomainShiftNet, LocalAffineNet, build_network
+from camdegrade.synthetic import dead_leaves_images
+
+
+def _randomised(network: torch.nn.Module, seed: int) -> torch.nn.Module:
+    generator = torch.Generator().manual_seed(seed)
+    with torch.no_grad():
+        for parameter in network.parameters():
+            parameter.copy_(torch.randn(parameter.shape, generator=generator) * 0.2)
+    return network.eval()
+
+
+def test_the_recipes_name_the_architectures_the_network_module_builds() -> None:
+    assert tuple(ARCHITECTURES) == ARCHS
+    assert (FAST["arch"], PAPER["arch"]) == ("local_affine", "paper")
+    assert type(build_network("paper", 8)) is DomainShiftNet
+    assert type(build_network("local_affine", 8)) is LocalAffineNet
+    with pytest.raises(ValueError, match=r"arch must be one of \('paper', 'local_affine'\), got arch='unet'"):
+        build_network("unet")
+    with pytest.raises(ValueError, match="arch must be one of"):
+        FitConfig(arch="unet")
+
+
+def test_a_fresh_local_affine_network_passes_the_image_through_at_any_size() -> None:
+    for size in ((1, 1), (5, 7), (64, 48)):
+        image = torch.rand(2, 3, *size, generator=torch.Generator().manual_seed(1))
+        assert torch.equal(LocalAffineNet(8)(image), image)
+
+
+def test_on_a_flat_image_the_paper_network_prints_a_4_pixel_period_and_local_affine_none() -> None:
+    flat = torch.full((1, 3, 64, 64), 0.4)
+    with torch.no_grad():
+        paper = _randomised(DomainShiftNet(8), 0)(flat)[0, :, 8:-8, 8:-8]
+        local = _randomised(LocalAffineNet(8), 0)(flat)[0, :, 8:-8, 8:-8]
+    # The paper's output repeats every 4 pixels (the transposed convolutions' taps) and varies within a period.
+    assert torch.allclose(paper[:, :-4], paper[:, 4:], atol=1e-6)
+    assert float(paper.std()) > 1e-3
+    # The local-affine one is flat wherever its input is: a smooth field times a filtered constant.
+    assert float(local.std(dim=(1, 2)).max()) < 1e-5
+
+
+def test_on_a_photo_like_image_local_affine_adds_no_grid_where_the_paper_network_does() -> None:
+    image = dead_leaves_images(1, 96, seed=3)[0].float()[None] / 255
+    with torch.no_grad():
+        paper = _randomised(DomainShiftNet(8), 1)(image)
+        local = _randomised(LocalAffineNet(8), 1)(image)
+
+    def grid_share(picture: torch.Tensor) -> float:  # the 4×4-periodic pattern against the image's contrast
+        return grid_rms(picture[0]) / (255 * float(picture.std()))
+
+    assert grid_share(paper) > 5 * grid_share(image)
+    assert grid_share(local) < 1.5 * grid_share(image)
+
+
+def test_profiles_record_the_architecture_and_load_it_back(tmp_path) -> None:
+    network = _randomised(LocalAffineNet(4), 2)
+    path = CameraProfile(network, name="la").save(tmp_path / "la.safetensors")
+    loaded = load_profile(path)
+    assert loaded.metadata()["network"] == {"arch": "LocalAffineNet", "config": {"width": 4}}
+    assert type(loaded.network) is LocalAffineNet
+    image = torch.rand(1, 3, 20, 24, generator=torch.Generator().manual_seed(0))
+    with torch.no_grad():
+        assert torch.equal(loaded.network(image), network(image))
+    assert "LocalAffineNet({'width': 4})" in loaded.describe()
+
+
+def test_the_built_in_profiles_of_the_paper_network_still_load() -> None:
+    assert type(load_profile("city100-iphonex").network) is DomainShiftNet
+
+
+def test_the_linear_baseline_recovers_a_known_colour_filter() -> None:
+    kernel = torch.zeros(3, 3, 3, 3)
+    kernel[:, :, 1, 1] = torch.tensor([[0.8, 0.1, 0.0], [0.0, 0.7, 0.1], [0.1, 0.0, 0.6]])
+    kernel[0, 0] += torch.tensor([[0.0, 0.05, 0.0], [0.05, -0.2, 0.05], [0.0, 0.05, 0.0]])
+    bias = torch.tensor([0.05, -0.02, 0.1])
+    cleans = [image.float() / 255 for image in dead_leaves_images(3, 64, seed=5)]
+    pairs = [(clean, F.conv2d(F.pad(clean[None], (1, 1, 1, 1), mode="replicate"), kernel, bias)[0]) for clean in cleans]
+    weight, fitted_bias = fit_linear_baseline(pairs, seed=0)
+    expected = F.pad(kernel, (2, 2, 2, 2))  # the 3×3 filter inside the 7×7 taps
+    assert torch.allclose(weight, expected, atol=2e-3)
+    assert torch.allclose(fitted_bias, bias, atol=2e-3)
+    assert baseline_psnr(weight, bias, pairs) > 50
+
+
+def test_the_linear_baseline_is_seeded_and_refuses_no_pairs() -> None:
+    cleans = [image.float() / 255 for image in dead_leaves_images(2, 48, seed=6)]
+    pairs = [
+        (clean, (clean * 0.9 + 0.03 * torch.rand(clean.shape, generator=torch.Generator())).clamp(0, 1))
+        for clean in cleans
+    ]
+    first, second = fit_linear_baseline(pairs, seed=4), fit_linear_baseline(pairs, seed=4)
+    assert all(torch.equal(a, b) for a, b in zip(first, second, strict=True))
+    with pytest.raises(ValueError, match="pairs must hold at least one"):
+        fit_linear_baseline([])
+    output = apply_linear_baseline(*first, cleans[0][None])
+    assert output.shape == (1, 3, 48, 48) and float(output.min()) >= 0 and float(output.max()) <= 1
+
+
+def test_a_fit_that_never_beats_its_start_returns_the_start() -> None:
+    """A learning rate that wrecks the network: every epoch scores below the starting network on validation, so the
+    fit returns the start (best epoch 0) rather than something worse."""
+    images = dead_leaves_images(4, 64, seed=7)
+    pairs = [(image, (image.float() * 0.8 + 10).clamp(0, 255).to(torch.uint8)) for image in images]
+    config = FitConfig(epochs=2, crop=32, batch_size=4, crops_per_pair=2, lr=5.0, patience=0, precision="float32")
+    start = LocalAffineNet(config.width)
+    with torch.no_grad():
+        start.linear.weight.mul_(0.8)
+        start.linear.bias.fill_(10 / 255)
+    network, history = fit_network(pairs[:3], pairs[3:], config, initial=start)
+    assert not any(result.is_best for result in history)
+    assert all(torch.equal(a, b) for a, b in zip(network.state_dict().values(), start.state_dict().values()))
+
+
+def test_a_start_of_another_architecture_is_refused() -> None:
+    images = dead_leaves_images(2, 32, seed=8)
+    pairs = [(image, image) for image in images]
+    with pytest.raises(ValueError, match="initial must be a network of arch 'local_affine' and width 64"):
+        fit_network(pairs, [], FitConfig(epochs=1, crop=32), initial=DomainShiftNet())
