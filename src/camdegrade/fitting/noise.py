@@ -6,10 +6,13 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
+import torch
 from torch import Tensor
 
+from camdegrade._pixels import as_unit
 from camdegrade.effects import Effect, Noise
 from camdegrade.fitting.pairset import simulate
+from camdegrade.inference import run_network
 from camdegrade.profile import CameraProfile
 
 #: A stage that calibrates itself by simulation uses about this many pairs (every ⌊N / this⌋-th of N pairs, so
@@ -32,10 +35,15 @@ def fit_stage_in_chain(
     the caller already has it (it draws nothing, so any seed gives the same images)."""
     if sources is None:
         sources = simulate(profile, cleans, seed, stream="noise-sources", deterministic=True)
+    network_outputs: dict[int, Tensor] = {}
 
     def simulate_with(effect: Effect, indices: Sequence[int]) -> list[Tensor]:
-        chosen = [cleans[index] for index in indices]
-        return simulate(replace_stage(profile, effect), chosen, seed, stream="noise-calibration")
+        # The network's output does not change between candidates: computed once per image, the stages run on it.
+        for index in indices:
+            if index not in network_outputs:
+                network_outputs[index] = _network_output(profile, cleans[index])
+        stages = CameraProfile(None, replace_stage(profile, effect).effects)
+        return simulate(stages, [network_outputs[index] for index in indices], seed, stream="noise-calibration")
 
     return kind.fit_in_chain(
         list(cleans), list(sources), list(captures), simulate_with, seed=seed, calibration_pairs=calibration_pairs
@@ -53,6 +61,14 @@ def fit_noise_stage(
     """The noise stage for ``profile`` (any it has is replaced), calibrated through the stages after it on every
     ``⌊N / calibration_pairs⌋``-th of the N pairs (:meth:`Noise.fit_in_chain`; all when ``None``)."""
     return fit_stage_in_chain(profile, Noise, cleans, captures, seed=seed, calibration_pairs=calibration_pairs)
+
+
+def _network_output(profile: CameraProfile, clean: Tensor) -> Tensor:
+    """What ``profile``'s network makes of ``clean`` (float in [0, 1]; the clean image itself without a network)."""
+    with torch.no_grad():
+        if profile.network is None:
+            return as_unit(clean)
+        return run_network(profile.network, clean[None])[0]
 
 
 def replace_stage(profile: CameraProfile, effect: Effect) -> CameraProfile:
