@@ -9,6 +9,7 @@ from collections.abc import Callable, Mapping, Sequence
 from typing import Any, ClassVar
 
 import torch
+import torch.nn.functional as F
 from torch import Tensor
 
 from camdegrade.effects._common import scalar
@@ -154,6 +155,7 @@ def _sharpen_loss(
     src, tgt, groups = textured_crops(pairs, crop, crops_per_image, margin)
     src, tgt = src.double(), tgt[..., margin:-margin, margin:-margin].double()
     inner = src[..., margin:-margin, margin:-margin]
+    planes = luma_of(src) if luma else src.flatten(0, 1)  # the planes whose detail is taken, one by one
     details: dict[float, Tensor] = {}
 
     def detail_of(sigma: Tensor) -> Tensor:
@@ -166,8 +168,8 @@ def _sharpen_loss(
         return details[key]
 
     def cropped_detail(sigma: Tensor) -> Tensor:
-        detail = (src - blur_image(src, sigma))[..., margin:-margin, margin:-margin]
-        return luma_of(detail).unsqueeze(-3) if luma else detail
+        detail = (planes - _blur_planes(planes, sigma))[..., margin:-margin, margin:-margin]
+        return detail.reshape(inner.shape[0], 1 if luma else 3, *inner.shape[-2:])
 
     def loss_of(sigma: Tensor, amount: Tensor, threshold: Tensor) -> Tensor:
         sharpened = (inner + amount * coring(detail_of(sigma), threshold)).clamp(0.0, 1.0)
@@ -175,6 +177,14 @@ def _sharpen_loss(
         return residual.pow(2).mean()
 
     return loss_of
+
+
+def _blur_planes(planes: Tensor, sigma: Tensor) -> Tensor:
+    """Each of the ``(P, H, W)`` planes blurred alone. :func:`blur_image` takes them three at a time as the channels
+    of an image, so that a luma fit blurs one plane per crop rather than three."""
+    count, size = planes.shape[0], planes.shape[-2:]
+    padded = F.pad(planes, (0, 0, 0, 0, 0, -count % 3))
+    return blur_image(padded.reshape(-1, 3, *size), sigma).reshape(-1, *size)[:count]
 
 
 def _grid_start(loss_of: Callable[[Tensor, Tensor, Tensor], Tensor], max_sigma: float) -> tuple[float, float, float]:
