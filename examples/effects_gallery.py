@@ -28,13 +28,14 @@ from camdegrade.effects import (
     Effect,
     Misalignment,
     Noise,
+    Sharpen,
     Tone,
     Vignetting,
 )
 from camdegrade.io import atomic_path
 from camdegrade.sim import VirtualCamera
 
-COLUMNS = 4
+COLUMNS = 5
 LABEL_HEIGHT = 16
 
 
@@ -56,6 +57,7 @@ def panels() -> list[tuple[str, Effect | VirtualCamera | None]]:
         ("misalignment 4px, 3°", Misalignment(4.0, -2.0, 3.0)),
         ("color (warm cast)", Color(torch.tensor([[1.25, 0.05, 0.0], [0.0, 1.0, 0.0], [0.0, 0.05, 0.7]]))),
         ("tone (low dyn. range)", Tone(1.2, -0.12, 0.8)),
+        ("sharpen sigma=1.5 amount=2", Sharpen(1.5, 2.0, 0.01)),
         ("distortion k1=0.25", Distortion(0.25)),
         ("preset lowcost-robot", VirtualCamera.from_preset("lowcost-robot")),
         ("preset phone-indoor", VirtualCamera.from_preset("phone-indoor")),

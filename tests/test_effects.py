@@ -21,6 +21,7 @@ from camdegrade.effects import (
     Effect,
     Misalignment,
     Noise,
+    Sharpen,
     Tone,
     Vignetting,
     build_effect,
@@ -38,6 +39,7 @@ VOCABULARY = {
     "color",
     "tone",
     "distortion",
+    "sharpen",
 }
 
 
@@ -52,6 +54,7 @@ STRONG = {
     "jpeg": lambda: JPEG(40, quality_jitter=10, probability=0.7),
     "misalignment": lambda: Misalignment(0.5, -0.3, 0.4, shift_std=0.5, angle_std=0.2),
     "noise": lambda: Noise(0.01, 1e-4, 0.003, gain_jitter=0.3),
+    "sharpen": lambda: Sharpen(1.2, 1.0, 0.01),
     "tone": lambda: Tone(1.2, 0.03, 0.95, 0.2, exposure_jitter=0.3),
     "vignetting": lambda: Vignetting(-0.4, 0.1),
 }

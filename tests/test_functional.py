@@ -81,6 +81,13 @@ KERNELS: dict[str, tuple[Callable[..., Tensor], Kwargs, Any, list[Any], Tensor]]
         [0.25, 0.5, 1.0],
         torch.tensor([0.0, -1.0, 0.5]),
     ),
+    "sharpen": (
+        F.unsharp_mask_image,
+        lambda im, s: {"sigma": 1.0, "amount": s, "threshold": 0.01},
+        0.0,
+        [0.25, 0.5, 1.0, 2.0],
+        torch.tensor([0.0, 0.5, 1.5]),
+    ),
     "vignetting": (F.vignetting_image, lambda im, s: {"k1": -s}, 0.0, [0.1, 0.3, 0.6], torch.tensor([0.0, -0.3, -0.6])),
     "distortion": (
         F.distortion_image,

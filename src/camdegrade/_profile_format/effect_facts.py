@@ -265,6 +265,15 @@ BUILT_IN: dict[str, EffectFacts] = {
         },
         config_rules=(_odd_taps,),
     ),
+    "sharpen": EffectFacts(
+        "isp",
+        {"luma": Setting(bool, True)},
+        {
+            "sigma": Buffer(bound=Bound(0.0, 8.0)),  # Sharpen.MAX_SIGMA
+            "amount": Buffer(bound=Bound(0.0, 8.0)),  # Sharpen.MAX_AMOUNT
+            "threshold": Buffer(bound=Bound(0.0, 0.25)),  # Sharpen.MAX_THRESHOLD
+        },
+    ),
     "tone": EffectFacts(
         "isp",
         {"exposure_jitter": Setting(float, 0.0, Bound(0.0, 4.0))},

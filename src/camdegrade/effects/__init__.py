@@ -19,6 +19,7 @@ from camdegrade.effects.codec import JPEG
 from camdegrade.effects.color import Color, Tone
 from camdegrade.effects.geometry import ChromaticAberration, Distortion, Misalignment, Vignetting
 from camdegrade.effects.noise import Noise
+from camdegrade.effects.sharpen import Sharpen
 
 __all__ = [
     "EFFECTS",
@@ -32,6 +33,7 @@ __all__ = [
     "Misalignment",
     "Noise",
     "Pairs",
+    "Sharpen",
     "Tone",
     "Vignetting",
     "build_effect",

@@ -23,6 +23,7 @@ from camdegrade.functional.geometry import (
     vignetting_image,
 )
 from camdegrade.functional.noise import poisson_gaussian_noise_image
+from camdegrade.functional.sharpen import unsharp_mask_image
 from camdegrade.functional.tone import tone_curve, tone_curve_image
 
 __all__ = [
@@ -44,6 +45,7 @@ __all__ = [
     "srgb_to_linear_",
     "tone_curve",
     "tone_curve_image",
+    "unsharp_mask_image",
     "vignetting_image",
     "white_balance_image",
 ]
