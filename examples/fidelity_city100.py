@@ -45,8 +45,10 @@ ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_DATA = ROOT.parent / "shared" / "data" / "real-pairs"
 HELD_OUT = sorted({f"{n:03d}" for n in range(56, 71)} | {"098"})
 SHOWN = ("060", "062", "098")
-ROWS = ("clean source", "city100-iphonex", "city100-iphonex-fast", "network alone", "built-in + unsharp")
-SHOWN_ROWS = ("real", "city100-iphonex", "city100-iphonex-fast", "network alone", "built-in + unsharp")
+ROWS = ["clean source", "city100-iphonex", "city100-iphonex-fast", "network alone", "built-in + unsharp"]
+SHOWN_ROWS = ["real", "city100-iphonex", "city100-iphonex-fast", "network alone", "built-in + unsharp"]
+#: Extra rows: ``--profile LABEL=PATH`` profiles (a refit to compare with the built-ins), sampled like them.
+EXTRA: dict[str, CameraDegrade] = {}
 UNSHARP_SIGMA, UNSHARP_AMOUNT = 1.0, 0.5
 CROP, ZOOMED = 128, 64
 
@@ -73,6 +75,10 @@ def simulations(index: int, clean: Tensor) -> dict[str, Tensor]:
         "city100-iphonex-fast": CameraDegrade(fast, seed=index)(clean),
         "network alone": CameraDegrade(built_in.with_chain([]), seed=index)(clean),
         "built-in + unsharp": unsharp(sampled),
+        **{
+            label: degrade.profile and CameraDegrade(degrade.profile, seed=index)(clean)
+            for label, degrade in EXTRA.items()
+        },
     }
 
 
@@ -215,7 +221,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--data", type=Path, default=DEFAULT_DATA)
     parser.add_argument("--png", type=Path, default=ROOT / "docs" / "fidelity_city100.png")
     parser.add_argument("--json", type=Path, default=ROOT / "out" / "results" / "fidelity_city100.json")
+    parser.add_argument("--profile", action="append", default=[], metavar="LABEL=PATH", help="an extra row")
     args = parser.parse_args(argv)
+    for item in args.profile:
+        label, _, path = item.partition("=")
+        EXTRA[label] = CameraDegrade(load_profile(path), seed=0)
+        ROWS.append(label)
+        SHOWN_ROWS.append(label)
     if not (args.data / "pairs.csv").is_file():
         parser.error(f"no pairs.csv in {args.data}; pass --data with the real-pairs folder")
     rows, shown, spectra = measure(args.data)

@@ -130,3 +130,17 @@ def test_a_start_of_another_architecture_is_refused() -> None:
     pairs = [(image, image) for image in images]
     with pytest.raises(ValueError, match="initial must be a network of arch 'local_affine' and width 64"):
         fit_network(pairs, [], FitConfig(epochs=1, crop=32), initial=DomainShiftNet())
+
+
+def test_a_fit_that_ends_while_still_rising_says_so() -> None:
+    from camdegrade.fitting.fit import still_rising
+    from camdegrade.fitting.training import EpochResult
+
+    config = FitConfig(epochs=3)
+    rising = [EpochResult(i + 1, 0.1, psnr, 0.001, True) for i, psnr in enumerate((25.0, 25.5, 25.8))]
+    flat = [*rising[:2], EpochResult(3, 0.1, 25.52, 0.001, True)]
+    stopped = [*rising[:2], EpochResult(3, 0.1, 25.9, 0.001, False)]
+    assert "still rising at the last epoch (+0.30 dB" in still_rising(rising, config)[0]
+    assert "--epochs 6" in still_rising(rising, config)[0]
+    assert still_rising(flat, config) == [] and still_rising(stopped, config) == []
+    assert still_rising(rising[:2], config) == []  # stopped early by patience: it did not run out of epochs

@@ -144,7 +144,7 @@ def fit_profile(
         profile.fitted["init_from"] = init_label
         profile.fitted["trained_in"] = str(training_dtype(config.precision, torch.device(device))).split(".")[-1]
         quality = _quality(profile, val, baseline) if len(val) else {}
-        record_quality(profile, quality, quality_warnings(quality), say)
+        record_quality(profile, quality, quality_warnings(quality) + still_rising(history, config), say)
         return profile
 
 
@@ -182,6 +182,26 @@ def quality_warnings(quality: dict[str, Any]) -> list[str]:
             "--arch local_affine, which starts from that filter"
         ]
     return []
+
+
+#: A last epoch that adds at least this much validation PSNR (dB) to the best before it says the fit stopped rising
+#: too early: more than seed noise moves the best (about ±0.1 dB over a whole fit) spread over its last epoch.
+STILL_RISING_DB = 0.05
+
+
+def still_rising(history: Sequence[EpochResult], config: FitConfig) -> list[str]:
+    """A warning when the fit ran out of epochs while its validation PSNR was still rising: the last epoch was the
+    best and beat the best before it by :data:`STILL_RISING_DB` or more."""
+    scores = [result.val_psnr for result in history if math.isfinite(result.val_psnr)]
+    if len(scores) < 2 or len(history) < config.epochs or not history[-1].is_best:
+        return []
+    gain = scores[-1] - max(scores[:-1])
+    if gain < STILL_RISING_DB:
+        return []
+    return [
+        f"the validation PSNR was still rising at the last epoch (+{gain:.2f} dB over the best before it): the fit "
+        f"may stop short; fit longer (--epochs {2 * config.epochs})"
+    ]
 
 
 #: A network within this much of the baseline's validation PSNR is not warned about (float and crop noise).
