@@ -2,8 +2,10 @@
 
 Steps: a pair set (:class:`~camdegrade.fitting.PairSet`: discovered, loaded, optionally registered; or loaded here
 from a path) → split by scene into train and validation → train the network (:mod:`camdegrade.fitting.training`)
-→ fit the effect stages the network cannot represent → a :class:`CameraProfile` whose metadata records how it was
-made, with a warning when the network does worse than the identity.
+→ fit the effect stages the network cannot represent on the training pairs, keeping those the validation pairs show
+the camera has (:mod:`camdegrade.fitting.stages`) → a :class:`CameraProfile` whose metadata records how it was made
+and how close it comes to the camera on the validation pairs (PSNR, fidelity, a critic), with a warning when the
+network does worse than the identity or the linear baseline.
 
 References:
     Hegde et al., "A Simple Domain Shifting Network for Generating Low Quality Images" (the network and recipe).
@@ -104,9 +106,12 @@ def fit_profile(
         log: called with human-readable progress lines (pairs found, shifts, effect fits, warnings).
 
     Returns:
-        The fitted profile; its metadata records the pairs used, the recipe, the validation PSNR of the profile and
-        of the identity (strict JSON: a PSNR of identical images is ``null``) and ``fitted['warnings']`` when the
-        network does worse than the identity on the validation pairs (also logged; see :func:`quality_warnings`).
+        The fitted profile; its metadata records the pairs used, the recipe, each effect stage tried with the
+        evidence it was kept or dropped on (``fitted['effects']``), the validation PSNR of the identity, the linear
+        baseline, the network and the profile (strict JSON: a PSNR of identical images is ``null``), its fidelity
+        (``quality['fidelity']``: grid, bands, flat noise, critic accuracy with and without the clean source) and
+        ``fitted['warnings']`` when the network does worse than the identity or the baseline on the validation pairs
+        (also logged; see :func:`quality_warnings`).
     """
     say = log or _silent
     config = resolve_recipe(recipe)
