@@ -34,6 +34,7 @@ from camdegrade.fitting.noise import replace_stage
 from camdegrade.fitting.pairset import simulate
 from camdegrade.functional.analysis import flat_mask
 from camdegrade.functional.noise_stats import NoiseSums
+from camdegrade.inference import run_network
 from camdegrade.measures.fidelity import noise_ratios
 from camdegrade.profile import CameraProfile
 
@@ -123,8 +124,9 @@ def noise_evidence(
     """The noise stage to keep for ``profile`` (``stage``, ``stage`` without its banding, or ``None``) and the
     evidence on ``(cleans, captures)``: float ``(3, H, W)`` images in [0, 1] the stage was not fitted on."""
     masks = [flat_mask(clean) for clean in cleans]
+    stages, outputs = _network_apart(profile, cleans)
     reals = _sums(captures, cleans, masks)
-    bases = _sums(as_stored(simulate(profile, cleans, seed, deterministic=True), eight_bit), cleans, masks)
+    bases = _sums(as_stored(simulate(stages, outputs, seed, deterministic=True), eight_bit), cleans, masks)
     real, base = _total(reals), _total(bases)
     capture, simulated = _finite(real.pooled_std()), _finite(base.pooled_std())
     evidence = NoiseEvidence(
@@ -153,7 +155,7 @@ def noise_evidence(
         return None, evidence
 
     def sampled(effect: Effect) -> NoiseSums:
-        images = simulate(replace_stage(profile, effect), cleans, seed, stream="noise-evidence")
+        images = simulate(replace_stage(stages, effect), outputs, seed, stream="noise-evidence")
         return _total(_sums(as_stored(images, eight_bit), cleans, masks))
 
     chosen, with_stage = _banding_choice(stage, real, sampled, evidence)
@@ -161,6 +163,16 @@ def noise_evidence(
     evidence.kept = _closer(evidence.noise_ratio_with, evidence.noise_ratio_without)
     evidence.reason = "closer to the capture's flat noise" if evidence.kept else "no closer to the capture with it"
     return (chosen if evidence.kept else None), evidence
+
+
+def _network_apart(profile: CameraProfile, cleans: Sequence[Tensor]) -> tuple[CameraProfile, list[Tensor]]:
+    """The profile's stages alone, and what its network makes of each clean image: the network runs once per image,
+    however many candidate stages are simulated after it (the same images as the whole profile gives)."""
+    if profile.network is None:
+        return profile, list(cleans)
+    with torch.no_grad():
+        outputs = [run_network(profile.network, clean[None])[0] for clean in cleans]
+    return CameraProfile(None, profile.effects), outputs
 
 
 def _banding_choice(
