@@ -10,12 +10,13 @@ sampled profile, critic with and without the clean source). ``--png`` writes, pe
 crop of one validation pair: clean, capture, simulation (flat at 1:1, textured at 2× nearest-neighbour). Run from
 the repo root::
 
-    OMP_NUM_THREADS=2 .venv/bin/python examples/effect_evidence.py [--pairs 48] [--epochs 10] [--png PATH]
+    OMP_NUM_THREADS=2 .venv/bin/python examples/effect_evidence.py [--pairs 48] [--epochs 10] [--png PATH] [--log]
 """
 
 from __future__ import annotations
 
 import argparse
+import sys
 import time
 
 import torch
@@ -108,6 +109,7 @@ def main() -> None:
     parser.add_argument("--pairs", type=int, default=48)
     parser.add_argument("--epochs", type=int, default=FitConfig.recipe("fast").epochs)
     parser.add_argument("--png", default=None, help="write the crops of every camera, one below the other")
+    parser.add_argument("--log", action="store_true", help="print each fit's log lines (stderr)")
     args = parser.parse_args()
     print(
         "| camera | noise stage | flat noise: capture / profile without (levels) | noise ratio without → with "
@@ -120,7 +122,8 @@ def main() -> None:
         pair_set = PairSet.load(pairs(noise, args.pairs))
         started = time.perf_counter()
         recipe = FitConfig.recipe("fast").replace(epochs=args.epochs)
-        profile = fit_profile(pair_set, recipe)
+        log = (lambda line, camera=label: print(f"  [{camera}] {line}", file=sys.stderr)) if args.log else None
+        profile = fit_profile(pair_set, recipe, log=log)
         print(row(label, profile, time.perf_counter() - started), flush=True)
         _, validation = pair_set.validation_split(recipe.val_fraction, recipe.seed)
         pictures.append(crops(validation, profile))

@@ -15,6 +15,7 @@ from camdegrade.cli._quality import quality_lines
 from camdegrade.effects import Blur, Noise, Tone
 from camdegrade.fitting import FitConfig, fit_profile
 from camdegrade.fitting.evidence import noise_evidence
+from camdegrade.fitting.stages import _judge
 from camdegrade.io import write_image
 from camdegrade.measures.critic import split_critic_test
 from camdegrade.sim import VirtualCamera
@@ -127,6 +128,21 @@ def test_evidence_on_pairs_without_flat_pixels_says_so() -> None:
     leaves = [bytes_to_unit(image) for image in dead_leaves_images(2, 48, seed=0)]
     kept, evidence = noise_evidence(CameraProfile(None), Noise(a=0.002), leaves, leaves, eight_bit=True)
     assert kept is None and evidence.capture_noise is None and evidence.reason == "too few flat pixels to measure noise"
+
+
+def test_validation_pairs_without_flat_pixels_leave_the_judgement_to_the_training_pairs() -> None:
+    camera = VirtualCamera([Noise(a=0.002, b=1e-5), Tone(**TONE)])
+    generator = torch.Generator().manual_seed(0)
+    with torch.no_grad():
+        charts = [(_chart(96, seed), camera(_chart(96, seed), generator=generator)) for seed in range(3)]
+        leaves = [bytes_to_unit(image) for image in dead_leaves_images(2, 48, seed=0)]
+        textured = [(leaf, camera(leaf, generator=generator)) for leaf in leaves]
+    profile = CameraProfile(None, [Tone(**TONE)])
+    kept, note, line = _judge(profile, Noise(a=0.002, b=1e-5), textured, charts, eight_bit=False)
+    assert kept is not None and note["kept"] and note["pairs"] == 3
+    assert note["evidence"] == "training (the validation pairs hold too few flat pixels)"
+    assert line.startswith("kept on 3 pair(s)")
+    assert line.endswith("[evidence: training (the validation pairs hold too few flat pixels)]")
 
 
 # --- the critic on one set of pairs ---------------------------------------------------------------------------

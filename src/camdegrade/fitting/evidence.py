@@ -94,18 +94,19 @@ class NoiseEvidence:
         """One line: the numbers the decision rests on, and the decision."""
         text = (
             f"{'kept' if self.kept else 'dropped'} on {self.pairs} pair(s), {self.flat_pixels} flat pixels: capture "
-            f"{_number(self.capture_noise)} levels vs {_number(self.simulation_noise)} without the stage"
+            f"{_number(self.capture_noise)} levels, profile without the stage {_number(self.simulation_noise)}"
         )
+        if self.noise_ratio_without is not None:
+            text += f"; noise ratio {_number(self.noise_ratio_without)} without it"
         if self.noise_ratio_with is not None:
-            text += f"; noise ratio {_number(self.noise_ratio_without)} -> {_number(self.noise_ratio_with)}"
-        elif self.noise_ratio_without is not None:
-            text += f" (noise ratio {_number(self.noise_ratio_without)})"
+            text += f", {_number(self.noise_ratio_with)} with it"
         if self.banding_ratio_banded is not None:
+            choice = "kept" if self.banding_kept else "dropped"
             text += (
-                f"; banding {_number(self.banding_ratio_unbanded)} unbanded, {_number(self.banding_ratio_banded)} "
-                f"banded -> {'kept' if self.banding_kept else 'dropped'}"
+                f"; banding ratio {_number(self.banding_ratio_banded)} with its banding, "
+                f"{_number(self.banding_ratio_unbanded)} without -> banding {choice}"
             )
-        return f"{text} ({self.reason})"
+        return f"{text}: {self.reason}"
 
 
 def _number(value: float | None) -> str:
@@ -149,7 +150,7 @@ def noise_evidence(
     )
     if not evidence.present:
         evidence.reason = (
-            f"the capture's noise is not measurably above the simulation's (needs {MIN_NOISE_RATIO:.2f}x, "
+            f"the capture's noise is not measurably above the profile's (that needs {MIN_NOISE_RATIO:.2f}x, a "
             f"bootstrap bound above 1 and {MIN_EXCESS_LEVELS} levels more)"
         )
         return None, evidence

@@ -72,7 +72,7 @@ def _judge(
         if evidence.capture_noise is None and held_out:
             kept, evidence = noise_evidence(profile, effect, *zip(*fit_pairs, strict=True), eight_bit=eight_bit)
             label = "training (the validation pairs hold too few flat pixels)"
-        return kept, {**evidence.to_dict(), "evidence": label}, f"{evidence.describe()} [{label} pairs]"
+        return kept, {**evidence.to_dict(), "evidence": label}, f"{evidence.describe()} [evidence: {label}]"
     if effect.position_dependent:
         gain = relative_gain(profile, effect, *zip(*pairs, strict=True))
         kept = gain >= MIN_RELATIVE_GAIN
