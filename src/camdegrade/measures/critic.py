@@ -295,4 +295,4 @@ def split_critic_test(
     if steps is None:
         patches = 2 * PATCHES_PER_PAIR * sum(min(clean.shape[-2:]) >= PATCH for clean in calibration[0])
         steps = max(1, min(STEPS, math.ceil(SPLIT_PASSES * patches / BATCH)))
-    return critic_test(calibration, held_out, seed, steps, image_only)  # type: ignore[arg-type]
+    return critic_test(calibration, held_out, seed, steps, image_only)
