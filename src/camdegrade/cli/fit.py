@@ -20,6 +20,7 @@ from camdegrade.cli._common import (
     say,
 )
 from camdegrade.cli._pairs import PAIRS_LAYOUTS, add_pair_options, discover, report_files
+from camdegrade.cli._quality import quality_lines
 from camdegrade.cli._recipe import add_recipe_options, check_schedule_options, recipe_changes
 from camdegrade.errors import CamdegradeError
 
@@ -105,6 +106,8 @@ def _write(profile, args: argparse.Namespace, checkpoint: Path) -> None:
     profile.save(args.output)
     checkpoint.unlink(missing_ok=True)
     say(profile.describe())
+    for line in quality_lines(profile.quality):
+        say(line)
     print(f"wrote {printable(args.output)}")
     for warning in warnings:
         print(f"camdegrade fit: warning: {warning}", file=sys.stderr)

@@ -10,6 +10,7 @@ import sys
 
 from camdegrade._text import printable
 from camdegrade.cli._common import add_profile
+from camdegrade.cli._quality import quality_lines
 
 
 def add_parsers(commands: argparse._SubParsersAction) -> None:
@@ -23,6 +24,9 @@ def run_info(args: argparse.Namespace) -> int:
 
     header = read_header(args.profile)  # no torch: the metadata and a few small tensors
     print(_escaped(header).describe())
+    quality = header.metadata.get("quality")
+    for line in quality_lines(quality if isinstance(quality, dict) else {}):
+        print(line)
     for warning in header.version_warnings():
         print(f"camdegrade info: warning: {printable(warning)}", file=sys.stderr)
     return 0

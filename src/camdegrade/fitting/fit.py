@@ -2,8 +2,10 @@
 
 Steps: a pair set (:class:`~camdegrade.fitting.PairSet`: discovered, loaded, optionally registered; or loaded here
 from a path) → split by scene into train and validation → train the network (:mod:`camdegrade.fitting.training`)
-→ fit the effect stages the network cannot represent → a :class:`CameraProfile` whose metadata records how it was
-made, with a warning when the network does worse than the identity.
+→ fit the effect stages the network cannot represent on the training pairs, keeping those the validation pairs show
+the camera has (:mod:`camdegrade.fitting.stages`) → a :class:`CameraProfile` whose metadata records how it was made
+and how close it comes to the camera on the validation pairs (PSNR, fidelity, a critic), with a warning when the
+network does worse than the identity or the linear baseline.
 
 References:
     Hegde et al., "A Simple Domain Shifting Network for Generating Low Quality Images" (the network and recipe).
@@ -27,20 +29,20 @@ from camdegrade._profile_format.header import running_versions
 from camdegrade._recipes import FAST
 from camdegrade._threads import torch_threads
 from camdegrade._version import __version__
-from camdegrade.effects import EFFECTS, STAGES
 from camdegrade.fitting.baseline import baseline_psnr, fit_linear_baseline
-from camdegrade.fitting.noise import CALIBRATION_PAIRS, fit_stage_in_chain
+from camdegrade.fitting.evidence import as_stored
 from camdegrade.fitting.pairs import MISSING, UNREADABLE
 from camdegrade.fitting.pairset import PairSet, PairsSource, simulate
+from camdegrade.fitting.stages import fit_effects
 from camdegrade.fitting.training import (
     EpochResult,
     FitConfig,
-    ImagePair,
     fit_network,
     new_network,
     resolve_recipe,
     training_dtype,
 )
+from camdegrade.measures.critic import split_critic_test
 from camdegrade.measures.fidelity import measure_fidelity
 from camdegrade.metrics import psnr
 from camdegrade.network import LocalAffineNet, ShiftNetwork
@@ -56,10 +58,10 @@ __all__ = [
     "torch_threads",
 ]
 
-#: Effects fitted after the network by default (the recipes' ``effects``). ``noise`` is always useful (an L2 network
-#: predicts the mean and never the noise); position-dependent stages are kept only where they lower the error.
+#: Effects fitted after the network by default (the recipes' ``effects``), each kept only where the validation pairs
+#: show that the camera has it (:mod:`camdegrade.fitting.evidence`): an L2 network predicts the mean and never the
+#: noise, but a noiseless camera must get no noise stage.
 DEFAULT_EFFECTS: tuple[str, ...] = FAST["effects"]
-_MIN_RELATIVE_GAIN = 0.01
 
 Log = Callable[[str], None]
 
@@ -104,9 +106,12 @@ def fit_profile(
         log: called with human-readable progress lines (pairs found, shifts, effect fits, warnings).
 
     Returns:
-        The fitted profile; its metadata records the pairs used, the recipe, the validation PSNR of the profile and
-        of the identity (strict JSON: a PSNR of identical images is ``null``) and ``fitted['warnings']`` when the
-        network does worse than the identity on the validation pairs (also logged; see :func:`quality_warnings`).
+        The fitted profile; its metadata records the pairs used, the recipe, each effect stage tried with the
+        evidence it was kept or dropped on (``fitted['effects']``), the validation PSNR of the identity, the linear
+        baseline, the network and the profile (strict JSON: a PSNR of identical images is ``null``), its fidelity
+        (``quality['fidelity']``: grid, bands, flat noise, critic accuracy with and without the clean source) and
+        ``fitted['warnings']`` when the network does worse than the identity or the baseline on the validation pairs
+        (also logged; see :func:`quality_warnings`).
     """
     say = log or _silent
     config = resolve_recipe(recipe)
@@ -139,11 +144,14 @@ def fit_profile(
         )
         minutes = (time.perf_counter() - started) / 60
         profile = CameraProfile(network, name=name, description=description)
-        profile, effect_notes = _fit_effects(profile, [*val.unit_pairs(), *train.unit_pairs()], config.effects, say)
+        eight_bit = all(captured.dtype == torch.uint8 for _, captured in pair_set.images)
+        profile, effect_notes = fit_effects(
+            profile, train.unit_pairs(), val.unit_pairs(), config.effects, say, eight_bit=eight_bit
+        )
         profile.fitted = _record(pair_set, train, val, config, history, minutes, effect_notes)
         profile.fitted["init_from"] = init_label
         profile.fitted["trained_in"] = str(training_dtype(config.precision, torch.device(device))).split(".")[-1]
-        quality = _quality(profile, val, baseline) if len(val) else {}
+        quality = _quality(profile, val, baseline, eight_bit, say) if len(val) else {}
         record_quality(profile, quality, quality_warnings(quality) + still_rising(history, config), say)
         return profile
 
@@ -230,44 +238,6 @@ def finite_or_none(values: dict[str, Any]) -> dict[str, Any]:
     }
 
 
-def _fit_effects(
-    profile: CameraProfile, pairs: Sequence[ImagePair], names: Sequence[str], say: Log
-) -> tuple[CameraProfile, dict[str, Any]]:
-    """Fit each requested effect on (the profile's deterministic output, capture) over all pairs (noise needs many
-    pixels; the network's residuals on its training crops are close to its validation residuals at 109k
-    parameters), in the order light meets them; keep position-dependent stages only where they lower the error.
-    Each is fitted by its class at its place in the chain (:meth:`Effect.fit_in_chain`: within its fitter's budget;
-    noise calibrated through the stages already in the profile)."""
-    notes: dict[str, Any] = {}
-    cleans = [clean for clean, _ in pairs]
-    captured = [target for _, target in pairs]
-    for name in sorted(names, key=lambda n: STAGES.index(EFFECTS[n].stage)):
-        kind = EFFECTS[name]
-        simulated = simulate(profile, cleans, seed=0, deterministic=True)
-        try:
-            effect = fit_stage_in_chain(
-                profile, kind, cleans, captured, calibration_pairs=CALIBRATION_PAIRS, sources=simulated
-            )
-        except ValueError as error:  # e.g. too few pixels to estimate it
-            notes[name] = {"kept": False, "reason": str(error)}
-            say(f"effect {name}: not fitted ({error})")
-            continue
-        if effect.position_dependent:
-            before = _mean_squared_error(simulated, captured)
-            with torch.no_grad():
-                after = _mean_squared_error([effect(s[None])[0] for s in simulated], captured)
-            gain = 1 - after / before if before > 0 else 0.0
-            notes[name] = {"kept": gain >= _MIN_RELATIVE_GAIN, "relative_mse_gain": round(gain, 4)}
-            say(f"effect {name}: relative MSE gain {gain:.2%} -> {'kept' if notes[name]['kept'] else 'dropped'}")
-            if not notes[name]["kept"]:
-                continue
-        else:
-            notes[name] = {"kept": True}
-            say(f"effect {name}: fitted ({effect.extra_repr()})")
-        profile = profile.with_effects(effect)
-    return profile, notes
-
-
 def _record(
     pair_set: PairSet,
     train: PairSet,
@@ -340,16 +310,12 @@ def _unreadable(pair_set: PairSet) -> list[dict[str, str]]:
     return [{"path": str(path), "reason": reason} for path, reason in skipped if reason.startswith(failed)]
 
 
-def _mean_squared_error(predictions: Sequence[torch.Tensor], targets: Sequence[torch.Tensor]) -> float:
-    total = sum(float(((p - t) ** 2).sum()) for p, t in zip(predictions, targets))
-    return total / sum(t.numel() for t in targets)
-
-
-def _quality(profile: CameraProfile, val: PairSet, baseline: tuple[torch.Tensor, torch.Tensor]) -> dict[str, Any]:
+def _quality(
+    profile: CameraProfile, val: PairSet, baseline: tuple[torch.Tensor, torch.Tensor], eight_bit: bool, say: Log
+) -> dict[str, Any]:
     """Validation PSNR of identity, the least-squares linear baseline (:mod:`camdegrade.fitting.baseline`), network
     mean and the full (stochastic, seeded) profile against the captures, and how close the sampled profile looks to
-    the captures (``fidelity``: grid ratio, band log2 power ratios, flat noise and banding ratios,
-    :mod:`camdegrade.measures.fidelity`; ``None`` where not measurable)."""
+    the captures (``fidelity``, :func:`_fidelity`)."""
     identity, network, full = [], [], []
     sampled = simulate(profile, val.cleans(), seed=0, stream="quality")
     with torch.no_grad():
@@ -363,15 +329,36 @@ def _quality(profile: CameraProfile, val: PairSet, baseline: tuple[torch.Tensor,
         "baseline_psnr_db": round(baseline_psnr(*baseline, val.unit_pairs()), 3),
         "network_psnr_db": round(sum(network) / len(network), 3),
         "profile_psnr_db": round(sum(full) / len(full), 3),
-        "fidelity": _fidelity(sampled, val),
+        "fidelity": _fidelity(as_stored(sampled, eight_bit), val, say),
     }
 
 
-def _fidelity(sampled: Sequence[torch.Tensor], val: PairSet) -> dict[str, Any]:
-    """The cheap fidelity numbers of the sampled profile on the validation pairs (not the critic: it trains a CNN)."""
+#: The critic at the end of a fit trains on half the validation scenes and is scored on the other half; with fewer
+#: than this many scenes one side would hold a single scene, whose bootstrap interval says nothing.
+MIN_CRITIC_SCENES = 4
+
+
+def _fidelity(sampled: Sequence[torch.Tensor], val: PairSet, say: Log) -> dict[str, Any]:
+    """How close the sampled profile (rounded as the captures are stored) looks to the validation captures: grid
+    ratio, band log2 power ratios, flat noise and banding ratios (:mod:`camdegrade.measures.fidelity`; ``None``
+    where not measurable), and the accuracy of a critic that tells them apart with the clean source beside the
+    image (``critic_paired``) and from the image alone (``critic_image_only``, what a model trained on the
+    simulation sees): :func:`~camdegrade.measures.critic.split_critic_test`, ``None`` with fewer than
+    :data:`MIN_CRITIC_SCENES` validation scenes."""
     cleans, captures = zip(*val.unit_pairs(), strict=True)
     report = measure_fidelity(list(sampled), list(captures), list(cleans)).to_dict(digits=3)
     report.pop("psnr")  # profile_psnr_db already
+    scenes = len(set(val.scenes))
+    for key, image_only in (("critic_paired", False), ("critic_image_only", True)):
+        report[key] = None
+        if scenes < MIN_CRITIC_SCENES:
+            continue
+        result = split_critic_test((list(cleans), list(captures), list(sampled)), val.scenes, 0, image_only=image_only)
+        report[key] = {name: round(getattr(result, name), 3) for name in ("accuracy", "low", "high")}
+        report[key] |= {"patches": result.patches, "pairs": result.pairs}
+        say(f"fidelity: {result.describe()} ({'image only' if image_only else 'paired'}, {result.seconds:.1f} s)")
+    if scenes < MIN_CRITIC_SCENES:
+        say(f"fidelity: no critic ({scenes} validation scene(s); it needs {MIN_CRITIC_SCENES}, half to train it)")
     return report
 
 

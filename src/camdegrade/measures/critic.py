@@ -261,3 +261,38 @@ def critic_test(
     net = train_critic(Patches.sample(*calibration, seed, "critic-calibration", image_only), seed, steps)
     held = Patches.sample(*held_out, seed, "critic-held-out", image_only)
     return score(net, held, seed, time.perf_counter() - started)
+
+
+#: :func:`split_critic_test` trains for this many passes over its training patches (at most :data:`STEPS` steps):
+#: a fit's few validation scenes give a few hundred patches, which 250 steps would show 40 times over.
+SPLIT_PASSES = 25
+
+
+def split_critic_test(
+    pairs: tuple[Sequence[Tensor], Sequence[Tensor], Sequence[Tensor]],
+    scenes: Sequence[str],
+    seed: int,
+    steps: int | None = None,
+    image_only: bool = False,
+) -> CriticResult:
+    """:func:`critic_test` on one set of ``pairs`` = (cleans, reals, sims) with no held-out part of its own (a fit's
+    validation pairs): their ``scenes``, in sorted order, alternate between training the critic and scoring it, so
+    no scene is on both sides. ``steps``: by default :data:`SPLIT_PASSES` passes over the training patches, at most
+    :data:`STEPS`. Few scenes make a noisy critic: read its bootstrap interval.
+
+    Raises:
+        ValueError: fewer than two scenes, or no pair of at least :data:`PATCH` pixels on either side.
+    """
+    names = sorted(set(scenes))
+    if len(names) < 2 or len(scenes) != len(pairs[0]):
+        raise ValueError(
+            f"the critic needs pairs of at least two scenes (one side trains it, the other scores it), got "
+            f"{len(names)} scene(s) for {len(pairs[0])} pair(s)"
+        )
+    trains = [names.index(scene) % 2 == 0 for scene in scenes]
+    calibration = tuple([item for item, chosen in zip(column, trains, strict=True) if chosen] for column in pairs)
+    held_out = tuple([item for item, chosen in zip(column, trains, strict=True) if not chosen] for column in pairs)
+    if steps is None:
+        patches = 2 * PATCHES_PER_PAIR * sum(min(clean.shape[-2:]) >= PATCH for clean in calibration[0])
+        steps = max(1, min(STEPS, math.ceil(SPLIT_PASSES * patches / BATCH)))
+    return critic_test(calibration, held_out, seed, steps, image_only)
