@@ -63,6 +63,9 @@ def test_the_surest_patches_are_of_their_class_and_show_the_noisy_one_as_real(tr
         assert _fine_std(patch.real) > 3 * _fine_std(patch.simulated)
         assert (patch.real - patch.simulated).abs().mean() < 0.03
         assert 0 <= patch.pair < 4 and 0 <= patch.top <= 64 - PATCH and 0 <= patch.left <= 64 - PATCH
+        # the detail planes are what the critic saw: the image less its 3x3 mean (inside the patch's border)
+        inside = (..., slice(1, -1), slice(1, -1))
+        torch.testing.assert_close(patch.real_detail[inside], (patch.real - box_mean(patch.real, 3))[inside])
 
 
 def test_k_larger_than_a_class_returns_the_whole_class(trained) -> None:
@@ -145,6 +148,17 @@ def test_the_picture_shows_the_patches_at_twice_their_size_nearest_neighbour(tra
     assert any(torch.equal(pixels[:, y : y + side, x : x + side], zoomed) for y, x in hits.tolist())
 
 
+def test_the_detail_view_adds_two_tiles_per_patch(trained) -> None:
+    net, held = trained
+    surest = surest_patches(net, held, k=2)
+    plain, detailed = render_surest(surest), render_surest(surest, detail_gain=4.0)
+    assert detailed.height == plain.height and detailed.width > plain.width
+    first = surest[0]
+    assert replace(first, margin=1.0).caption(["x"] * 4) == f"x y{first.top} x{first.left} p 0.731"
+    assert replace(first, margin=20.0).caption().endswith("logit 20.0")
+    assert replace(first, margin=-1000.0).probability == 0.0
+
+
 def test_bad_arguments_raise_typed_errors(trained) -> None:
     net, held = trained
     with pytest.raises(ValueError, match="k must be a positive integer, got k=0"):
@@ -162,5 +176,7 @@ def test_bad_arguments_raise_typed_errors(trained) -> None:
         surest_patches(net, held, k=2, per_pair=0)
     with pytest.raises(ValueError, match="at least one SurePatch"):
         render_surest([])
+    with pytest.raises(ValueError, match="detail_gain must be a positive number or None, got detail_gain=0"):
+        render_surest(surest_patches(net, held, k=1), detail_gain=0)
     with pytest.raises(ValueError, match="scale must be a positive integer"):
         render_surest(surest_patches(net, held, k=1), scale=0)

@@ -3,9 +3,10 @@
 The critic of :mod:`camdegrade.measures.critic` gives one number (its held-out accuracy). To see what gives the
 simulation away, :func:`explain_critic` returns
 
-- the patches it is surest about, for each class the ``k`` with the highest probability of their own class, each
+- the patches it is surest about, for each class the ``k`` with the largest logit towards their own class, each
   with the other image's patch at the same position (real beside simulated, same clean content), its pair and its
-  position; :func:`render_surest` draws them at 2× nearest-neighbour with labels (:func:`surest_png`: PNG bytes);
+  position; :func:`render_surest` draws them at 2× nearest-neighbour with labels, and if asked the fine detail
+  the critic saw beside them (:func:`surest_png`: PNG bytes);
 - its accuracy by group of the clean patch: texture (gradient energy), intensity, colour (saturation: max − min
   over RGB) and position (distance from the frame centre), each split at its terciles over the held-out patches,
   with the patch count of every group.
@@ -17,6 +18,7 @@ group holds as many real as simulated patches and a critic that answers one clas
 from __future__ import annotations
 
 import io
+import math
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -55,21 +57,31 @@ LABELS = {1.0: "real", 0.0: "simulated"}
 class SurePatch:
     """One held-out patch the critic is sure about, beside the other image's patch at the same position.
 
-    ``label`` is the patch's true class, ``probability`` the critic's probability of that class; ``real`` and
-    ``simulated`` are ``(3, PATCH, PATCH)`` float images in [0, 1] of the same clean content."""
+    ``label`` is the patch's true class; ``margin`` the critic's logit towards that class (its probability of the
+    class is ``sigmoid(margin)``, which rounds to 1 while the margins still rank the patches). ``real`` and
+    ``simulated`` are ``(3, PATCH, PATCH)`` float images in [0, 1] of the same clean content; ``real_detail`` and
+    ``simulated_detail`` the fine-detail planes the critic was given for them (image minus its 3×3 mean)."""
 
     label: str
-    probability: float
+    margin: float
     pair: int
     top: int
     left: int
     real: Tensor
     simulated: Tensor
+    real_detail: Tensor
+    simulated_detail: Tensor
+
+    @property
+    def probability(self) -> float:
+        """The critic's probability of the patch's true class."""
+        odds = math.exp(-abs(self.margin))  # never overflows
+        return 1.0 / (1.0 + odds) if self.margin >= 0 else odds / (1.0 + odds)
 
     def caption(self, names: Sequence[str] | None = None) -> str:
-        """``<pair> y<top> x<left>`` and the probability, or how far it is from 1 when it rounds to 1."""
+        """``<pair> y<top> x<left>`` and the probability, or the margin once the probability rounds to 1."""
         where = names[self.pair] if names is not None else f"pair {self.pair}"
-        sure = f"p {self.probability:.3f}" if self.probability < 0.9995 else f"1-p {1 - self.probability:.0e}"
+        sure = f"p {self.probability:.3f}" if self.probability < 0.9995 else f"logit {self.margin:.1f}"
         return f"{where} y{self.top} x{self.left} {sure}"
 
 
@@ -85,7 +97,7 @@ class CriticExplanation:
     def to_dict(self) -> dict:
         return {
             "surest": [
-                {"label": p.label, "probability": round(p.probability, 4), "pair": p.pair, "top": p.top, "left": p.left}
+                {"label": p.label, "margin": round(p.margin, 3), "pair": p.pair, "top": p.top, "left": p.left}
                 for p in self.surest
             ],
             "groups": self.groups,
@@ -107,55 +119,41 @@ def _accuracy_text(accuracy: float | None) -> str:
     return "n/a" if accuracy is None else f"{accuracy:.3f}"
 
 
-def real_probabilities(net: CriticNet, patches: Patches) -> Tensor:
-    """``(M,)`` the critic's probability that each patch is the real capture."""
-    _check(net, patches)
-    return torch.sigmoid(logits(net, patches))
-
-
 def surest_patches(net: CriticNet, patches: Patches, k: int, per_pair: int | None = None) -> list[SurePatch]:
-    """For each class (real, then simulated), the ``k`` patches with the highest probability of their own class
+    """For each class (real, then simulated), the ``k`` patches with the largest logit towards their own class
     (fewer when the class has fewer), surest first; at most ``per_pair`` of each class from one pair (``None``:
     no limit), so that one easy image does not fill the list."""
     _check(net, patches)
     k = _positive_int(k, "k")
     per_pair = None if per_pair is None else _positive_int(per_pair, "per_pair")
-    probability_real = torch.sigmoid(logits(net, patches))
+    towards_real = logits(net, patches)
     partner = _partners(patches)
-    images = _images(patches.inputs)
+    images, details = _planes(patches.inputs)
     out = []
     for label in (1.0, 0.0):
         chosen = (patches.labels == label).nonzero().squeeze(1)
-        own = probability_real[chosen] if label == 1.0 else 1 - probability_real[chosen]
-        order = torch.sort(own, descending=True, stable=True).indices
-        for index, probability in _limited(chosen[order].tolist(), own[order].tolist(), patches.pair, k, per_pair):
+        margins = towards_real[chosen] if label == 1.0 else -towards_real[chosen]
+        order = torch.sort(margins, descending=True, stable=True).indices
+        for index, margin in _limited(chosen[order].tolist(), margins[order].tolist(), patches.pair, k, per_pair):
             real, simulated = (index, partner[index]) if label == 1.0 else (partner[index], index)
-            out.append(
-                SurePatch(
-                    LABELS[label],
-                    probability,
-                    int(patches.pair[index]),
-                    int(patches.top[index]),
-                    int(patches.left[index]),
-                    images[real],
-                    images[simulated],
-                )
-            )
+            where = (int(patches.pair[index]), int(patches.top[index]), int(patches.left[index]))
+            pictures = (images[real], images[simulated], details[real], details[simulated])
+            out.append(SurePatch(LABELS[label], margin, *where, *pictures))
     return out
 
 
 def _limited(
-    indices: list[int], probabilities: list[float], pair: Tensor, k: int, per_pair: int | None
+    indices: list[int], margins: list[float], pair: Tensor, k: int, per_pair: int | None
 ) -> list[tuple[int, float]]:
-    """The first ``k`` of ``indices`` (with their probabilities) taking at most ``per_pair`` from any one pair."""
+    """The first ``k`` of ``indices`` (with their margins) taking at most ``per_pair`` from any one pair."""
     taken: dict[int, int] = {}
     out = []
-    for index, probability in zip(indices, probabilities, strict=True):
+    for index, margin in zip(indices, margins, strict=True):
         owner = int(pair[index])
         if per_pair is not None and taken.get(owner, 0) >= per_pair:
             continue
         taken[owner] = taken.get(owner, 0) + 1
-        out.append((index, probability))
+        out.append((index, margin))
         if len(out) == k:
             break
     return out
@@ -200,19 +198,27 @@ def explained_critic_test(
 
 
 def render_surest(
-    surest: Sequence[SurePatch], scale: int = 2, names: Sequence[str] | None = None, title: str | None = None
+    surest: Sequence[SurePatch],
+    scale: int = 2,
+    names: Sequence[str] | None = None,
+    title: str | None = None,
+    detail_gain: float | None = None,
 ) -> Image.Image:
     """The surest patches as an RGB image: one row per patch, real beside simulated at ``scale``× nearest-neighbour,
-    captioned with the pair (or ``names[pair]``), the position and the critic's probability of the true class;
-    the patches it is surest are real, in the left column, and simulated, in the right one; ``title`` (one or more
-    lines) above."""
+    captioned with the pair (or ``names[pair]``), the position and the critic's certainty; the patches it is
+    surest are real, in the left column, and simulated, in the right one; ``title`` (one or more lines) above.
+    With ``detail_gain``, each row goes on with the fine detail the critic saw, real then simulated, as
+    ``0.5 + detail_gain · detail`` (grey is none)."""
     scale = _positive_int(scale, "scale")
     if not surest:
         raise ValueError("surest must hold at least one SurePatch, got none")
+    if detail_gain is not None and not (isinstance(detail_gain, int | float) and detail_gain > 0):
+        raise ValueError(f"detail_gain must be a positive number or None, got detail_gain={detail_gain!r}")
     side = surest[0].real.shape[-1] * scale
-    caption, gap, margin = 12, 6, 4
+    caption, gap, margin = 12, 4, 4
+    tiles = 2 if detail_gain is None else 4
     columns = [[p for p in surest if p.label == label] for label in ("real", "simulated")]
-    block = max(2 * side + gap, 190)
+    block = max(tiles * (side + gap), 190)
     rows = max(len(column) for column in columns)
     lines = title.splitlines() if title else []
     header = margin + (len(lines) + 1) * caption + margin
@@ -220,23 +226,31 @@ def render_surest(
     draw = ImageDraw.Draw(canvas)
     for number, line in enumerate(lines):
         draw.text((margin, margin + number * caption), line, fill="black")
+    heading = "real | simulated" + ("" if detail_gain is None else f" | their detail x{detail_gain:g}")
     for number, (label, column) in enumerate(zip(("real", "simulated"), columns, strict=True)):
         x = margin + number * (block + 2 * margin)
-        draw.text((x, header - caption - margin), f"surest {label}: real | simulated", fill="black")
+        draw.text((x, header - caption - margin), f"surest {label}: {heading}", fill="black")
         for row, patch in enumerate(column):
             y = header + row * (side + caption + gap)
             draw.text((x, y), patch.caption(names), fill="black")
-            for offset, image in ((0, patch.real), (side + gap, patch.simulated)):
-                canvas.paste(_zoomed(image, scale), (x + offset, y + caption))
+            pictures = [patch.real, patch.simulated]
+            if detail_gain is not None:
+                pictures += [0.5 + detail_gain * patch.real_detail, 0.5 + detail_gain * patch.simulated_detail]
+            for tile, picture in enumerate(pictures):
+                canvas.paste(_zoomed(picture, scale), (x + tile * (side + gap), y + caption))
     return canvas
 
 
 def surest_png(
-    surest: Sequence[SurePatch], scale: int = 2, names: Sequence[str] | None = None, title: str | None = None
+    surest: Sequence[SurePatch],
+    scale: int = 2,
+    names: Sequence[str] | None = None,
+    title: str | None = None,
+    detail_gain: float | None = None,
 ) -> bytes:
     """:func:`render_surest` as PNG bytes (the same patches give the same bytes)."""
     buffer = io.BytesIO()
-    render_surest(surest, scale, names, title).save(buffer, format="PNG")
+    render_surest(surest, scale, names, title, detail_gain).save(buffer, format="PNG")
     return buffer.getvalue()
 
 
@@ -245,11 +259,12 @@ def _zoomed(image: Tensor, scale: int) -> Image.Image:
     return picture.resize((picture.width * scale, picture.height * scale), Image.NEAREST)
 
 
-def _images(inputs: Tensor) -> Tensor:
-    """The image RGB of each patch: planes 0–2 of an image-only critic's input; clean + residual of a paired one."""
+def _planes(inputs: Tensor) -> tuple[Tensor, Tensor]:
+    """The image RGB and the fine-detail RGB of each patch: planes 0–2 and 3–5 of an image-only critic's input;
+    clean + residual (0–2 + 3–5) and 6–8 of a paired one."""
     if inputs.shape[1] == IMAGE_ONLY_PLANES:
-        return inputs[:, :3]
-    return inputs[:, :3] + inputs[:, 3:6]
+        return inputs[:, :3], inputs[:, 3:6]
+    return inputs[:, :3] + inputs[:, 3:6], inputs[:, 6:9]
 
 
 def _partners(patches: Patches) -> list[int]:
