@@ -30,7 +30,7 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from camdegrade._seeds import derive_seed, derived_generator
-from camdegrade.functional.analysis import box_mean, flat_mask
+from camdegrade.functional.analysis import box_mean, flat_mask, gradient_energy
 
 PATCH = 32
 GRID = 8
@@ -86,7 +86,9 @@ class CriticNet(nn.Module):
 @dataclass
 class Patches:
     """Critic inputs ``(M, PLANES or IMAGE_ONLY_PLANES, PATCH, PATCH)``, labels (1 real), the pair each came from,
-    and its attributes."""
+    and its attributes: where it lies (``top``, ``left`` in pixels, ``radius``) and what its clean patch holds
+    (``intensity``, ``flat``, ``texture``: mean gradient energy, ``saturation``: mean of max − min over RGB).
+    A position's real and simulated patches share every attribute."""
 
     inputs: Tensor
     labels: Tensor
@@ -94,6 +96,10 @@ class Patches:
     radius: Tensor
     intensity: Tensor
     flat: Tensor
+    top: Tensor
+    left: Tensor
+    texture: Tensor
+    saturation: Tensor
 
     @classmethod
     def sample(
@@ -130,8 +136,10 @@ def _pair_patches(
     ys = torch.linspace(-1, 1, height)[:, None].expand(height, width)
     xs = torch.linspace(-1, 1, width)[None, :].expand(height, width)
     flat = flat_mask(clean).float()
+    energy = gradient_energy(clean)
+    chroma = clean.amax(-3) - clean.amin(-3)
     detail = {label: image - box_mean(image, 3) for label, image in ((1.0, real), (0.0, sim))}
-    inputs, labels, radius, intensity, flat_share = [], [], [], [], []
+    inputs, labels, radius, intensity, flat_share, texture, saturation = [], [], [], [], [], [], []
     for top, left in zip(tops, lefts, strict=True):
         window = (..., slice(top, top + PATCH), slice(left, left + PATCH))
         position = torch.stack([ys[window], xs[window]])
@@ -149,6 +157,8 @@ def _pair_patches(
         radius += [patch_radius] * 2
         intensity += [patch_intensity] * 2
         flat_share += [share] * 2
+        texture += [float(energy[window].mean())] * 2
+        saturation += [float(chroma[window].mean())] * 2
     count = len(labels)
     return (
         torch.stack(inputs),
@@ -157,6 +167,10 @@ def _pair_patches(
         torch.tensor(radius),
         torch.tensor(intensity),
         torch.tensor(flat_share) >= FLAT_SHARE,
+        torch.tensor(tops).repeat_interleave(2),
+        torch.tensor(lefts).repeat_interleave(2),
+        torch.tensor(texture),
+        torch.tensor(saturation),
     )
 
 
@@ -211,10 +225,15 @@ def train_critic(patches: Patches, seed: int, steps: int = STEPS) -> CriticNet:
     return net.eval()
 
 
+def logits(net: CriticNet, patches: Patches) -> Tensor:
+    """``(M,)`` the critic's logit per patch (above 0: it says real)."""
+    with torch.no_grad():
+        return net(patches.inputs)
+
+
 def score(net: CriticNet, patches: Patches, seed: int, seconds: float = 0.0) -> CriticResult:
     """Held-out accuracy, its bootstrap interval over pairs, and the breakdown by where the patches lie."""
-    with torch.no_grad():
-        answers = (net(patches.inputs) > 0).float()
+    answers = (logits(net, patches) > 0).float()
     correct = (answers == patches.labels).float()
     pairs = torch.unique(patches.pair)
     per_pair = torch.stack([correct[patches.pair == pair].mean() for pair in pairs])
