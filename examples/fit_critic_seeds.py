@@ -1,0 +1,42 @@
+"""How much the critic at the end of a fit moves between critic seeds, on that fit's own validation pairs.
+
+``fit_profile`` records one critic (seed 0) with a bootstrap interval over the held-out pairs; that interval does not
+hold the spread of the critic's own training. This re-runs
+:func:`~camdegrade.measures.critic.split_critic_test` on the fit's validation scenes (``fitted['validation_scenes']``,
+the profile sampled as the fit samples it: seed 0, stream ``quality``, rounded to 8 bits) with seeds
+``0 … --seeds − 1``, paired and image-only. Seed 0 repeats the fit's own numbers. Run from the repo root::
+
+    OMP_NUM_THREADS=2 .venv/bin/python examples/fit_critic_seeds.py PROFILE PAIRS [--seeds 4]
+"""
+
+from __future__ import annotations
+
+import argparse
+
+from camdegrade import load_profile
+from camdegrade.fitting.evidence import as_stored
+from camdegrade.fitting.pairset import PairSet, simulate
+from camdegrade.measures.critic import split_critic_test
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("profile", help="a profile written by camdegrade fit")
+    parser.add_argument("pairs", help="the pairs it was fitted on (folder or CSV manifest)")
+    parser.add_argument("--seeds", type=int, default=4)
+    args = parser.parse_args()
+    profile = load_profile(args.profile)
+    scenes = set(profile.fitted["validation_scenes"])
+    pairs = PairSet.load(args.pairs)
+    validation = pairs.subset([index for index, scene in enumerate(pairs.scenes) if scene in scenes])
+    cleans, captures = validation.cleans(), validation.captured()
+    sampled = as_stored(simulate(profile, cleans, 0, stream="quality"), eight_bit=True)
+    for seed in range(args.seeds):
+        for image_only in (False, True):
+            result = split_critic_test((cleans, captures, sampled), validation.scenes, seed, image_only=image_only)
+            label = "image-only" if image_only else "paired"
+            print(f"seed {seed} {label:10s} {result.describe()} ({result.seconds:.1f} s)", flush=True)
+
+
+if __name__ == "__main__":
+    main()
