@@ -53,6 +53,7 @@ class CameraProfile(nn.Module):
         - Output: ``(N, 3, H, W)``, float32 in ``[0, 1]``.
 
     Examples:
+        >>> from camdegrade import DomainShiftNet
         >>> profile = CameraProfile(DomainShiftNet(), name="untrained")
         >>> profile(torch.rand(1, 3, 8, 8)).shape
         torch.Size([1, 3, 8, 8])
