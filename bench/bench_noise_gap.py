@@ -42,7 +42,7 @@ from typing import Any
 import torch
 from noise_gap_denoiser import Denoiser, psnr_db, test_psnr, train_denoiser
 from noise_gap_evidence import crops, format_evidence, noise_structure, write_panel
-from noise_gap_rows import PROFILE_RECIPE, ROWS, SUBSETS, Row, fit_rows, load_split
+from noise_gap_rows import CROPS_PER_EPOCH, OPTIONAL_ROWS, PROFILE_RECIPE, ROWS, SUBSETS, Row, fit_rows, load_split
 
 import camdegrade
 from camdegrade.measures.akld import akld
@@ -78,7 +78,7 @@ def train_job(root: Path, subset: str, row: Row, seed: int, config: Denoiser) ->
     ), time.process_time() - started
 
 
-def measure_job(root: Path, subset: str, rows: dict[str, Row]) -> tuple[dict[str, Any], float]:
+def measure_job(root: Path, subset: str, rows: dict[str, Row]) -> tuple[dict[str, Any], list, float]:
     """AKLD and the noise's structure of every row on the held-out clean images, against the real captures."""
     started = time.process_time()
     cleans, captures = load_split(root, subset).unit("test")
@@ -98,9 +98,11 @@ def measure_job(root: Path, subset: str, rows: dict[str, Row]) -> tuple[dict[str
 # -- the run ---------------------------------------------------------------------------------------------------------
 
 
-def run(root: Path, subsets: Sequence[str], config: Denoiser, seeds: Sequence[int], workers: int) -> dict[str, Any]:
-    """Fit every subset's rows, then train and measure them, ``workers`` processes at a time; the results per
-    subset and the CPU seconds of every job."""
+def run(
+    root: Path, subsets: Sequence[str], names: Sequence[str], config: Denoiser, seeds: Sequence[int], workers: int
+) -> dict[str, Any]:
+    """Fit every subset's rows, then train and measure the rows ``names``, ``workers`` processes at a time; the
+    results per subset and the CPU seconds of every job."""
     context = multiprocessing.get_context("spawn")
     with ProcessPoolExecutor(workers, mp_context=context, initializer=_one_thread) as pool:
         fits = {pool.submit(fit_job, root, subset): subset for subset in subsets}
@@ -108,9 +110,10 @@ def run(root: Path, subsets: Sequence[str], config: Denoiser, seeds: Sequence[in
         for job in as_completed(fits):  # a subset's trainings start as soon as its rows are fitted
             subset = fits[job]
             rows[subset] = _logged(job, f"{subset}: rows fitted")
-            measures[subset] = pool.submit(measure_job, root, subset, rows[subset][0])
+            chosen = {name: rows[subset][0][name] for name in names}
+            measures[subset] = pool.submit(measure_job, root, subset, chosen)
             for seed in seeds:
-                for name in ROWS:
+                for name in names:
                     trainings[subset, name, seed] = pool.submit(
                         train_job, root, subset, rows[subset][0][name], seed, config
                     )
@@ -125,7 +128,7 @@ def run(root: Path, subsets: Sequence[str], config: Denoiser, seeds: Sequence[in
             "test_pairs": len(split.test),
             "test_images": split.test_names,
             "test_megapixels": round(sum(c.shape[-1] * c.shape[-2] for c, _ in split.test) / 1e6, 2),
-            "psnr_db": {name: [round(scores[subset, name, seed][0], 3) for seed in seeds] for name in ROWS},
+            "psnr_db": {name: [round(scores[subset, name, seed][0], 3) for seed in seeds] for name in names},
             "fitted": rows[subset][1],
             **measured[subset][0],
         }
@@ -149,21 +152,26 @@ def summarise(psnr: dict[str, list[float]]) -> dict[str, Any]:
     mean = {name: statistics.fmean(values) for name, values in psnr.items()}
     spread = {name: max(values) - min(values) for name, values in psnr.items()}
     span = mean["real"] - mean["gaussian"]
-    closure = {name: (mean[name] - mean["gaussian"]) / span if span > 0 else math.nan for name in ROWS[1:]}
+    closure = {
+        name: (mean[name] - mean["gaussian"]) / span if span > 0 else math.nan for name in psnr if name != "real"
+    }
     return {
         "mean": mean,
         "spread": spread,
-        "gap_to_real": {n: mean["real"] - mean[n] for n in ROWS},
+        "gap_to_real": {n: mean["real"] - mean[n] for n in psnr},
         "closure": closure,
     }
 
 
 def format_table(results: Sequence[dict]) -> str:
-    header = f"{'subset':<20} {'row':<17} {'PSNR dB':>7} {'spread':>6} {'gap to real':>11} {'closure':>7} {'AKLD':>6}"
+    header = (
+        f"{'subset':<20} {'row':<17} {'PSNR dB':>7} {'spread':>6} {'gap to real':>11} {'closure':>7} {'AKLD':>6} "
+        f"{'floor':>6}"
+    )
     lines = [header, "-" * len(header)]
     for result in results:
         summary = result["summary"]
-        for name in ROWS:
+        for name in result["psnr_db"]:
             closure = summary["closure"].get(name)
             divergence, floor = result["akld"].get(name), result["akld_floor"].get(name)
             lines.append(
@@ -183,11 +191,23 @@ def format_table(results: Sequence[dict]) -> str:
     return "\n".join(lines)
 
 
+def _recipe_text() -> str:
+    values = {k: v for k, v in PROFILE_RECIPE.training_dict().items() if k != "crops_per_pair"}
+    return f"{values}, crops per pair {CROPS_PER_EPOCH} / pairs (at least 8), effects {list(PROFILE_RECIPE.effects)}"
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--real-pairs", type=Path, default=None, help="the real-pairs folder")
     parser.add_argument("--subsets", nargs="+", default=list(SUBSETS), choices=SUBSETS)
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
+    parser.add_argument(
+        "--rows",
+        nargs="+",
+        default=list(ROWS),
+        choices=ROWS + OPTIONAL_ROWS,
+        help="rows to train (real and gaussian always)",
+    )
     parser.add_argument("--steps", type=int, default=Denoiser.steps, help="denoiser training steps")
     parser.add_argument("--workers", type=int, default=2, help="processes (one thread each)")
     parser.add_argument("--json", type=Path, default=Path("out/bench/noise_gap.json"))
@@ -197,9 +217,11 @@ def main(argv: list[str] | None = None) -> int:
     if not (root / "pairs.csv").is_file():
         print(f"noise gap skipped: no pairs.csv in {root} (set CAMDEGRADE_REAL_PAIRS)")
         return 0
+    names = ["real", "gaussian", *(name for name in args.rows if name not in ("real", "gaussian"))]
+    names = sorted(names, key=(ROWS + OPTIONAL_ROWS).index)
     config = replace(Denoiser(), steps=args.steps)
     started, cpu_started = time.perf_counter(), time.process_time()
-    report = run(root.resolve(), args.subsets, config, args.seeds, args.workers)
+    report = run(root.resolve(), args.subsets, names, config, args.seeds, args.workers)
     wall = time.perf_counter() - started
     cpu = report["job_cpu_seconds"] + time.process_time() - cpu_started
     print(format_table(report["results"]))
@@ -207,11 +229,11 @@ def main(argv: list[str] | None = None) -> int:
     for result in report["results"]:
         print(format_evidence(result["subset"], result["noise"]))
     print(
-        f"\ndenoiser {config}; seeds {args.seeds}; profile recipe: fast with {PROFILE_RECIPE.training_dict()} "
-        f"(crops per pair: 640 / pairs, at least 8)\n{wall / 60:.1f} min wall, {cpu / 60:.1f} min CPU, "
+        f"\ndenoiser {config}; seeds {args.seeds}; profile recipe: fast with {_recipe_text()}\n"
+        f"{wall / 60:.1f} min wall, {cpu / 60:.1f} min CPU, "
         f"{args.workers} worker processes, {os.cpu_count()} cores, {platform.machine()}, torch {torch.__version__}"
     )
-    write_panel(report.pop("panels"), ["clean", *ROWS], args.png)
+    write_panel(report.pop("panels"), ["clean", *names], args.png)
     print(f"wrote {args.png}")
     report.update(
         camdegrade=camdegrade.__version__,

@@ -8,7 +8,9 @@ and held-out pairs, and what each row trains its denoiser on, fitted on the trai
   :meth:`camdegrade.effects.Noise.fit` (``estimator="residual"``: the clean image is the mean of many frames);
 - ``gaussian``: white Gaussian noise of the real noise's std on the training pairs' flat pixels;
 - ``poisson_gaussian``: per channel ``var = a·x + b`` of the sRGB value, fitted to the same pixels' variance per
-  intensity bin (Foi et al. 2008, with the clean image as the expectation).
+  intensity bin (Foi et al. 2008, with the clean image as the expectation);
+- ``stage_jitter`` (on request): the ``stage`` row with a per-capture gain (``Noise.gain_jitter``) whose log-std is
+  that of the training captures' own noise levels (their flat-pixel std), for cameras and ISOs mixed in one set.
 
 Every simulated image is rounded to 8 bits, as a saved training set would be.
 
@@ -19,6 +21,7 @@ References:
 
 from __future__ import annotations
 
+import copy
 import csv
 import re
 import time
@@ -44,6 +47,7 @@ from camdegrade.profile import CameraProfile
 
 SUBSETS = ("polyu_real_noise", "cc15_nam_real_noise", "sidd_samples")
 ROWS = ("real", "profile", "stage", "gaussian", "poisson_gaussian")
+OPTIONAL_ROWS = ("stage_jitter",)
 #: The profile's recipe: the fast recipe cut to the time budget (8 epochs of about :data:`CROPS_PER_EPOCH` windows,
 #: at least 8 per pair, no early stopping, only the noise stage after the network).
 PROFILE_RECIPE = FitConfig.recipe("fast").replace(epochs=8, patience=0, effects=("noise",))
@@ -148,12 +152,15 @@ def fit_rows(split: Split) -> tuple[dict[str, Row], dict[str, Any]]:
     sigma = sums.pooled_std() / 255.0
     poisson = fit_poisson_gaussian(sums)
     in_chain = [effect for effect in profile.effects if isinstance(effect, Noise)]
+    jittered = copy.deepcopy(stage)
+    jittered.gain_jitter = level_spread(cleans, captures)
     rows = {
         "real": Row("real"),
         "profile": Row("profile", profile=profile),
         "stage": Row("stage", effect=stage),
         "gaussian": Row("gaussian", effect=Noise(b=sigma**2, linear=False)),
         "poisson_gaussian": Row("poisson_gaussian", effect=poisson),
+        "stage_jitter": Row("stage_jitter", effect=jittered),
     }
     fitted = {
         "profile_recipe": recipe.training_dict(),
@@ -163,6 +170,7 @@ def fit_rows(split: Split) -> tuple[dict[str, Row], dict[str, Any]]:
         "stage": stage.extra_repr(),
         "stage_fit_cpu_seconds": round(stage_seconds, 1),
         "stage_sigma_mid_grey": round(stage.magnitude(), 3),
+        "stage_jitter_gain_jitter": round(jittered.gain_jitter, 3),
         "gaussian_sigma_levels": round(sigma * 255, 3),
         "poisson_gaussian": {"a": poisson.a.tolist(), "b": poisson.b.tolist()},
     }
@@ -179,6 +187,13 @@ def residual_sums(cleans: Sequence[Tensor], captures: Sequence[Tensor]) -> Noise
     for clean, capture in zip(cleans, captures, strict=True):
         total = total + NoiseSums.measure(capture - clean, clean, flat_mask(clean), clipping=capture)
     return total
+
+
+def level_spread(cleans: Sequence[Tensor], captures: Sequence[Tensor]) -> float:
+    """The std of the log of each capture's own noise level (flat-pixel std of ``capture − clean``)."""
+    levels = [residual_sums([clean], [capture]).pooled_std() for clean, capture in zip(cleans, captures, strict=True)]
+    logs = torch.tensor([level for level in levels if level > 0]).log()
+    return float(logs.std()) if len(logs) > 1 else 0.0
 
 
 def fit_poisson_gaussian(sums: NoiseSums) -> Noise:

@@ -104,3 +104,50 @@ def test_bad_input_raises_typed_errors_naming_the_argument() -> None:
         akld(clean[:, :3], clean[:, :3], clean[:, :3])
     with pytest.raises(ValueError, match="side must be an odd integer >= 3, got side=4"):
         akld(clean, clean, clean, side=4)
+
+
+# -- the bench's own parts (bench/noise_gap_rows.py, bench/noise_gap_denoiser.py), on synthetic images -------------
+
+
+def test_the_poisson_gaussian_row_recovers_a_known_line() -> None:
+    """Stripes at the eight bin centres with ``var = a·x + b`` noise: the fit gives back ``a`` and ``b``."""
+    from conftest import load_script
+
+    rows = load_script("bench/noise_gap_rows.py", "camdegrade_noise_gap_rows")
+    a, b = 2e-4, 2e-5  # no clipping at either end (clipped pixels are left out, which would bias the top bin)
+    levels = (torch.arange(8) + 0.5) / 8
+    clean = levels.repeat_interleave(64)[None, None].expand(3, 160, 512).contiguous()
+    generator = torch.Generator().manual_seed(0)
+    noisy = clean + (a * clean + b).sqrt() * torch.randn(clean.shape, generator=generator)
+    fitted = rows.fit_poisson_gaussian(rows.residual_sums([clean], [noisy.clamp(0, 1)]))
+    assert fitted.linear is False
+    assert torch.allclose(fitted.a, torch.full((3,), a), rtol=0.1)
+    assert torch.allclose(fitted.b, torch.full((3,), b), rtol=0.25)
+
+
+def test_polyu_scenes_drop_the_crop_number_whatever_the_underscores() -> None:
+    from conftest import load_script
+
+    rows = load_script("bench/noise_gap_rows.py", "camdegrade_noise_gap_rows")
+    path = "polyu_real_noise/CroppedImages/NikonD800_6-3_125_5000_plant__4_mean.JPG"
+    assert rows.scene_of("polyu_real_noise", path) == "NikonD800_6-3_125_5000_plant"
+    assert rows.scene_of("polyu_real_noise", path.replace("__4", "_12")) == "NikonD800_6-3_125_5000_plant"
+    assert rows.scene_of("sidd_samples", "sidd_samples/GT/GT_3.png") == "GT_3"
+    assert rows.held_out("cc15_nam_real_noise", {f"x_{i}" for i in range(6)}) == {"x_1", "x_4"}
+
+
+def test_the_denoiser_starts_as_the_identity_and_trains_the_same_for_a_seed() -> None:
+    from conftest import load_script
+
+    module = load_script("bench/noise_gap_denoiser.py", "camdegrade_noise_gap_denoiser")
+    config = module.Denoiser(layers=3, channels=8, steps=10, batch=4, patch=16, warmup=5)
+    generator = torch.Generator().manual_seed(0)
+    noisy = torch.rand(1, 3, 15, 17, generator=generator)
+    assert torch.equal(module.denoise(module.make_denoiser(config, 0), noisy, config.fold), noisy)
+    cleans = [torch.full((3, 32, 32), 0.5)]
+    noisies = [(cleans[0] + 0.05 * torch.randn(3, 32, 32, generator=generator)).clamp(0, 1)]
+    first, second, other = (module.train_denoiser(cleans, noisies, config, seed) for seed in (1, 1, 2))
+    weights = [[p.detach() for p in model.parameters()] for model in (first, second, other)]
+    assert all(torch.equal(p, q) for p, q in zip(weights[0], weights[1], strict=True))
+    assert not torch.equal(weights[0][-2], weights[2][-2])
+    assert not torch.equal(module.denoise(first, noisy, config.fold), noisy)

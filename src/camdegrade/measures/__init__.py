@@ -2,13 +2,14 @@
 in one registry (:mod:`camdegrade.measures.base`: what each measures, its tau, its description, which effects and
 which network faults it signals), the sets and the gap built on them, the learned critic, and the fidelity of a
 simulation to the camera read from the images (:mod:`camdegrade.measures.fidelity`: grid, texture bands, flat
-noise).
+noise), and the AKLD of simulated against real noise (:mod:`camdegrade.measures.akld`).
 
 The modules below are imported in the order the families are registered (the order of every report).
 """
 
 from camdegrade.measures import spatial, intensity, noise, frequency, blocks, color, alignment  # noqa: F401, I001
 from camdegrade.measures import no_reference  # noqa: F401
+from camdegrade.measures.akld import akld
 from camdegrade.measures.base import (
     FAMILIES,
     NO_REFERENCE,
@@ -40,6 +41,7 @@ __all__ = [
     "NoReferenceFamily",
     "PairedFamily",
     "StatisticSet",
+    "akld",
     "band_log2_ratios",
     "bootstrap_indices",
     "check_explains",
