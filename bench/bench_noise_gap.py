@@ -60,9 +60,9 @@ def _one_thread() -> None:
     torch.set_num_threads(1)
 
 
-def fit_job(root: Path, subset: str) -> tuple[dict[str, Row], dict[str, Any], float]:
+def fit_job(root: Path, subset: str, names: Sequence[str]) -> tuple[dict[str, Row], dict[str, Any], float]:
     started = time.process_time()
-    rows, fitted = fit_rows(load_split(root, subset))
+    rows, fitted = fit_rows(load_split(root, subset), oracle="oracle" in names)
     return rows, fitted, time.process_time() - started
 
 
@@ -105,7 +105,7 @@ def run(
     results per subset and the CPU seconds of every job."""
     context = multiprocessing.get_context("spawn")
     with ProcessPoolExecutor(workers, mp_context=context, initializer=_one_thread) as pool:
-        fits = {pool.submit(fit_job, root, subset): subset for subset in subsets}
+        fits = {pool.submit(fit_job, root, subset, names): subset for subset in subsets}
         rows, trainings, measures = {}, {}, {}
         for job in as_completed(fits):  # a subset's trainings start as soon as its rows are fitted
             subset = fits[job]

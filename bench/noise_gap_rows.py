@@ -10,7 +10,9 @@ and held-out pairs, and what each row trains its denoiser on, fitted on the trai
 - ``poisson_gaussian``: per channel ``var = a·x + b`` of the sRGB value, fitted to the same pixels' variance per
   intensity bin (Foi et al. 2008, with the clean image as the expectation);
 - ``stage_jitter`` (on request): the ``stage`` row with a per-capture gain (``Noise.gain_jitter``) whose log-std is
-  that of the training captures' own noise levels (their flat-pixel std), for cameras and ISOs mixed in one set.
+  that of the training captures' own noise levels (their flat-pixel std), for cameras and ISOs mixed in one set;
+- ``oracle`` (on request): the ``stage`` row fitted on the **held-out** pairs themselves, not a model of the camera
+  but the best one stationary noise stage can do on those images (the bar of issue 15 for subsets that mix cameras).
 
 Every simulated image is rounded to 8 bits, as a saved training set would be.
 
@@ -47,7 +49,7 @@ from camdegrade.profile import CameraProfile
 
 SUBSETS = ("polyu_real_noise", "cc15_nam_real_noise", "sidd_samples")
 ROWS = ("real", "profile", "stage", "gaussian", "poisson_gaussian")
-OPTIONAL_ROWS = ("stage_jitter",)
+OPTIONAL_ROWS = ("stage_jitter", "oracle")
 #: The profile's recipe: the fast recipe cut to the time budget (8 epochs of about :data:`CROPS_PER_EPOCH` windows,
 #: at least 8 per pair, no early stopping, only the noise stage after the network).
 PROFILE_RECIPE = FitConfig.recipe("fast").replace(epochs=8, patience=0, effects=("noise",))
@@ -138,8 +140,9 @@ def to_8bit(image: Tensor) -> Tensor:
     return (image.clamp(0, 1) * 255).round() / 255
 
 
-def fit_rows(split: Split) -> tuple[dict[str, Row], dict[str, Any]]:
-    """Every row, fitted on ``split``'s training pairs, and what was fitted (with the CPU seconds it took)."""
+def fit_rows(split: Split, *, oracle: bool = False) -> tuple[dict[str, Row], dict[str, Any]]:
+    """Every row, fitted on ``split``'s training pairs (the ``oracle`` row, on its held-out pairs, only when asked
+    for), and what was fitted (with the CPU seconds it took)."""
     cpu = time.process_time()
     pairs = PairSet(list(split.train), list(split.train_scenes), [str(i) for i in range(len(split.train))])
     recipe = profile_recipe(len(pairs))
@@ -151,6 +154,7 @@ def fit_rows(split: Split) -> tuple[dict[str, Row], dict[str, Any]]:
     sums = residual_sums(cleans, captures)
     sigma = sums.pooled_std() / 255.0
     poisson = fit_poisson_gaussian(sums)
+    on_held_out = Noise.fit(*split.unit("test"), estimator="residual", seed=0) if oracle else None
     in_chain = [effect for effect in profile.effects if isinstance(effect, Noise)]
     jittered = copy.deepcopy(stage)
     jittered.gain_jitter = level_spread(cleans, captures)
@@ -161,6 +165,7 @@ def fit_rows(split: Split) -> tuple[dict[str, Row], dict[str, Any]]:
         "gaussian": Row("gaussian", effect=Noise(b=sigma**2, linear=False)),
         "poisson_gaussian": Row("poisson_gaussian", effect=poisson),
         "stage_jitter": Row("stage_jitter", effect=jittered),
+        **({"oracle": Row("oracle", effect=on_held_out)} if on_held_out is not None else {}),
     }
     fitted = {
         "profile_recipe": recipe.training_dict(),
@@ -171,6 +176,7 @@ def fit_rows(split: Split) -> tuple[dict[str, Row], dict[str, Any]]:
         "stage_fit_cpu_seconds": round(stage_seconds, 1),
         "stage_sigma_mid_grey": round(stage.magnitude(), 3),
         "stage_jitter_gain_jitter": round(jittered.gain_jitter, 3),
+        "oracle_sigma_mid_grey": round(on_held_out.magnitude(), 3) if on_held_out is not None else None,
         "gaussian_sigma_levels": round(sigma * 255, 3),
         "poisson_gaussian": {"a": poisson.a.tolist(), "b": poisson.b.tolist()},
     }
