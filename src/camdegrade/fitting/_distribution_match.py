@@ -42,7 +42,7 @@ RING_SIDE = 128
 #: about 0.06) are the reference that takes out each image's contrast.
 SPECTRUM_EDGES = tuple(float(v) for v in torch.logspace(math.log10(0.02), math.log10(0.5), 13))
 REFERENCE_BANDS = 4
-SPECTRUM_SIDE = 256
+SPECTRUM_SIDE = 512
 #: Candidate PSFs (Gaussian sigma, px) and sharpening amounts (unsharp mask, sigma :data:`SHARPEN_SIGMA`).
 BLUR_SIGMAS = (0.0, 0.4, 0.6, 0.8, 1.0, 1.25, 1.5, 1.75, 2.0, 2.5, 3.0)
 SHARPEN_AMOUNTS = (0.0, 0.25, 0.5, 0.75, 1.0, 1.5, 2.0)

@@ -4,8 +4,9 @@ scenes of similar content — no screen rig, no correspondence between the two s
 Every stage is fitted by matching a distribution of the captures (an effects-only profile: no network):
 
 - ``jpeg``: the quality read from the captures' own quantisation tables, when they are JPEG files
-  (:func:`~camdegrade.fitting._distribution_match.quality_from_tables`); a set of lossless files that shows 8×8
-  block edges gets a warning instead (JPEGs saved again: the tables are gone);
+  (:func:`~camdegrade.fitting._distribution_match.quality_from_tables`); for lossless files that show 8×8 block
+  edges (JPEGs saved again: the tables are gone) a quality is estimated from their block-edge energy, with a
+  warning;
 - ``color``, ``tone``: white-balance gains and a tone curve by quantile matching of the two sets;
 - ``vignetting``: the captures' mean radial luma profile over the clean set's (over a flat field without one);
 - ``blur``, ``sharpen``: the PSF and the unsharp mask whose simulation of the clean set has the captures' radial
@@ -71,7 +72,6 @@ from camdegrade.fitting._distribution_match import (
 )
 from camdegrade.fitting._unpaired_noise import fit_noise_unpaired, flat_sums
 from camdegrade.fitting.pairs import UNREADABLE
-from camdegrade.functional.analysis import flattest_window
 from camdegrade.functional.blur import blur_image
 from camdegrade.io import iter_images, read_image
 from camdegrade.measures.fidelity import BAND_EDGES, band_power
@@ -92,12 +92,15 @@ NOT_IDENTIFIABLE: dict[str, str] = {
 MIN_IMAGES = 8
 #: The stages' order in the fitted chain (physical: optics, sensor, ISP, codec).
 CHAIN_ORDER = tuple(kind.name for kind in (Blur, Vignetting, Noise, Color, Tone, Sharpen, JPEG))
-#: The noise is calibrated on the flattest ``NOISE_SIDE``² window of at most ``NOISE_IMAGES`` clean images; the
-#: spectrum compared on centre crops of at most ``SPECTRUM_IMAGES``.
-NOISE_IMAGES, NOISE_SIDE = 16, 256
+#: The noise is calibrated on at most ``NOISE_IMAGES`` clean images, whole (their flat pixels are selected as the
+#: captures' are: a window chosen for its flatness would hold less texture than the captures' flat pixels do);
+#: the spectrum compared on centre crops of at most ``SPECTRUM_IMAGES``.
+NOISE_IMAGES = 16
 SPECTRUM_IMAGES = 24
 #: Colour, tone and vignetting are read from the images averaged down to this side (noise averaged out).
 SMALL_SIDE = 256
+#: Qualities tried for captures that show JPEG blocks but carry no quantisation table.
+JPEG_QUALITIES = tuple(range(30, 100, 5))
 #: Without a clean set the noise is simulated on the captures smoothed by a Gaussian of this sigma (px).
 STAND_IN_SIGMA = 2.0
 
@@ -243,8 +246,9 @@ class _UnpairedFit:
         self.notes: dict[str, Any] = {}
         self.not_fitted: dict[str, str] = {}
         self.warnings: list[str] = []
+        self.block_ratio: float | None = None
         stand_ins = cleans.images if cleans else [blur_image(image, STAND_IN_SIGMA) for image in captures.images]
-        self.noise_crops = _flattest_crops(stand_ins)
+        self.noise_crops = evenly_spaced(stand_ins, NOISE_IMAGES)
         self.spectrum_crops = [centre_crop(image, SPECTRUM_SIDE) for image in evenly_spaced(stand_ins, SPECTRUM_IMAGES)]
         self.real_noise = flat_sums(captures.images)
         self.small_captures = [downscale(image, SMALL_SIDE) for image in captures.images]
@@ -258,6 +262,7 @@ class _UnpairedFit:
             ("colour and tone", lambda: self.fit_color_tone(test=False)),
             ("vignetting again", lambda: self.fit_vignetting(simulated=True)),
             ("noise", self.fit_noise),
+            ("jpeg from block edges", self.fit_jpeg_from_blocks),
             ("blur and sharpening", self.fit_transfer),
             ("colour and tone through the blur", lambda: self.fit_color_tone(test=True)),
             ("vignetting through the blur", lambda: self.fit_vignetting(simulated=True)),
@@ -303,13 +308,9 @@ class _UnpairedFit:
             ratio = block_edge_ratio(evenly_spaced(self.captures.images, 32))
             self.notes[JPEG.name] = {"jpeg_files": 0, "block_edge_ratio": round(ratio, 3)}
             if ratio > BLOCK_EDGE_RATIO:
-                self.warnings.append(
-                    f"the captures show 8×8 block edges ({ratio:.2f}× the mean gradient energy; above "
-                    f"{BLOCK_EDGE_RATIO} means JPEG blocks) but are not JPEG files, so their quantisation tables are "
-                    "gone (JPEGs saved again as PNG?): no jpeg stage fitted; fit from the camera's original JPEG "
-                    "files to get one"
-                )
-            self._skip([JPEG], "the captures are not JPEG files (no quantisation table)")
+                self.block_ratio = ratio  # a quality is estimated from the blocks once the chain before it stands
+            else:
+                self._skip([JPEG], "the captures are not JPEG files and show no 8×8 blocks")
             return
         found = [quality_from_tables(table) for table in tables]
         qualities = sorted(quality for quality, _ in found)
@@ -323,6 +324,28 @@ class _UnpairedFit:
             "standard_tables": all(exact for _, exact in found),
         }
         self.say(f"jpeg: quality {median} read from {len(tables)} files' quantisation tables")
+
+    def fit_jpeg_from_blocks(self) -> None:
+        """Captures that were JPEGs once but carry no table: the quality whose simulation has their block-edge
+        energy (:data:`JPEG_QUALITIES`), with a warning that it is an estimate."""
+        if self.block_ratio is None:
+            return
+        crops = evenly_spaced(self.spectrum_crops, 8)
+        chain = self.chain(jpeg=None)
+        ratios = {
+            quality: block_edge_ratio(self.simulate([*chain, JPEG(quality)], crops, "unpaired-blocks"))
+            for quality in JPEG_QUALITIES
+        }
+        quality = min(ratios, key=lambda q: abs(ratios[q] - self.block_ratio))
+        self.keep(JPEG(quality))
+        self.notes[JPEG.name] |= {"quality_from_block_edges": quality, "simulated_ratio": round(ratios[quality], 3)}
+        self.warnings.append(
+            f"the captures show 8×8 block edges ({self.block_ratio:.2f}× the mean gradient energy; above "
+            f"{BLOCK_EDGE_RATIO} means JPEG blocks) but are not JPEG files, so their quantisation tables are gone "
+            f"(JPEGs saved again as PNG?): the jpeg stage's quality {quality} is estimated from the block edges; fit "
+            "from the camera's original JPEG files for the exact one"
+        )
+        self.say(f"jpeg: quality {quality} estimated from the block edges (no quantisation table)")
 
     def fit_color_tone(self, *, test: bool) -> None:
         if not self.wants(Color, Tone):
@@ -441,11 +464,3 @@ class _UnpairedFit:
         if self.warnings:
             out["warnings"] = list(self.warnings)
         return out
-
-
-def _flattest_crops(images: Sequence[Tensor]) -> list[Tensor]:
-    """The flattest ``NOISE_SIDE``² window of each of the :data:`NOISE_IMAGES` images with the flattest windows."""
-    windows = [flattest_window(image, NOISE_SIDE) for image in evenly_spaced(images, 4 * NOISE_IMAGES)]
-    chosen = sorted(range(len(windows)), key=lambda index: -windows[index][1])[:NOISE_IMAGES]
-    candidates = evenly_spaced(images, 4 * NOISE_IMAGES)
-    return [candidates[index][(slice(None), *windows[index][0])] for index in sorted(chosen)]
