@@ -262,8 +262,9 @@ class _UnpairedFit:
             ("colour and tone", lambda: self.fit_color_tone(test=False)),
             ("vignetting again", lambda: self.fit_vignetting(simulated=True)),
             ("noise", self.fit_noise),
-            ("jpeg from block edges", self.fit_jpeg_from_blocks),
             ("blur and sharpening", self.fit_transfer),
+            ("jpeg from block edges", self.fit_jpeg_from_blocks),
+            ("blur and sharpening with it", self.refit_transfer),
             ("colour and tone through the blur", lambda: self.fit_color_tone(test=True)),
             ("vignetting through the blur", lambda: self.fit_vignetting(simulated=True)),
             ("noise again", self.fit_noise),
@@ -400,6 +401,11 @@ class _UnpairedFit:
             self.keep(noise)
         self.say(f"noise: {notes['std_mid_grey_levels']} levels at mid-grey{'' if noise else ' (not kept)'}")
 
+    def refit_transfer(self) -> None:
+        """The transfer function again once a jpeg stage was estimated after it (the codec changes the spectrum)."""
+        if self.block_ratio is not None:
+            self.fit_transfer()
+
     def fit_transfer(self) -> None:
         if not self.wants(Blur, Sharpen):
             return
@@ -415,6 +421,8 @@ class _UnpairedFit:
 
         (sigma, amount), notes = fit_transfer(self.real_spectrum, simulate)
         self.notes["transfer"] = notes
+        for kind in (Blur, Sharpen):
+            self.stages.pop(kind.name, None)
         if sigma > 0 and use_blur:
             self.keep(Blur(sigma))
         if amount > 0 and use_sharpen:
