@@ -24,19 +24,15 @@ ratio, band log2 power differences of the set means).
 from __future__ import annotations
 
 import math
-import os
 import platform
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 import torch
 from torch import Tensor
 from tqdm.auto import tqdm
 
-from camdegrade._pixels import as_unit
 from camdegrade._profile_format.header import running_versions
 from camdegrade._seeds import derived_generator
 from camdegrade._version import __version__
@@ -55,7 +51,6 @@ from camdegrade.effects import (
 )
 from camdegrade.effects._fitting import downscale
 from camdegrade.effects.base import evenly_spaced
-from camdegrade.errors import ImageError, PairsError
 from camdegrade.fitting._distribution_match import (
     BLOCK_EDGE_RATIO,
     RINGS,
@@ -70,10 +65,9 @@ from camdegrade.fitting._distribution_match import (
     quality_from_tables,
     ring_profiles,
 )
+from camdegrade.fitting._unpaired_images import MIN_IMAGES, ImageSet, Source, check_count, load_images
 from camdegrade.fitting._unpaired_noise import fit_noise_unpaired, flat_sums
-from camdegrade.fitting.pairs import UNREADABLE
 from camdegrade.functional.blur import blur_image
-from camdegrade.io import iter_images, read_image
 from camdegrade.measures.fidelity import BAND_EDGES, band_power
 from camdegrade.profile import CameraProfile
 
@@ -88,8 +82,6 @@ NOT_IDENTIFIABLE: dict[str, str] = {
     ChromaticAberration.name: "a channel's scale is seen against the same scene's other channels at edges only "
     "with a reference; set statistics do not show it",
 }
-#: Fewest readable images on each side: set means of fewer images are mostly content.
-MIN_IMAGES = 8
 #: The stages' order in the fitted chain (physical: optics, sensor, ISP, codec).
 CHAIN_ORDER = tuple(kind.name for kind in (Blur, Vignetting, Noise, Color, Tone, Sharpen, JPEG))
 #: The noise is calibrated on at most ``NOISE_IMAGES`` clean images, whole (their flat pixels are selected as the
@@ -105,71 +97,6 @@ JPEG_QUALITIES = tuple(range(30, 100, 5))
 STAND_IN_SIGMA = 2.0
 
 Log = Callable[[str], None]
-Source = str | os.PathLike[str] | Sequence[Tensor]
-
-
-@dataclass
-class ImageSet:
-    """The readable images of one side (``(3, H, W)`` floats in [0, 1]), the quantisation tables of those that
-    are JPEG files, and the files skipped (``{"path", "reason"}``)."""
-
-    images: list[Tensor]
-    tables: list[dict[int, list[int]]] = field(default_factory=list)
-    skipped: list[dict[str, str]] = field(default_factory=list)
-
-
-def load_images(source: Source, argument: str, max_images: int | None = None) -> ImageSet:
-    """A folder's images (one unreadable file is skipped and reported, never stops the batch) or a sequence of
-    ``(3, H, W)`` tensors (uint8 or float in [0, 1]); of any sizes."""
-    if isinstance(source, (str, os.PathLike)):
-        return _load_folder(Path(source), argument, max_images)
-    if isinstance(source, Sequence) and all(isinstance(image, Tensor) for image in source):
-        images = []
-        for index, image in enumerate(source[:max_images]):
-            if image.ndim != 3 or image.shape[0] != 3:
-                raise ValueError(f"{argument}[{index}] must be a (3, H, W) image, got shape {tuple(image.shape)}")
-            images.append(as_unit(image.detach().cpu()).float())
-        return ImageSet(images)
-    raise TypeError(
-        f"{argument} must be a folder of images or a list of (3, H, W) tensors, got {type(source).__name__}"
-    )
-
-
-def _load_folder(folder: Path, argument: str, max_images: int | None) -> ImageSet:
-    if not folder.is_dir():
-        raise PairsError(f"{argument} must be a folder holding images, got {str(folder)!r}")
-    out = ImageSet([])
-    for path in sorted(iter_images(folder)):
-        if max_images is not None and len(out.images) >= max_images:
-            break
-        try:
-            out.images.append(as_unit(read_image(path)).float())
-        except ImageError as error:  # one bad file never stops the batch: it is reported
-            out.skipped.append({"path": str(path), "reason": f"{UNREADABLE}: {error}"})
-            continue
-        tables = _quantisation(path)
-        if tables is not None:
-            out.tables.append(tables)
-    return out
-
-
-def _quantisation(path: Path) -> dict[int, list[int]] | None:
-    from PIL import Image
-
-    try:
-        with Image.open(path) as image:
-            return dict(image.quantization) if image.format == "JPEG" else None
-    except (OSError, AttributeError):  # read_image read it; a table it cannot give is no table
-        return None
-
-
-def _check_count(images: ImageSet, argument: str) -> None:
-    if len(images.images) < MIN_IMAGES:
-        raise PairsError(
-            f"{argument} must hold at least {MIN_IMAGES} readable images for an unpaired fit (set statistics of "
-            f"fewer are mostly content), got {len(images.images)}"
-            + (f" ({len(images.skipped)} unreadable)" if images.skipped else "")
-        )
 
 
 def check_unpaired_effects(effects: Sequence[str]) -> list[str]:
@@ -218,10 +145,10 @@ def fit_unpaired(
             raise TypeError(f"{label} must be a str, got {label}={text!r} ({type(text).__name__})")
     started = time.perf_counter()
     captures = load_images(captured, "captured", max_images)
-    _check_count(captures, "captured")
+    check_count(captures, "captured")
     cleans = load_images(clean, "clean", max_images) if clean is not None else None
     if cleans is not None:
-        _check_count(cleans, "clean")
+        check_count(cleans, "clean")
     say(f"unpaired fit: {len(captures.images)} captures, {len(cleans.images) if cleans else 'no'} clean images")
     fit = _UnpairedFit(captures, cleans, wanted, seed, say)
     with tqdm(total=len(fit.steps), desc="unpaired fit", unit="step", disable=not progress) as bar:
