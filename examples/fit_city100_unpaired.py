@@ -9,7 +9,10 @@ on 8 of the scenes, scored on the other 8; 0.5: cannot tell). Rows: the clean im
 ``city100-iphonex`` (the paired fit: network and effects, fitted on pairs of 001–055) and the unpaired profile.
 Run from the repo root::
 
-    OMP_NUM_THREADS=2 .venv/bin/python examples/fit_city100_unpaired.py [--data DIR] [--out PATH] [--critic]
+    OMP_NUM_THREADS=2 .venv/bin/python examples/fit_city100_unpaired.py [--data DIR] [--critic] [--png PATH]
+
+It also writes ``docs/unpaired_city100.png``: clean | real | unpaired simulation of three held-out scenes (flat at
+1:1, textured at 2×).
 """
 
 from __future__ import annotations
@@ -22,12 +25,14 @@ import time
 from pathlib import Path
 
 import torch
+from PIL import Image, ImageDraw
 from torch import Tensor
 
 from camdegrade import load_profile
-from camdegrade._pixels import as_unit
+from camdegrade._pixels import as_unit, unit_to_bytes
 from camdegrade.fitting import discover_pairs, filter_pairs, load_pair, simulate
 from camdegrade.fitting.unpaired import fit_unpaired
+from camdegrade.functional.analysis import flat_mask, gradient_energy
 from camdegrade.measures.critic import critic_test
 from camdegrade.measures.fidelity import BAND_EDGES, measure_fidelity
 
@@ -36,6 +41,7 @@ DEFAULT_DATA = ROOT.parent / "shared" / "data" / "real-pairs"
 CLEAN_SCENES = [f"{n:03d}" for n in range(1, 36)]
 CAPTURED_SCENES = [f"{n:03d}" for n in range(36, 56)]
 HELD_OUT = sorted({f"{n:03d}" for n in range(56, 71)} | {"098"})
+SHOWN, TILE = ("060", "062", "098"), 128
 
 
 def city100(data: Path) -> dict[str, tuple[Tensor, Tensor]]:
@@ -111,12 +117,49 @@ def format_table(table: list[dict]) -> str:
     return "\n".join(lines)
 
 
+def _window(score: Tensor, side: int) -> tuple[int, int]:
+    """Top-left corner of the ``side``² window with the highest mean ``score`` (on an 8-pixel grid)."""
+    pooled = torch.nn.functional.avg_pool2d(score[None, None].float(), side, stride=8)[0, 0]
+    top, left = divmod(int(pooled.argmax()), pooled.shape[1])
+    return top * 8, left * 8
+
+
+def side_by_side(scenes: dict[str, tuple[Tensor, Tensor]], unpaired, path: Path) -> None:
+    """Clean | real | unpaired simulation of the held-out scenes :data:`SHOWN`: the flattest window at 1:1 and the
+    most textured at 2× nearest-neighbour."""
+    rows = []
+    for scene in SHOWN:
+        clean, real = scenes[scene]
+        sim = unit_to_bytes(simulate(unpaired, [as_unit(clean)], HELD_OUT.index(scene))[0])
+        unit = as_unit(clean)
+        for kind, score, side in (
+            ("flat 1:1", flat_mask(unit), TILE),
+            ("texture 2x", gradient_energy(unit), TILE // 2),
+        ):
+            top, left = _window(score, side)
+            crops = [
+                image[:, top : top + side, left : left + side].permute(1, 2, 0).numpy() for image in (clean, real, sim)
+            ]
+            rows.append((f"{scene} {kind}", [Image.fromarray(c).resize((TILE, TILE), Image.NEAREST) for c in crops]))
+    canvas = Image.new("RGB", (100 + 3 * (TILE + 4), 16 + len(rows) * (TILE + 4)), "white")
+    draw = ImageDraw.Draw(canvas)
+    for column, name in enumerate(("clean", "real", "unpaired simulation")):
+        draw.text((100 + column * (TILE + 4), 2), name, fill="black")
+    for row, (label, pictures) in enumerate(rows):
+        draw.text((4, 16 + row * (TILE + 4) + TILE // 2), label, fill="black")
+        for column, picture in enumerate(pictures):
+            canvas.paste(picture, (100 + column * (TILE + 4), 16 + row * (TILE + 4)))
+    path.parent.mkdir(parents=True, exist_ok=True)
+    canvas.save(path)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--data", type=Path, default=DEFAULT_DATA)
     parser.add_argument("--out", type=Path, default=ROOT / "out" / "city100-unpaired.safetensors")
     parser.add_argument("--json", type=Path, default=ROOT / "out" / "results" / "fit_city100_unpaired.json")
     parser.add_argument("--critic", action="store_true", help="also train and score the learned critic (slower)")
+    parser.add_argument("--png", type=Path, default=ROOT / "docs" / "unpaired_city100.png")
     args = parser.parse_args(argv)
     if not (args.data / "pairs.csv").is_file():
         parser.error(f"no pairs.csv in {args.data}; pass --data with the real-pairs folder")
@@ -131,6 +174,8 @@ def main(argv: list[str] | None = None) -> int:
     )
     table = rows(scenes, profile, args.critic)
     print(format_table(table))
+    side_by_side(scenes, profile, args.png)
+    print(f"wrote {args.png}")
     args.json.parent.mkdir(parents=True, exist_ok=True)
     record = {"fit_seconds": round(seconds, 1), "fitted": profile.fitted, "quality": profile.quality, "rows": table}
     args.json.write_text(json.dumps(record, indent=2, allow_nan=False) + "\n")
