@@ -33,7 +33,16 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         "camdegrade fit ...' the fit runs data-parallel (gloo on CPU, NCCL on GPU). Recipe options left out keep "
         "the recipe's values.",
     )
-    fit.add_argument("pairs", type=Path, help="pairs folder or CSV manifest")
+    fit.add_argument("pairs", type=Path, nargs="?", help="pairs folder or CSV manifest (not with --unpaired)")
+    fit.add_argument(
+        "--unpaired",
+        type=Path,
+        default=None,
+        metavar="CAPTURED",
+        help="fit an effects-only profile from a folder of the camera's own photos, no pairs "
+        "(docs/fitting.md, 'Unpaired fitting'); with --clean, a folder of clean images of other scenes",
+    )
+    fit.add_argument("--clean", type=Path, default=None, metavar="CLEAN", help="clean images for --unpaired")
     fit.add_argument("-o", "--output", type=Path, required=True, help="profile to write (.safetensors)")
     add_recipe_options(fit)
     fit.add_argument(
@@ -65,6 +74,12 @@ def run(args: argparse.Namespace) -> int:
     from camdegrade.fitting.pairset import PairSet
     from camdegrade.fitting.training import FitConfig, FitInterrupted
 
+    if (args.pairs is None) == (args.unpaired is None):
+        raise ValueError("give either PAIRS or --unpaired CAPTURED, got " + ("both" if args.pairs else "neither"))
+    if args.unpaired is not None:
+        return _run_unpaired(args)
+    if args.clean is not None:
+        raise ValueError(f"--clean goes with --unpaired, got --clean {printable(args.clean)} and PAIRS")
     recipe = FitConfig.recipe(args.recipe, **recipe_changes(args))
     check_schedule_options(args, recipe.schedule)
     checkpoint = _checkpoint(args)
@@ -95,6 +110,30 @@ def run(args: argparse.Namespace) -> int:
             torch.distributed.destroy_process_group()
     if main_process:
         _write(profile, args, checkpoint)
+    return 0
+
+
+def _run_unpaired(args: argparse.Namespace) -> int:
+    """``fit --unpaired CAPTURED [--clean CLEAN]``: :func:`~camdegrade.fitting.unpaired.fit_unpaired`, written."""
+    from camdegrade.fitting.unpaired import fit_unpaired
+
+    check_suffix("--output", args.output)
+    check_outputs({"--output": args.output}, [])
+    profile = fit_unpaired(
+        args.unpaired,
+        args.clean,
+        seed=args.seed if args.seed is not None else 0,
+        progress=not args.quiet,
+        name=args.name or args.output.stem,
+        description=args.description,
+        log=say,
+    )
+    profile.save(args.output)
+    say(profile.describe())
+    print(f"wrote {printable(args.output)}")
+    for warning in profile.fitted.get("warnings", []):
+        print(f"camdegrade fit: warning: {warning}", file=sys.stderr)
+    fail_on_unreadable(profile.fitted.get("unreadable", []), "the profile was fitted on the other images")
     return 0
 
 

@@ -1,0 +1,89 @@
+"""Time of an unpaired fit (issue 27): 100 captures of 512² and 100 clean images of other scenes, every stage.
+
+Plain script, not a test. The captures are dead-leaves scenes (:mod:`camdegrade.synthetic`) photographed by a
+simulated camera (blur, vignetting, noise, white balance, a tone curve), written as JPEG files at quality 85 so
+that the codec stage is read from their tables; the clean set is 100 other dead-leaves scenes. The target is at
+most 5 minutes on 2 cores. Run from the repo root::
+
+    OMP_NUM_THREADS=2 .venv/bin/python bench/bench_unpaired.py [--count 100] [--size 512]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import tempfile
+import time
+from pathlib import Path
+
+import torch
+from PIL import Image
+
+from camdegrade import CameraProfile
+from camdegrade._pixels import unit_to_bytes
+from camdegrade.effects import Blur, Color, Noise, Tone, Vignetting
+from camdegrade.fitting import simulate
+from camdegrade.fitting.unpaired import fit_unpaired
+from camdegrade.synthetic import dead_leaves_images
+
+CAMERA = CameraProfile(
+    None,
+    [
+        Blur(1.2),
+        Vignetting(-0.3),
+        Noise(levels=torch.full((3, 4), 3.0 / 255), linear=False),
+        Color(torch.diag(torch.tensor([1.15, 1.0, 0.85]))),
+        Tone(gamma=1.2),
+    ],
+)
+
+
+def _cpu() -> str:
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--count", type=int, default=100)
+    parser.add_argument("--size", type=int, default=512)
+    parser.add_argument("--json", type=Path, default=Path("out/bench/unpaired.json"))
+    args = parser.parse_args(argv)
+    with tempfile.TemporaryDirectory() as folder:
+        captured, clean = Path(folder, "captured"), Path(folder, "clean")
+        captured.mkdir()
+        clean.mkdir()
+        scenes = dead_leaves_images(args.count, args.size, seed=2)
+        for index, image in enumerate(simulate(CAMERA, scenes, seed=7)):
+            Image.fromarray(unit_to_bytes(image).permute(1, 2, 0).numpy()).save(
+                captured / f"{index:03d}.jpg", quality=85
+            )
+        for index, image in enumerate(dead_leaves_images(args.count, args.size, seed=1)):
+            Image.fromarray(image.permute(1, 2, 0).numpy()).save(clean / f"{index:03d}.png")
+        started = time.perf_counter()
+        profile = fit_unpaired(captured, clean, progress=True)
+        seconds = time.perf_counter() - started
+    result = {
+        "captures": args.count,
+        "size": args.size,
+        "seconds": round(seconds, 1),
+        "threads": torch.get_num_threads(),
+        "cpu": _cpu(),
+        "torch": torch.__version__,
+        "kept": profile.effect_names,
+        "within_5_minutes": seconds <= 300,
+    }
+    print(json.dumps(result, indent=2))
+    args.json.parent.mkdir(parents=True, exist_ok=True)
+    args.json.write_text(json.dumps(result, indent=2) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

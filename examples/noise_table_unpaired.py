@@ -1,0 +1,80 @@
+"""Captures-only noise on the REAL PolyU, CC15 and SIDD pairs: the unpaired fit against the paired one and the oracle.
+
+Per subset (cameras pooled; the halves alternate within each camera and ISO, as ``examples/noise_table.py``'s
+subset table does): :func:`camdegrade.fitting.unpaired.fit_unpaired` sees only the *captures* of the fitting half
+(no clean image, their mean frames unused) and fits a noise stage from their flat regions; the paired
+:meth:`camdegrade.effects.Noise.fit` sees the pairs of the same half. On the checking half, where the clean (mean)
+image is flat, each fitted noise is simulated on the clean images and its std per channel and intensity bin is
+divided by the real noise's; ``oracle`` is the real noise of the fitting half over that of the checking half (what
+reproducing the fitting images' noise exactly would score). Printed: per subset, the median and the worst
+``|log2 ratio|`` over the measurable bins of each. Run from the repo root::
+
+    OMP_NUM_THREADS=1 .venv/bin/python examples/noise_table_unpaired.py [REAL_PAIRS_DIR]
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections import defaultdict
+from pathlib import Path
+
+import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from noise_table import SUBSETS, _load, _residual_sums, _simulate, default_real_pairs_dir, noise_groups
+
+from camdegrade.effects import Noise
+from camdegrade.fitting.unpaired import MIN_IMAGES, fit_unpaired
+
+
+def _spread(ratio: torch.Tensor) -> tuple[float, float, int]:
+    """Median and worst ``|log2 ratio|`` over the finite bins, and how many there are."""
+    values = ratio.flatten()
+    values = values[torch.isfinite(values) & (values > 0)].log2().abs()
+    return float(values.median()), float(values.max()), int(values.numel())
+
+
+def subset_rows(root: Path) -> list[dict]:
+    ordered: dict[str, list[tuple[Path, Path]]] = defaultdict(list)
+    for (subset, _, _), paths in noise_groups(root, SUBSETS).items():
+        ordered[subset] += paths
+    rows = []
+    for subset, paths in ordered.items():
+        cleans, reals = _load(paths[::2])
+        held_cleans, held_reals = _load(paths[1::2])
+        real = _residual_sums(held_reals, held_cleans)
+        if len(reals) < MIN_IMAGES:
+            print(f"{subset}: {len(reals)} captures in the fitting half, fewer than the unpaired fit's {MIN_IMAGES}")
+            continue
+        unpaired = fit_unpaired(reals, effects=("noise",)).effects
+        stages = {
+            "unpaired (captures only)": unpaired[0] if len(unpaired) else None,
+            "paired Noise.fit": Noise.fit(cleans, reals, estimator="residual", seed=0),
+        }
+        row = {"subset": subset, "fit": len(reals), "check": len(held_reals), "flat_pixels": real.pixels}
+        for label, noise in stages.items():
+            sims = _simulate(noise, held_cleans, 1) if noise is not None else held_cleans
+            row[label] = _spread(_residual_sums(sims, held_cleans).std() / real.std())
+        row["oracle"] = _spread(_residual_sums(reals, cleans).std() / real.std())
+        rows.append(row)
+    return rows
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("root", nargs="?", type=Path, default=default_real_pairs_dir())
+    args = parser.parse_args(argv)
+    torch.set_num_threads(1)
+    columns = ("unpaired (captures only)", "paired Noise.fit", "oracle")
+    print("| subset | fit / check images | flat pixels (check) | " + " | ".join(columns) + " |")
+    print("|---|---|---|" + "---|" * len(columns))
+    for row in subset_rows(args.root):
+        cells = [f"{row[c][0]:.2f} / {row[c][1]:.2f} ({row[c][2]} bins)" for c in columns]
+        print(f"| {row['subset']} | {row['fit']} / {row['check']} | {row['flat_pixels']} | " + " | ".join(cells) + " |")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,401 @@
+"""``fit_unpaired``: a camera profile from the camera's own photos and, optionally, a clean image set of *other*
+scenes of similar content — no screen rig, no correspondence between the two sets.
+
+Every stage is fitted by matching a distribution of the captures (an effects-only profile: no network):
+
+- ``jpeg``: the quality read from the captures' own quantisation tables, when they are JPEG files
+  (:func:`~camdegrade.fitting._distribution_match.quality_from_tables`); for lossless files that show 8×8 block
+  edges (JPEGs saved again: the tables are gone) a quality is estimated from their block-edge energy, with a
+  warning;
+- ``color``, ``tone``: white-balance gains and a tone curve by quantile matching of the two sets;
+- ``vignetting``: the captures' mean radial luma profile over the clean set's (over a flat field without one);
+- ``blur``, ``sharpen``: the PSF and the unsharp mask whose simulation of the clean set has the captures' radial
+  power spectrum (noise and codec simulated too, so the noise floor is not read as sharpness);
+- ``noise``: level per channel and intensity, spatial and chroma correlation, banding, from the captures' flat
+  regions (:mod:`camdegrade.fitting._unpaired_noise`), calibrated through the whole chain.
+
+Without a clean set only ``jpeg``, ``vignetting`` (against a flat field) and ``noise`` (simulated on the captures
+smoothed) are fitted. Geometric stages are not identifiable without correspondence and are never fitted
+(:data:`NOT_IDENTIFIABLE`). The profile records ``fitted['unpaired']``, how many images each side had and each
+stage's evidence, and ``quality['unpaired_fidelity']``: the simulated clean set against the captures (flat-noise
+ratio, band log2 power differences of the set means).
+"""
+
+from __future__ import annotations
+
+import math
+import platform
+import time
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import torch
+from torch import Tensor
+from tqdm.auto import tqdm
+
+from camdegrade._profile_format.header import running_versions
+from camdegrade._seeds import derived_generator
+from camdegrade._version import __version__
+from camdegrade.effects import (
+    JPEG,
+    Blur,
+    ChromaticAberration,
+    Color,
+    Distortion,
+    Effect,
+    Misalignment,
+    Noise,
+    Sharpen,
+    Tone,
+    Vignetting,
+)
+from camdegrade.effects._fitting import downscale
+from camdegrade.effects.base import evenly_spaced
+from camdegrade.fitting._distribution_match import (
+    BLOCK_EDGE_RATIO,
+    RINGS,
+    SHARPEN_SIGMA,
+    SPECTRUM_SIDE,
+    block_edge_ratio,
+    centre_crop,
+    fit_color_tone,
+    fit_transfer,
+    fit_vignetting,
+    mean_spectrum,
+    quality_from_tables,
+    ring_profiles,
+)
+from camdegrade.fitting._unpaired_images import MIN_IMAGES, ImageSet, Source, check_count, load_images
+from camdegrade.fitting._unpaired_noise import fit_noise_unpaired, flat_sums
+from camdegrade.functional.blur import blur_image
+from camdegrade.measures.fidelity import BAND_EDGES, band_power
+from camdegrade.profile import CameraProfile
+
+__all__ = ["MIN_IMAGES", "NOT_IDENTIFIABLE", "UNPAIRED_EFFECTS", "fit_unpaired"]
+
+#: The stages :func:`fit_unpaired` fits by default, in the order they are fitted.
+UNPAIRED_EFFECTS: tuple[str, ...] = tuple(kind.name for kind in (JPEG, Color, Tone, Vignetting, Noise, Blur, Sharpen))
+#: Stages that need to know where each clean pixel landed in the capture: an unpaired set cannot show them.
+NOT_IDENTIFIABLE: dict[str, str] = {
+    Misalignment.name: "a shift between clean image and capture is invisible without the same scene on both sides",
+    Distortion.name: "the lens's radial warp needs straight scene lines or a correspondence to be seen",
+    ChromaticAberration.name: "a channel's scale is seen against the same scene's other channels at edges only "
+    "with a reference; set statistics do not show it",
+}
+#: The stages' order in the fitted chain (physical: optics, sensor, ISP, codec).
+CHAIN_ORDER = tuple(kind.name for kind in (Blur, Vignetting, Noise, Color, Tone, Sharpen, JPEG))
+#: The noise is calibrated on at most ``NOISE_IMAGES`` clean images, whole (their flat pixels are selected as the
+#: captures' are: a window chosen for its flatness would hold less texture than the captures' flat pixels do);
+#: the spectrum compared on centre crops of at most ``SPECTRUM_IMAGES``.
+NOISE_IMAGES = 16
+SPECTRUM_IMAGES = 24
+#: Colour, tone and vignetting are read from the images averaged down to this side (noise averaged out).
+SMALL_SIDE = 256
+#: Qualities tried for captures that show JPEG blocks but carry no quantisation table.
+JPEG_QUALITIES = tuple(range(30, 100, 5))
+#: Without a clean set the noise is simulated on the captures smoothed by a Gaussian of this sigma (px).
+STAND_IN_SIGMA = 2.0
+
+Log = Callable[[str], None]
+
+
+def check_unpaired_effects(effects: Sequence[str]) -> list[str]:
+    """``effects`` as a list, each one :func:`fit_unpaired` can fit; a ``ValueError`` naming the first that is
+    not identifiable unpaired (and why) or unknown."""
+    names = [effects] if isinstance(effects, str) else list(effects)
+    for name in names:
+        if name in NOT_IDENTIFIABLE:
+            raise ValueError(f"effects: {name!r} cannot be fitted unpaired: {NOT_IDENTIFIABLE[name]}")
+        if name not in UNPAIRED_EFFECTS:
+            raise ValueError(f"effects must be names from {list(UNPAIRED_EFFECTS)}, got {name!r}")
+    return names
+
+
+def fit_unpaired(
+    captured: Source,
+    clean: Source | None = None,
+    *,
+    effects: Sequence[str] = UNPAIRED_EFFECTS,
+    seed: int = 0,
+    max_images: int | None = None,
+    progress: bool = False,
+    name: str = "",
+    description: str = "",
+    log: Log | None = None,
+) -> CameraProfile:
+    """Fit an effects-only camera profile from the camera's photos ``captured`` and an optional ``clean`` set of
+    other scenes of similar content (each a folder or a list of ``(3, H, W)`` tensors, images of any sizes).
+
+    Args:
+        effects: the stages to fit (default :data:`UNPAIRED_EFFECTS`); each is kept only where the captures differ
+            from the clean set by more than its floor (see :mod:`camdegrade.fitting._distribution_match`).
+        seed: the simulations' seed (same seed, same profile).
+        max_images: read at most this many images of each side.
+        progress: a progress bar over the steps.
+
+    Raises:
+        PairsError: fewer than :data:`MIN_IMAGES` readable images on a side, or not a folder.
+        ValueError: an effect that needs correspondence (:data:`NOT_IDENTIFIABLE`), or captures with too few flat
+            pixels to measure their noise.
+    """
+    say = log or (lambda message: None)
+    wanted = check_unpaired_effects(effects)
+    for label, text in (("name", name), ("description", description)):
+        if not isinstance(text, str):
+            raise TypeError(f"{label} must be a str, got {label}={text!r} ({type(text).__name__})")
+    started = time.perf_counter()
+    captures = load_images(captured, "captured", max_images)
+    check_count(captures, "captured")
+    cleans = load_images(clean, "clean", max_images) if clean is not None else None
+    if cleans is not None:
+        check_count(cleans, "clean")
+    say(f"unpaired fit: {len(captures.images)} captures, {len(cleans.images) if cleans else 'no'} clean images")
+    fit = _UnpairedFit(captures, cleans, wanted, seed, say)
+    with tqdm(total=len(fit.steps), desc="unpaired fit", unit="step", disable=not progress) as bar:
+        for label, step in fit.steps:
+            bar.set_postfix_str(label)
+            step()
+            bar.update(1)
+    profile = CameraProfile(None, fit.chain(), name=name, description=description)
+    profile.fitted = fit.record(time.perf_counter() - started)
+    profile.quality = {"unpaired_fidelity": fit.fidelity()}
+    for warning in fit.warnings:
+        say(f"warning: {warning}")
+    return profile
+
+
+class _UnpairedFit:
+    """The state of one unpaired fit: the stages so far, each step's notes, and the sets it simulates."""
+
+    def __init__(self, captures: ImageSet, cleans: ImageSet | None, wanted: list[str], seed: int, say: Log) -> None:
+        self.captures, self.cleans, self.wanted, self.seed, self.say = captures, cleans, wanted, seed, say
+        self.stages: dict[str, Effect] = {}
+        self.notes: dict[str, Any] = {}
+        self.not_fitted: dict[str, str] = {}
+        self.warnings: list[str] = []
+        self.block_ratio: float | None = None
+        stand_ins = cleans.images if cleans else [blur_image(image, STAND_IN_SIGMA) for image in captures.images]
+        self.noise_crops = evenly_spaced(stand_ins, NOISE_IMAGES)
+        self.spectrum_crops = [centre_crop(image, SPECTRUM_SIDE) for image in evenly_spaced(stand_ins, SPECTRUM_IMAGES)]
+        self.real_noise = flat_sums(captures.images)
+        self.small_captures = [downscale(image, SMALL_SIDE) for image in captures.images]
+        self.small_cleans = [downscale(image, SMALL_SIDE) for image in cleans.images] if cleans else []
+        self.real_rings = ring_profiles(self.small_captures)
+        self.clean_rings = ring_profiles(self.small_cleans) if cleans else torch.zeros(0, RINGS, dtype=torch.float64)
+        self.real_spectrum = mean_spectrum(captures.images)
+        self.steps: list[tuple[str, Callable[[], None]]] = [
+            ("jpeg", self.fit_jpeg),
+            ("vignetting", lambda: self.fit_vignetting(simulated=False)),
+            ("colour and tone", lambda: self.fit_color_tone(test=False)),
+            ("vignetting again", lambda: self.fit_vignetting(simulated=True)),
+            ("noise", self.fit_noise),
+            ("blur and sharpening", self.fit_transfer),
+            ("jpeg from block edges", self.fit_jpeg_from_blocks),
+            ("blur and sharpening with it", self.refit_transfer),
+            ("colour and tone through the blur", lambda: self.fit_color_tone(test=True)),
+            ("vignetting through the blur", lambda: self.fit_vignetting(simulated=True)),
+            ("noise again", self.fit_noise),
+        ]
+
+    # -- the chain and its simulation ------------------------------------------------------------------------------
+
+    def chain(self, **replaced: Effect | None) -> list[Effect]:
+        stages = {**self.stages, **replaced}
+        return [stages[key] for key in CHAIN_ORDER if stages.get(key) is not None]
+
+    def simulate(self, chain: list[Effect], images: Sequence[Tensor], stream: str) -> list[Tensor]:
+        """``images`` through ``chain`` (image ``i`` seeded by ``(seed, stream, i)``), stored as 8-bit values."""
+        profile = CameraProfile(None, chain)
+        out = []
+        with torch.no_grad():
+            for index, image in enumerate(images):
+                batch = image[None]
+                params = profile.make_params(batch.shape, derived_generator(self.seed, stream, index))
+                out.append(profile(batch, params)[0].mul(255).round().div(255))
+        return out
+
+    def wants(self, *kinds: type[Effect]) -> bool:
+        """Whether any of these stages is to be fitted."""
+        return any(kind.name in self.wanted for kind in kinds)
+
+    def keep(self, stage: Effect) -> None:
+        self.stages[stage.name] = stage
+
+    def _skip(self, kinds: Sequence[type[Effect]], reason: str) -> None:
+        for kind in kinds:
+            if self.wants(kind):
+                self.not_fitted[kind.name] = reason
+
+    # -- steps -----------------------------------------------------------------------------------------------------
+
+    def fit_jpeg(self) -> None:
+        if not self.wants(JPEG):
+            return
+        tables, count = self.captures.tables, len(self.captures.images)
+        if not tables:
+            ratio = block_edge_ratio(evenly_spaced(self.captures.images, 32))
+            self.notes[JPEG.name] = {"jpeg_files": 0, "block_edge_ratio": round(ratio, 3)}
+            if ratio > BLOCK_EDGE_RATIO:
+                self.block_ratio = ratio  # a quality is estimated from the blocks once the chain before it stands
+            else:
+                self._skip([JPEG], "the captures are not JPEG files and show no 8×8 blocks")
+            return
+        found = [quality_from_tables(table) for table in tables]
+        qualities = sorted(quality for quality, _ in found)
+        median = qualities[len(qualities) // 2]
+        jitter = max(abs(qualities[0] - median), abs(qualities[-1] - median))
+        self.keep(JPEG(median, quality_jitter=jitter, probability=len(tables) / count))
+        self.notes[JPEG.name] = {
+            "jpeg_files": len(tables),
+            "quality": median,
+            "qualities": [qualities[0], qualities[-1]],
+            "standard_tables": all(exact for _, exact in found),
+        }
+        self.say(f"jpeg: quality {median} read from {len(tables)} files' quantisation tables")
+
+    def fit_jpeg_from_blocks(self) -> None:
+        """Captures that were JPEGs once but carry no table: the quality whose simulation has their block-edge
+        energy (:data:`JPEG_QUALITIES`), with a warning that it is an estimate."""
+        if self.block_ratio is None:
+            return
+        crops = evenly_spaced(self.spectrum_crops, 8)
+        chain = self.chain(jpeg=None)
+        ratios = {
+            quality: block_edge_ratio(self.simulate([*chain, JPEG(quality)], crops, "unpaired-blocks"))
+            for quality in JPEG_QUALITIES
+        }
+        quality = min(ratios, key=lambda q: abs(ratios[q] - self.block_ratio))
+        self.keep(JPEG(quality))
+        self.notes[JPEG.name] |= {"quality_from_block_edges": quality, "simulated_ratio": round(ratios[quality], 3)}
+        self.warnings.append(
+            f"the captures show 8×8 block edges ({self.block_ratio:.2f}× the mean gradient energy; above "
+            f"{BLOCK_EDGE_RATIO} means JPEG blocks) but are not JPEG files, so their quantisation tables are gone "
+            f"(JPEGs saved again as PNG?): the jpeg stage's quality {quality} is estimated from the block edges; fit "
+            "from the camera's original JPEG files for the exact one"
+        )
+        self.say(f"jpeg: quality {quality} estimated from the block edges (no quantisation table)")
+
+    def fit_color_tone(self, *, test: bool) -> None:
+        if not self.wants(Color, Tone):
+            return
+        if self.cleans is None:
+            self._skip([Color, Tone], "needs a clean set (--clean)")
+            return
+        sources = self.simulate(self.deterministic(optics_only=True), self.small_cleans, "unpaired-deterministic")
+        color, tone, notes = fit_color_tone(self.small_captures, sources, self.seed, test=test)
+        self.notes["color_tone"] = notes
+        for kind, stage in ((Color, color), (Tone, tone)):
+            self.stages.pop(kind.name, None)
+            if self.wants(kind) and stage is not None:
+                self.keep(stage)
+        self.say(f"colour and tone: gains {notes['gains']}, tone curve change {notes['tone_change']}")
+
+    def fit_vignetting(self, *, simulated: bool) -> None:
+        if not self.wants(Vignetting) or (simulated and self.cleans is None):
+            return
+
+        def simulate(vignetting: Vignetting) -> Tensor:
+            chain = self.deterministic(vignetting=vignetting)
+            return ring_profiles(self.simulate(chain, self.small_cleans, "unpaired-deterministic"))
+
+        shape = tuple(int(v) for v in torch.tensor([list(i.shape[-2:]) for i in self.captures.images]).median(0).values)
+        vignetting, notes = fit_vignetting(
+            self.real_rings, self.clean_rings, shape, simulate if simulated else None, self.seed
+        )
+        self.notes[Vignetting.name] = notes
+        self.stages.pop(Vignetting.name, None)
+        if vignetting is not None:
+            self.keep(vignetting)
+        self.say(f"vignetting: corner gain {notes['corner_gain']}{'' if vignetting else ' (not kept)'}")
+
+    def deterministic(self, *, optics_only: bool = False, **replaced: Effect | None) -> list[Effect]:
+        """The chain's deterministic centre without its codec (what the set statistics of colour, tone and
+        vignetting see), or only its optics stages."""
+        chain = [effect.without_randomness() for effect in self.chain(jpeg=None, **replaced)]
+        return [effect for effect in chain if effect is not None and (effect.stage == "optics" or not optics_only)]
+
+    def fit_noise(self) -> None:
+        if not self.wants(Noise):
+            return
+
+        def simulate(noise: Noise | None) -> list[Tensor]:
+            return self.simulate(self.chain(noise=noise), self.noise_crops, "unpaired-noise")
+
+        noise, notes = fit_noise_unpaired(self.real_noise, simulate)
+        self.notes[Noise.name] = notes
+        self.stages.pop(Noise.name, None)
+        if noise is not None:
+            self.keep(noise)
+        self.say(f"noise: {notes['std_mid_grey_levels']} levels at mid-grey{'' if noise else ' (not kept)'}")
+
+    def refit_transfer(self) -> None:
+        """The transfer function again once a jpeg stage was estimated after it (the codec changes the spectrum)."""
+        if self.block_ratio is not None:
+            self.fit_transfer()
+
+    def fit_transfer(self) -> None:
+        if not self.wants(Blur, Sharpen):
+            return
+        if self.cleans is None:
+            self._skip([Blur, Sharpen], "needs a clean set (--clean)")
+            return
+        use_blur, use_sharpen = self.wants(Blur), self.wants(Sharpen)
+
+        def simulate(sigma: float, amount: float) -> list[Tensor]:
+            blur = Blur(sigma) if sigma > 0 and use_blur else None
+            sharpen = Sharpen(SHARPEN_SIGMA, amount) if amount > 0 and use_sharpen else None
+            return self.simulate(self.chain(blur=blur, sharpen=sharpen), self.spectrum_crops, "unpaired-spectrum")
+
+        (sigma, amount), notes = fit_transfer(self.real_spectrum, simulate)
+        self.notes["transfer"] = notes
+        for kind in (Blur, Sharpen):
+            self.stages.pop(kind.name, None)
+        if sigma > 0 and use_blur:
+            self.keep(Blur(sigma))
+        if amount > 0 and use_sharpen:
+            self.keep(Sharpen(SHARPEN_SIGMA, amount))
+        self.say(f"blur and sharpening: sigma {sigma} px, amount {amount} (spectrum mismatch {notes})")
+
+    # -- the record ------------------------------------------------------------------------------------------------
+
+    def fidelity(self) -> dict[str, Any]:
+        """The simulated clean set against the captures: flat-noise ratio (pooled std), the set means' log2 band
+        power differences (:data:`~camdegrade.measures.fidelity.BAND_EDGES`) and the spectrum mismatch."""
+        chain = self.chain()
+        noisy = flat_sums(self.simulate(chain, self.noise_crops, "unpaired-check"))
+        real_std = self.real_noise.pooled_std()
+        ratio = noisy.pooled_std() / real_std if real_std > 0 else math.nan
+        sims = self.simulate(chain, self.spectrum_crops, "unpaired-check")
+        sim_bands = torch.stack([band_power(image)[0] for image in sims]).clamp_min(1e-8).log2().mean(0)
+        real_crops = [centre_crop(image, SPECTRUM_SIDE) for image in self.captures.images]
+        real_bands = torch.stack([band_power(image)[0] for image in real_crops]).clamp_min(1e-8).log2().mean(0)
+        mismatch = float((mean_spectrum(sims) - self.real_spectrum).pow(2).mean())
+        return {
+            "noise_ratio": round(ratio, 3) if math.isfinite(ratio) else None,
+            "bands": [round(float(value), 3) for value in sim_bands - real_bands],
+            "band_edges": list(BAND_EDGES),
+            "spectrum_mismatch": round(mismatch, 4),
+        }
+
+    def record(self, seconds: float) -> dict[str, Any]:
+        versions = running_versions()
+        skipped = self.captures.skipped + (self.cleans.skipped if self.cleans else [])
+        out = {
+            "unpaired": True,
+            "captures": len(self.captures.images),
+            "clean_images": len(self.cleans.images) if self.cleans else 0,
+            "unreadable": skipped,
+            "effects": self.notes,
+            "kept": [effect.name for effect in self.chain()],
+            "not_fitted": self.not_fitted,
+            "not_identifiable": sorted(NOT_IDENTIFIABLE),
+            "seed": self.seed,
+            "fit_minutes": round(seconds / 60, 2),
+            "machine": f"{platform.machine()}, {torch.get_num_threads()} threads, torch {torch.__version__}",
+            "camdegrade": __version__,
+            "torch": versions["torch"] or str(torch.__version__),
+            "torchvision": versions["torchvision"],
+        }
+        if self.warnings:
+            out["warnings"] = list(self.warnings)
+        return out

@@ -1,0 +1,185 @@
+"""Unpaired fitting (:func:`camdegrade.fitting.unpaired.fit_unpaired`): a simulated camera built from camdegrade
+effects at known strengths photographs one set of dead-leaves scenes; the fit sees those captures and a clean set of
+*other* scenes, and must recover each identifiable effect within its stated tolerance; the control (a camera with
+no effect) must recover none. Plus the bad inputs and the CLI."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+import torch
+from PIL import Image
+
+from camdegrade import CameraProfile
+from camdegrade.__main__ import main
+from camdegrade._pixels import unit_to_bytes
+from camdegrade._seeds import derived_generator
+from camdegrade.effects import JPEG, Blur, Color, Noise, Sharpen, Tone, Vignetting
+from camdegrade.errors import PairsError
+from camdegrade.fitting import simulate
+from camdegrade.fitting.unpaired import MIN_IMAGES, NOT_IDENTIFIABLE, fit_unpaired
+from camdegrade.functional.tone import tone_curve
+from camdegrade.synthetic import dead_leaves_images
+
+torch.set_num_threads(1)
+COUNT, SIZE = 16, 128
+
+
+def _scenes(seed: int, count: int = COUNT, size: int = SIZE) -> list[torch.Tensor]:
+    """Dead-leaves scenes (texture for the spectrum) with three flat patches each (grey cards: flat regions for the
+    noise), 8-bit; scene ``i`` of ``seed`` is the same whatever ``count``."""
+    scenes = []
+    for index, image in enumerate(dead_leaves_images(count, size, seed=seed)):
+        generator = derived_generator(seed, "flat-patches", index)
+        image = image.clone()
+        side = size * 5 // 16
+        for _ in range(3):
+            top, left = (int(v) for v in torch.randint(0, size - side, (2,), generator=generator))
+            colour = (torch.rand(1, 1, 1, generator=generator) * 200 + 30).round().to(torch.uint8)  # grey
+            image[:, top : top + side, left : left + side] = colour
+        scenes.append(image)
+    return scenes
+
+
+def _captures(*effects, seed: int = 2, count: int = COUNT) -> list[torch.Tensor]:
+    """Scenes of seed ``seed`` (never the clean set's) photographed by a camera of ``effects``, as 8-bit images."""
+    camera = CameraProfile(None, list(effects))
+    return [unit_to_bytes(image) for image in simulate(camera, _scenes(seed, count), seed=7)]
+
+
+@pytest.fixture(scope="module")
+def clean() -> list[torch.Tensor]:
+    return _scenes(1)
+
+
+def _stage(profile: CameraProfile, name: str):
+    found = [effect for effect in profile.effects if effect.name == name]
+    return found[0] if found else None
+
+
+@pytest.fixture(scope="module")
+def combined(clean: list[torch.Tensor]) -> CameraProfile:
+    """A camera with vignetting, blur, noise, white balance and a tone curve at once."""
+    camera = (
+        Blur(1.5),
+        Vignetting(-0.4),
+        Noise(levels=torch.full((3, 4), 4.0 / 255), linear=False),
+        Color(torch.diag(torch.tensor([1.25, 1.0, 0.8]))),
+        Tone(gamma=1.3),
+    )
+    return fit_unpaired(_captures(*camera), clean)
+
+
+def test_the_combined_camera_is_recovered_from_other_scenes(combined: CameraProfile) -> None:
+    assert combined.network is None and combined.fitted["unpaired"] is True
+    assert combined.fitted["captures"] == COUNT and combined.fitted["clean_images"] == COUNT
+    noise = _stage(combined, "noise")
+    assert noise is not None and 3.2 <= noise.magnitude() <= 4.8, combined.fitted["effects"]["noise"]  # ±20 %
+    blur = _stage(combined, "blur")
+    assert blur is not None and abs(float(blur.sigma_x) - 1.5) <= 0.5, combined.fitted["effects"]["transfer"]
+    vignetting = _stage(combined, "vignetting")
+    assert vignetting is not None, combined.fitted["effects"]["vignetting"]
+    assert abs(float(vignetting.k1 + vignetting.k2) + 0.4) <= 0.1  # corner gain 0.6 ± 0.1
+    gains = _stage(combined, "color").matrix.diagonal()
+    assert torch.allclose(gains / gains[1], torch.tensor([1.25, 1.0, 0.8]), atol=0.08), gains
+    fidelity = combined.quality["unpaired_fidelity"]
+    assert 0.8 <= fidelity["noise_ratio"] <= 1.25, fidelity
+    assert all(abs(value) <= 0.5 for value in fidelity["bands"]), fidelity
+
+
+def test_a_tone_curve_is_recovered_within_five_hundredths(clean: list[torch.Tensor]) -> None:
+    profile = fit_unpaired(_captures(Tone(gamma=1.3)), clean, effects=("color", "tone"))
+    assert profile.effect_names == ["tone"], profile.fitted["effects"]  # no white balance where there is none
+    tone = _stage(profile, "tone")
+    grid = torch.linspace(0.1, 0.9, 9, dtype=torch.float64)
+    fitted = tone_curve(grid, *(getattr(tone, key).double() for key in ("gamma", "black", "white", "exposure")))
+    assert float((fitted - grid**1.3).abs().max()) <= 0.05
+
+
+def test_the_control_camera_recovers_nothing(clean: list[torch.Tensor]) -> None:
+    profile = fit_unpaired(_captures(), clean)
+    assert profile.effect_names == [], profile.fitted["effects"]
+    assert profile.fitted["kept"] == []
+
+
+def test_sharpening_is_recovered(clean: list[torch.Tensor]) -> None:
+    profile = fit_unpaired(_captures(Sharpen(1.0, 1.0)), clean, effects=("sharpen", "blur"))
+    sharpen = _stage(profile, "sharpen")
+    assert sharpen is not None and abs(float(sharpen.amount) - 1.0) <= 0.5, profile.fitted["effects"]["transfer"]
+    assert _stage(profile, "blur") is None
+
+
+def _write(images: list[torch.Tensor], folder: Path, suffix: str, quality: int | None = None) -> Path:
+    folder.mkdir(parents=True, exist_ok=True)
+    for index, image in enumerate(images):
+        picture = Image.fromarray(image.permute(1, 2, 0).numpy())
+        options = {"quality": quality} if quality is not None else {}
+        picture.save(folder / f"{index:03d}.{suffix}", **options)
+    return folder
+
+
+def test_jpeg_quality_is_read_exactly_from_the_files(tmp_path: Path) -> None:
+    folder = _write(_scenes(3, count=MIN_IMAGES, size=64), tmp_path / "captured", "jpg", quality=70)
+    profile = fit_unpaired(folder, effects=("jpeg",))
+    jpeg = _stage(profile, "jpeg")
+    assert isinstance(jpeg, JPEG) and int(jpeg.quality) == 70 and jpeg.quality_jitter == 0
+    assert profile.fitted["effects"]["jpeg"]["standard_tables"] is True
+
+
+def test_pngs_that_were_jpegs_get_a_warning_and_an_estimated_quality(tmp_path: Path, clean) -> None:
+    once_jpeg = [unit_to_bytes(image) for image in JPEG(30)(torch.stack(_scenes(3, MIN_IMAGES)).float() / 255)]
+    lines: list[str] = []
+    folder = _write(once_jpeg, tmp_path / "captured", "png")
+    profile = fit_unpaired(folder, clean, effects=("jpeg",), log=lines.append)
+    assert any("8×8 block edges" in line and "not JPEG files" in line for line in lines), lines
+    assert profile.fitted["warnings"] and abs(int(_stage(profile, "jpeg").quality) - 30) <= 15  # an estimate
+    plain = fit_unpaired(_write(_scenes(3, MIN_IMAGES), tmp_path / "plain", "png"), effects=("jpeg",))
+    assert _stage(plain, "jpeg") is None and "jpeg" in plain.fitted["not_fitted"] and "warnings" not in plain.fitted
+
+
+def test_too_few_images_names_the_argument_and_the_count(clean: list[torch.Tensor]) -> None:
+    with pytest.raises(PairsError, match=rf"captured must hold at least {MIN_IMAGES} readable images.*got 3"):
+        fit_unpaired(clean[:3], clean)
+    with pytest.raises(PairsError, match=r"clean must hold at least"):
+        fit_unpaired(clean, clean[:2])
+    with pytest.raises(TypeError, match=r"captured must be a folder of images or a list"):
+        fit_unpaired(42)
+
+
+@pytest.mark.parametrize("name", sorted(NOT_IDENTIFIABLE))
+def test_effects_that_need_correspondence_are_refused_and_never_fitted(name: str, combined: CameraProfile) -> None:
+    with pytest.raises(ValueError, match=rf"{name!r} cannot be fitted unpaired"):
+        fit_unpaired([], effects=(name,))
+    assert name not in combined.effect_names and name in combined.fitted["not_identifiable"]
+
+
+def test_an_unreadable_file_and_mixed_sizes_do_not_stop_the_fit(tmp_path: Path) -> None:
+    images = _scenes(4, MIN_IMAGES, 128) + _scenes(5, 2, 160)
+    folder = _write(images, tmp_path / "captured", "png")
+    (folder / "broken.png").write_bytes(b"\x89PNG\r\n\x1a\nnot an image")
+    profile = fit_unpaired(folder, effects=("noise", "vignetting"))
+    assert profile.fitted["captures"] == MIN_IMAGES + 2
+    assert [Path(entry["path"]).name for entry in profile.fitted["unreadable"]] == ["broken.png"]
+
+
+def test_the_cli_fits_writes_and_refuses_with_one_line(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    captured = _write(
+        _captures(Noise(levels=torch.full((3, 4), 4.0 / 255), linear=False), count=MIN_IMAGES),
+        tmp_path / "captured",
+        "png",
+    )
+    clean = _write(_scenes(1, MIN_IMAGES), tmp_path / "clean", "png")
+    output = tmp_path / "camera.safetensors"
+    code = main(["fit", "--unpaired", str(captured), "--clean", str(clean), "-o", str(output), "--quiet"])
+    assert code == 0 and output.is_file()
+    from camdegrade import load_profile
+
+    loaded = load_profile(output)
+    assert loaded.fitted["unpaired"] is True and "noise" in loaded.effect_names
+    capsys.readouterr()
+    assert main(["fit", "--unpaired", str(tmp_path / "missing"), "-o", str(output)]) == 1
+    error = capsys.readouterr().err.strip().splitlines()
+    assert len(error) == 1 and "captured must be a folder holding images" in error[0]
+    assert main(["fit", str(clean), "--unpaired", str(captured), "-o", str(output)]) == 1
+    assert "give either PAIRS or --unpaired" in capsys.readouterr().err
