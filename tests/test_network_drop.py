@@ -66,3 +66,10 @@ def test_without_validation_pairs_the_network_is_kept() -> None:
     profile = fit_profile(_pairs(noise_only=True), RECIPE.replace(effects=(), val_fraction=0.0))
     assert profile.network is not None
     assert profile.fitted["network"] == {"kept": True, "min_gain_db": fit_module.NETWORK_MIN_GAIN_DB}
+
+
+def test_a_dropped_network_is_not_warned_about() -> None:
+    # the network is no better than the clean image here, and the profile does not hold it: nothing to warn about
+    profile = fit_profile(_pairs(noise_only=True), RECIPE.replace(epochs=1))
+    assert fit_module.quality_warnings(profile.quality)  # the trained network's scores alone would warn
+    assert profile.network is None and "warnings" not in profile.fitted

@@ -164,12 +164,19 @@ def fit_profile(
         profile.fitted["network"] = _network_note(keep_network, network_gain)
         profile.fitted["trained_in"] = str(training_dtype(config.precision, torch.device(device))).split(".")[-1]
         quality = _quality(profile, network, val, baseline, eight_bit, say) if len(val) else {}
-        record_quality(profile, quality, quality_warnings(quality) + still_rising(history, config), say)
+        record_quality(profile, quality, _warnings(quality, history, config, keep_network), say)
         return profile
 
 
 def _silent(message: str) -> None:
     pass
+
+
+def _warnings(quality: dict[str, Any], history: Sequence[EpochResult], config: FitConfig, kept: bool) -> list[str]:
+    """What the validation scores warn about. A dropped network is not warned about (the profile does not hold it),
+    unless the captures are the clean images themselves, which is the user's mistake to hear about."""
+    identical = not math.isfinite(quality.get("identity_psnr_db", 0.0))
+    return quality_warnings(quality) + still_rising(history, config) if kept or identical else []
 
 
 def _check_arguments(pairs: Any, name: Any, description: Any) -> None:
