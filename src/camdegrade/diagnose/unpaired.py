@@ -119,7 +119,7 @@ def diagnose_unpaired(
         mode="unpaired",
     )
     report.skipped = skipped
-    if len(cleans) >= MIN_IMAGES and len(reals) >= MIN_IMAGES:  # the statistics the unpaired fit matches, beside
+    if len(cleans) >= MIN_IMAGES and len(reals) >= MIN_IMAGES:  # beside its own: what the unpaired fit matched
         report.fit_statistics = unpaired_fidelity(base, reals, cleans, seed=seed)
         agreement = "agree" if report.fit_statistics["agrees"] else "do not agree"
         report.verdict += f" The unpaired fit's statistics {agreement} (fit_statistics)."
