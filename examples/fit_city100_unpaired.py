@@ -50,12 +50,18 @@ def city100(data: Path) -> dict[str, tuple[Tensor, Tensor]]:
     return {pair.scene: load_pair(pair) for pair in pairs}
 
 
-def fit(scenes: dict[str, tuple[Tensor, Tensor]], seed: int = 0, progress: bool = True) -> tuple:
-    """The unpaired profile (clean of 001–035, captures of 036–055) and the seconds it took."""
+def fit(
+    scenes: dict[str, tuple[Tensor, Tensor]],
+    seed: int = 0,
+    progress: bool = True,
+    captured: list[str] = CAPTURED_SCENES,
+    clean: list[str] = CLEAN_SCENES,
+) -> tuple:
+    """The unpaired profile (clean of ``clean``, 001–035; captures of ``captured``, 036–055) and its seconds."""
     started = time.perf_counter()
     profile = fit_unpaired(
-        [scenes[scene][1] for scene in CAPTURED_SCENES],
-        [scenes[scene][0] for scene in CLEAN_SCENES],
+        [scenes[scene][1] for scene in captured],
+        [scenes[scene][0] for scene in clean],
         seed=seed,
         progress=progress,
         name="city100-iphonex-unpaired",
@@ -69,10 +75,12 @@ def _stored(images: list[Tensor]) -> list[Tensor]:
     return [image.mul(255).round().div(255) for image in images]
 
 
-def rows(scenes: dict[str, tuple[Tensor, Tensor]], unpaired, critic: bool, seed: int = 0) -> list[dict]:
-    """Each row's fidelity on the held-out pairs."""
-    cleans = [as_unit(scenes[scene][0]) for scene in HELD_OUT]
-    reals = [as_unit(scenes[scene][1]) for scene in HELD_OUT]
+def rows(
+    scenes: dict[str, tuple[Tensor, Tensor]], unpaired, critic: bool, seed: int = 0, held_out: list[str] = HELD_OUT
+) -> list[dict]:
+    """Each row's fidelity on the pairs of ``held_out``."""
+    cleans = [as_unit(scenes[scene][0]) for scene in held_out]
+    reals = [as_unit(scenes[scene][1]) for scene in held_out]
     candidates = {
         "clean image unchanged": cleans,
         "paired fit (built-in city100-iphonex)": _stored(simulate(load_profile("city100-iphonex"), cleans, seed)),

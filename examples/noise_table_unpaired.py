@@ -9,7 +9,12 @@ divided by the real noise's; ``oracle`` is the real noise of the fitting half ov
 reproducing the fitting images' noise exactly would score). Printed: per subset, the median and the worst
 ``|log2 ratio|`` over the measurable bins of each. Run from the repo root::
 
-    OMP_NUM_THREADS=1 .venv/bin/python examples/noise_table_unpaired.py [REAL_PAIRS_DIR]
+    OMP_NUM_THREADS=1 .venv/bin/python examples/noise_table_unpaired.py [REAL_PAIRS_DIR] [--measurement]
+
+``--measurement`` prints instead what limits the captures-only column: on the checking half itself, the noise read
+from each capture's own flat pixels (binned by its own local mean, :func:`~camdegrade.fitting._unpaired_noise.
+flat_sums`, what the unpaired fit matches) against the real noise there (clean-referenced), with no fit between:
+how much of the error is the single-image measurement (content texture, the capture's own mask and bins).
 """
 
 from __future__ import annotations
@@ -26,6 +31,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from noise_table import SUBSETS, _load, _residual_sums, _simulate, default_real_pairs_dir, noise_groups
 
 from camdegrade.effects import Noise
+from camdegrade.fitting._unpaired_noise import flat_sums
 from camdegrade.fitting.unpaired import MIN_IMAGES, fit_unpaired
 
 
@@ -36,12 +42,27 @@ def _spread(ratio: torch.Tensor) -> tuple[float, float, int]:
     return float(values.median()), float(values.max()), int(values.numel())
 
 
-def subset_rows(root: Path) -> list[dict]:
+def _subsets(root: Path) -> dict[str, list[tuple[Path, Path]]]:
     ordered: dict[str, list[tuple[Path, Path]]] = defaultdict(list)
     for (subset, _, _), paths in noise_groups(root, SUBSETS).items():
         ordered[subset] += paths
+    return ordered
+
+
+def measurement_rows(root: Path) -> list[dict]:
+    """Per subset, on the checking half: the captures' own flat-pixel noise over the clean-referenced real noise."""
     rows = []
-    for subset, paths in ordered.items():
+    for subset, paths in _subsets(root).items():
+        held_cleans, held_reals = _load(paths[1::2])
+        real, own = _residual_sums(held_reals, held_cleans), flat_sums(held_reals)
+        row = {"subset": subset, "check": len(held_reals), "flat_pixels": real.pixels, "own_pixels": own.pixels}
+        rows.append(row | {"own flat pixels": _spread(own.std() / real.std())})
+    return rows
+
+
+def subset_rows(root: Path) -> list[dict]:
+    rows = []
+    for subset, paths in _subsets(root).items():
         cleans, reals = _load(paths[::2])
         held_cleans, held_reals = _load(paths[1::2])
         real = _residual_sums(held_reals, held_cleans)
@@ -65,8 +86,19 @@ def subset_rows(root: Path) -> list[dict]:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("root", nargs="?", type=Path, default=default_real_pairs_dir())
+    parser.add_argument("--measurement", action="store_true", help="the single-image measurement's error only")
     args = parser.parse_args(argv)
     torch.set_num_threads(1)
+    if args.measurement:
+        print("| subset | check images | flat pixels: clean-referenced / captures' own | own-flat noise / real |")
+        print("|---|---|---|---|")
+        for row in measurement_rows(args.root):
+            median, worst, bins = row["own flat pixels"]
+            print(
+                f"| {row['subset']} | {row['check']} | {row['flat_pixels']} / {row['own_pixels']} | "
+                f"{median:.2f} / {worst:.2f} ({bins} bins) |"
+            )
+        return 0
     columns = ("unpaired (captures only)", "paired Noise.fit", "oracle")
     print("| subset | fit / check images | flat pixels (check) | " + " | ".join(columns) + " |")
     print("|---|---|---|" + "---|" * len(columns))

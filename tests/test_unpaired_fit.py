@@ -15,6 +15,7 @@ from camdegrade import CameraProfile
 from camdegrade.__main__ import main
 from camdegrade._pixels import unit_to_bytes
 from camdegrade._seeds import derived_generator
+from camdegrade.diagnose.unpaired import diagnose_unpaired
 from camdegrade.effects import JPEG, Blur, Color, Noise, Sharpen, Tone, Vignetting
 from camdegrade.errors import PairsError
 from camdegrade.fitting import simulate
@@ -59,8 +60,8 @@ def _stage(profile: CameraProfile, name: str):
 
 
 @pytest.fixture(scope="module")
-def combined(clean: list[torch.Tensor]) -> CameraProfile:
-    """A camera with vignetting, blur, noise, white balance and a tone curve at once."""
+def combined_captures() -> list[torch.Tensor]:
+    """The photos of a camera with vignetting, blur, noise, white balance and a tone curve at once."""
     camera = (
         Blur(1.5),
         Vignetting(-0.4),
@@ -68,7 +69,12 @@ def combined(clean: list[torch.Tensor]) -> CameraProfile:
         Color(torch.diag(torch.tensor([1.25, 1.0, 0.8]))),
         Tone(gamma=1.3),
     )
-    return fit_unpaired(_captures(*camera), clean)
+    return _captures(*camera)
+
+
+@pytest.fixture(scope="module")
+def combined(combined_captures: list[torch.Tensor], clean: list[torch.Tensor]) -> CameraProfile:
+    return fit_unpaired(combined_captures, clean)
 
 
 def test_the_combined_camera_is_recovered_from_other_scenes(combined: CameraProfile) -> None:
@@ -183,3 +189,18 @@ def test_the_cli_fits_writes_and_refuses_with_one_line(tmp_path: Path, capsys: p
     assert len(error) == 1 and "captured must be a folder holding images" in error[0]
     assert main(["fit", str(clean), "--unpaired", str(captured), "-o", str(output)]) == 1
     assert "give either PAIRS or --unpaired" in capsys.readouterr().err
+
+
+def test_the_unpaired_diagnosis_reads_the_statistics_the_fit_matched(
+    tmp_path: Path, combined: CameraProfile, combined_captures: list[torch.Tensor], clean: list[torch.Tensor]
+) -> None:
+    captured = _write(combined_captures, tmp_path / "captured", "png")
+    clean_folder = _write(clean, tmp_path / "clean", "png")
+    report = diagnose_unpaired(combined, clean_folder, captured).to_dict()
+    statistics = report["fit_statistics"]
+    assert {key: statistics[key] for key in combined.quality["unpaired_fidelity"]} == combined.quality[
+        "unpaired_fidelity"
+    ]
+    assert statistics["agrees"] is True and "statistics agree" in report["verdict"], statistics
+    untouched = diagnose_unpaired(CameraProfile(None, []), clean_folder, captured).to_dict()
+    assert untouched["fit_statistics"]["agrees"] is False and "do not agree" in untouched["verdict"]

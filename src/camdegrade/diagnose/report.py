@@ -65,6 +65,7 @@ class DiagnosisReport:
     accepted: list[str] = field(default_factory=list)
     critic: dict[str, dict[str, Any]] = field(default_factory=dict)
     skipped: list[dict[str, str]] = field(default_factory=list)
+    fit_statistics: dict[str, Any] = field(default_factory=dict)
     flat_crops: list[tuple[str, list[Tensor]]] = field(default_factory=list, repr=False)
 
     def to_dict(self) -> dict[str, Any]:
@@ -98,6 +99,7 @@ class DiagnosisReport:
             "accepted": list(self.accepted),
             "critic": self.critic,
             "skipped": self.skipped,
+            "fit_statistics": self.fit_statistics,
         }
 
     def to_json(self) -> str:

@@ -4,7 +4,10 @@ compared (no clean reference per capture), so this gives the "where" part of the
 Per image: the no-reference families of :mod:`camdegrade.measures.no_reference` (a luma radial profile, colour
 ratios, tone quantiles, band power, block-edge energy, a flat-pixel noise level). Each component is compared as a
 difference of set means over its standard error (both sets), so content differences between the two sets only
-count when they exceed what the spread of the images explains.
+count when they exceed what the spread of the images explains. With at least 8 images a side it also reports, as
+``fit_statistics``, the statistics :func:`~camdegrade.fitting.unpaired.fit_unpaired` matches (flat-noise ratio,
+band log2 power differences, spectrum mismatch: :func:`~camdegrade.fitting.unpaired.unpaired_fidelity`), so a
+profile fitted unpaired and diagnosed on the same folders reads the numbers its fit recorded.
 """
 
 from __future__ import annotations
@@ -20,6 +23,7 @@ from camdegrade.diagnose.report import DiagnosisReport
 from camdegrade.errors import ImageError
 from camdegrade.fitting.pairs import UNREADABLE
 from camdegrade.fitting.pairset import simulate
+from camdegrade.fitting.unpaired import MIN_IMAGES, unpaired_fidelity
 from camdegrade.io import iter_images, read_image
 from camdegrade.measures import NO_REFERENCE, image_statistics
 from camdegrade.profile import CameraProfile, as_profile
@@ -115,4 +119,8 @@ def diagnose_unpaired(
         mode="unpaired",
     )
     report.skipped = skipped
+    if len(cleans) >= MIN_IMAGES and len(reals) >= MIN_IMAGES:  # beside its own: what the unpaired fit matched
+        report.fit_statistics = unpaired_fidelity(base, reals, cleans, seed=seed)
+        agreement = "agree" if report.fit_statistics["agrees"] else "do not agree"
+        report.verdict += f" The unpaired fit's statistics {agreement} (fit_statistics)."
     return report
