@@ -31,8 +31,8 @@ import torch
 import torch.nn.functional as F
 from PIL import Image
 
-from camdegrade import diagnose
 from camdegrade._pixels import as_unit, unit_to_bytes
+from camdegrade.diagnose import diagnose
 from camdegrade.effects import Blur, Color, Noise, Tone
 from camdegrade.fitting import FitConfig, fit_profile
 from camdegrade.fitting.baseline import apply_linear_baseline, fit_linear_baseline
@@ -92,6 +92,8 @@ def evaluate(name: str, args: argparse.Namespace) -> tuple[dict, list[torch.Tens
     lines: list[str] = []
     profile = fit_profile(train, FitConfig.recipe("fast"), log=lines.append)
     fit_seconds = time.perf_counter() - started
+    if args.save:
+        profile.save(f"{args.save}-{name}.safetensors")
     baseline = fit_linear_baseline(train, seed=0)
     cleans = [as_unit(clean) for clean, _ in held]
     reals = [as_unit(captured) for _, captured in held]
@@ -115,6 +117,7 @@ def evaluate(name: str, args: argparse.Namespace) -> tuple[dict, list[torch.Tens
         "critic_baseline": critic_pair(cleans, reals, base, seed=0),
     }
     if args.diagnose:
+        print(json.dumps(row), flush=True)  # before the diagnosis, which takes minutes
         report = diagnose(profile, held, seed=0)
         row["diagnose_accepted"] = list(report.accepted)
         row["diagnose_verdict"] = report.verdict
@@ -147,6 +150,7 @@ def main() -> None:
     parser.add_argument("--diagnose", action="store_true")
     parser.add_argument("--png", default=None)
     parser.add_argument("--json", default=None)
+    parser.add_argument("--save", default=None, help="write each fitted profile to SAVE-CAMERA.safetensors")
     args = parser.parse_args()
     rows, crops = [], []
     for name in args.cameras:
