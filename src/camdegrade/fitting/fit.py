@@ -146,7 +146,8 @@ def fit_profile(
             initial=initial,
         )
         minutes = (time.perf_counter() - started) / 60
-        network_gain = network_gain_db(network, baseline, val)
+        scores = validation_psnr(network, baseline, val)
+        network_gain = network_gain_db(scores)
         keep_network = network_gain is None or network_gain["best"] >= NETWORK_MIN_GAIN_DB
         if not keep_network:
             say(
@@ -163,7 +164,7 @@ def fit_profile(
         profile.fitted["init_from"] = init_label
         profile.fitted["network"] = _network_note(keep_network, network_gain)
         profile.fitted["trained_in"] = str(training_dtype(config.precision, torch.device(device))).split(".")[-1]
-        quality = _quality(profile, network, val, baseline, eight_bit, say) if len(val) else {}
+        quality = _quality(profile, scores, val, eight_bit, say) if scores is not None else {}
         record_quality(profile, quality, _warnings(quality, history, config, keep_network), say)
         return profile
 
@@ -244,11 +245,11 @@ BASELINE_TOLERANCE_DB = 0.05
 NETWORK_MIN_GAIN_DB = 0.2
 
 
-def network_gain_db(
+def validation_psnr(
     network: ShiftNetwork, baseline: tuple[torch.Tensor, torch.Tensor], val: PairSet
 ) -> dict[str, float] | None:
-    """Mean validation PSNR gain over the identity (dB) of the network, of the linear baseline and the better of the
-    two; ``None`` without validation pairs (nothing to judge on: the network is kept)."""
+    """Mean validation PSNR (dB) against the captures of the clean images unchanged (``identity``), the linear
+    baseline and the trained network; ``None`` without validation pairs."""
     if not len(val):
         return None
     pairs = val.unit_pairs()
@@ -256,8 +257,16 @@ def network_gain_db(
     with torch.no_grad():
         identity = sum(psnr(clean, captured) for clean, captured in pairs) / len(pairs)
         predicted = sum(psnr(network(clean[None])[0], captured) for clean, captured in pairs) / len(pairs)
+    return {"identity": identity, "baseline": baseline_psnr(*baseline, pairs), "network": predicted}
+
+
+def network_gain_db(scores: dict[str, float] | None) -> dict[str, float] | None:
+    """The gain over the identity (dB) of the network, of the linear baseline and the better of the two, from
+    :func:`validation_psnr`'s scores; ``None`` without them (nothing to judge on: the network is kept)."""
+    if scores is None:
+        return None
     # Captures identical to the clean images make the identity's PSNR infinite: no finite gain over it (-inf).
-    gains = {"network": predicted - identity, "baseline": baseline_psnr(*baseline, pairs) - identity}
+    gains = {key: scores[key] - scores["identity"] for key in ("network", "baseline")}
     gains = {key: -math.inf if math.isnan(gain) else gain for key, gain in gains.items()}
     return {key: round(value, 3) for key, value in {**gains, "best": max(gains.values())}.items()}
 
@@ -366,28 +375,19 @@ def _unreadable(pair_set: PairSet) -> list[dict[str, str]]:
 
 
 def _quality(
-    profile: CameraProfile,
-    network: ShiftNetwork,
-    val: PairSet,
-    baseline: tuple[torch.Tensor, torch.Tensor],
-    eight_bit: bool,
-    say: Log,
+    profile: CameraProfile, scores: dict[str, float], val: PairSet, eight_bit: bool, say: Log
 ) -> dict[str, Any]:
     """Validation PSNR of identity, the least-squares linear baseline (:mod:`camdegrade.fitting.baseline`), the
-    trained network's mean (also when the profile dropped it) and the full (stochastic, seeded) profile against the
-    captures, and how close the sampled profile looks to the captures (``fidelity``, :func:`_fidelity`)."""
-    identity, predicted, full = [], [], []
+    trained network's mean (``scores``, :func:`validation_psnr`; also when the profile dropped the network) and the
+    full (stochastic, seeded) profile against the captures, and how close the sampled profile looks to the captures
+    (``fidelity``, :func:`_fidelity`)."""
     sampled = simulate(profile, val.cleans(), seed=0, stream="quality")
-    with torch.no_grad():
-        for (clean, captured), sim in zip(val.unit_pairs(), sampled, strict=True):
-            identity.append(psnr(clean, captured))
-            predicted.append(psnr(network(clean[None])[0], captured))
-            full.append(psnr(sim, captured))
+    full = [psnr(sim, captured) for (_, captured), sim in zip(val.unit_pairs(), sampled, strict=True)]
     return {
         "validation_pairs": len(val),
-        "identity_psnr_db": round(sum(identity) / len(identity), 3),
-        "baseline_psnr_db": round(baseline_psnr(*baseline, val.unit_pairs()), 3),
-        "network_psnr_db": round(sum(predicted) / len(predicted), 3),
+        "identity_psnr_db": round(scores["identity"], 3),
+        "baseline_psnr_db": round(scores["baseline"], 3),
+        "network_psnr_db": round(scores["network"], 3),
         "profile_psnr_db": round(sum(full) / len(full), 3),
         "fidelity": _fidelity(as_stored(sampled, eight_bit), val, say),
     }
