@@ -12,12 +12,12 @@ from __future__ import annotations
 
 import argparse
 import json
-import platform
 import tempfile
 import time
 from pathlib import Path
 
 import torch
+from bench_cli import cpu_name
 from PIL import Image
 
 from camdegrade import CameraProfile
@@ -37,16 +37,6 @@ CAMERA = CameraProfile(
         Tone(gamma=1.2),
     ],
 )
-
-
-def _cpu() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or platform.machine()
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -74,7 +64,7 @@ def main(argv: list[str] | None = None) -> int:
         "size": args.size,
         "seconds": round(seconds, 1),
         "threads": torch.get_num_threads(),
-        "cpu": _cpu(),
+        "cpu": cpu_name(),
         "torch": torch.__version__,
         "kept": profile.effect_names,
         "within_5_minutes": seconds <= 300,
