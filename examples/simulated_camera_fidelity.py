@@ -28,7 +28,7 @@ import time
 from dataclasses import asdict
 
 import torch
-import torch.nn.functional as F
+from effect_evidence import SIZE, chart
 from PIL import Image
 
 from camdegrade._pixels import as_unit, unit_to_bytes
@@ -43,7 +43,6 @@ from camdegrade.metrics import psnr
 from camdegrade.sim import VirtualCamera
 from camdegrade.synthetic import dead_leaves_images
 
-SIZE = 128
 NOISE = {"a": 0.012, "b": 8e-5}
 
 
@@ -54,14 +53,6 @@ def camera(name: str) -> VirtualCamera:
         # the sensor's noise, then the ISP darkens the frame four times (what a short exposure leaves after gain)
         return VirtualCamera([Noise(**NOISE), Color(torch.eye(3) * 0.25), Tone(gamma=0.7, black=0.01)], name=name)
     raise ValueError(f"camera must be 'soft' or 'dark', got {name!r}")
-
-
-def chart(seed: int) -> torch.Tensor:
-    """2×2 flat grey patches, slightly tinted (flat pixels at four intensities)."""
-    generator = torch.Generator().manual_seed(seed)
-    grey = torch.linspace(0.08, 0.92, 4)[torch.randperm(4, generator=generator)]
-    levels = (grey[None] * (0.9 + 0.2 * torch.rand(3, 1, generator=generator))).clamp(0, 1)
-    return F.interpolate(levels.reshape(1, 3, 2, 2), size=(SIZE, SIZE), mode="nearest")[0]
 
 
 def pairs(name: str, count: int, seed: int) -> list[tuple[torch.Tensor, torch.Tensor]]:
