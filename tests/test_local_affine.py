@@ -7,13 +7,17 @@ import torch
 import torch.nn.functional as F
 
 from camdegrade import CameraProfile, load_profile
-from camdegrade._recipes import ARCHS, FAST, PAPER
+from camdegrade import network as network_module
+from camdegrade._profile_format.check import FIELD_UPSAMPLING
+from camdegrade._recipes import ARCHS, FAST, PAPER, UPSAMPLINGS
+from camdegrade.errors import ProfileError
 from camdegrade.fitting import FitConfig
 from camdegrade.fitting.baseline import apply_linear_baseline, baseline_psnr, fit_linear_baseline
-from camdegrade.fitting.training import fit_network
+from camdegrade.fitting.training import fit_network, new_network
 from camdegrade.measures.fidelity import grid_rms
-from camdegrade.network import ARCHITECTURES, DomainShiftNet, LocalAffineNet, build_network
+from camdegrade.network import ARCHITECTURES, DomainShiftNet, LocalAffineNet, build_network, smoothed
 from camdegrade.synthetic import dead_leaves_images
+from test_profile_validation import ProfileParts
 
 
 def _randomised(network: torch.nn.Module, seed: int) -> torch.nn.Module:
@@ -70,12 +74,66 @@ def test_profiles_record_the_architecture_and_load_it_back(tmp_path) -> None:
     network = _randomised(LocalAffineNet(4), 2)
     path = CameraProfile(network, name="la").save(tmp_path / "la.safetensors")
     loaded = load_profile(path)
-    assert loaded.metadata()["network"] == {"arch": "LocalAffineNet", "config": {"width": 4}}
+    assert loaded.metadata()["network"] == {"arch": "LocalAffineNet", "config": {"width": 4, "upsample": "bilinear"}}
     assert type(loaded.network) is LocalAffineNet
     image = torch.rand(1, 3, 20, 24, generator=torch.Generator().manual_seed(0))
     with torch.no_grad():
         assert torch.equal(loaded.network(image), network(image))
-    assert "LocalAffineNet({'width': 4})" in loaded.describe()
+    assert "LocalAffineNet({'width': 4, 'upsample': 'bilinear'})" in loaded.describe()
+
+
+def test_a_profile_written_before_the_smooth_field_loads_with_its_bilinear_field(tmp_path) -> None:
+    """Older profiles hold no ``upsample`` key: they load as the bilinear field they were fitted with, same bytes."""
+    network = _randomised(LocalAffineNet(4, upsample="bilinear"), 3)
+    parts = ProfileParts(CameraProfile(network, name="old").save(tmp_path / "new.safetensors"))
+    del parts.metadata["network"]["config"]["upsample"]
+    loaded = load_profile(parts.write(tmp_path / "old.safetensors"))
+    assert loaded.network.upsample == "bilinear"
+    image = torch.rand(1, 3, 20, 24, generator=torch.Generator().manual_seed(0))
+    with torch.no_grad():
+        assert torch.equal(loaded.network(image), network(image))
+        smooth = LocalAffineNet(4, upsample="smooth")
+        smooth.load_state_dict(network.state_dict())
+        assert not torch.allclose(smooth.eval()(image), network(image), atol=1e-3)  # the key decides the output
+
+
+@pytest.mark.parametrize("upsample", ["cubic", None, 1])
+def test_an_unknown_field_upsampling_is_refused_by_the_network_and_the_profile_check(tmp_path, upsample) -> None:
+    with pytest.raises(ValueError, match=r"upsample must be one of \('bilinear', 'smooth'\), got upsample="):
+        LocalAffineNet(4, upsample=upsample)
+    parts = ProfileParts(CameraProfile(LocalAffineNet(4, "smooth"), name="x").save(tmp_path / "x.safetensors"))
+    parts.metadata["network"]["config"]["upsample"] = upsample
+    with pytest.raises(ProfileError, match="upsample must be one of"):
+        load_profile(parts.write(tmp_path / "bad.safetensors"))
+    assert FIELD_UPSAMPLING == network_module.FIELD_UPSAMPLING == UPSAMPLINGS
+
+
+def test_the_recipe_chooses_the_colour_field_and_a_refit_keeps_its_start() -> None:
+    assert FitConfig().upsample == "bilinear" and "upsample" in FitConfig().training_dict()
+    assert build_network("local_affine", 4, "smooth").upsample == "smooth"
+    with pytest.raises(ValueError, match=r"upsample must be one of \('bilinear', 'smooth'\), got upsample='cubic'"):
+        FitConfig(upsample="cubic")
+    network = new_network(FitConfig(width=4, upsample="smooth"))
+    assert isinstance(network, LocalAffineNet) and network.config() == {"width": 4, "upsample": "smooth"}
+
+
+def test_the_smooth_field_keeps_a_constant_and_a_ramp_and_bends_at_every_phase_alike() -> None:
+    constant = torch.full((1, 12, 6, 7), 0.3)
+    assert torch.allclose(smoothed(constant), constant, atol=1e-7)
+    ramp = torch.arange(64.0).view(1, 1, 1, 64).expand(1, 1, 8, 64)
+    assert torch.allclose(smoothed(ramp)[..., 8:-8], ramp[..., 8:-8], atol=1e-5)  # symmetric taps: no shift
+    samples = torch.rand(1, 1, 1, 64, generator=torch.Generator().manual_seed(0)).expand(1, 1, 4, 64)
+    bilinear = F.interpolate(samples, scale_factor=4, mode="bilinear", align_corners=False)
+
+    def curvature_by_phase(field: torch.Tensor) -> torch.Tensor:  # mean |second difference| per (x mod 4)
+        curve = field[0, 0, 0, 8:-8]
+        bend = (curve[2:] - 2 * curve[1:-1] + curve[:-2]).abs()
+        return torch.stack([bend[phase::4][:60].mean() for phase in range(4)])
+
+    # Bilinear: the slope changes only where a sample lies (2 of the 4 phases); smooth: at every phase alike.
+    rough, smooth = curvature_by_phase(bilinear), curvature_by_phase(smoothed(bilinear))
+    assert float(rough.min() / rough.max()) < 1e-4
+    assert float(smooth.min() / smooth.max()) > 0.5
 
 
 def test_the_built_in_profiles_of_the_paper_network_still_load() -> None:

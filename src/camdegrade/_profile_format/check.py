@@ -155,22 +155,36 @@ def network_class(spec: Any, path: Path) -> str:
     return spec["arch"]
 
 
+#: Constructor arguments a profile may leave out because it was written before they existed, with the value such a
+#: profile means: a ``LocalAffineNet`` without ``upsample`` was fitted with a bilinear colour field.
+LEGACY_NETWORK_CONFIG = {"LocalAffineNet": {"upsample": "bilinear"}}
+#: ``LocalAffineNet``'s colour-field upsamplings (``camdegrade.network.FIELD_UPSAMPLING``; a test keeps them in step).
+FIELD_UPSAMPLING = ("bilinear", "smooth")
+
+
 def network_config(spec: Any, path: Path) -> Any:
-    """The constructor arguments of the network a (non-null) ``network`` metadata entry declares."""
-    network_class(spec, path)
-    return spec.get("config", {})
+    """The constructor arguments of the network a (non-null) ``network`` metadata entry declares, with what older
+    profiles leave out (:data:`LEGACY_NETWORK_CONFIG`) filled in."""
+    legacy = LEGACY_NETWORK_CONFIG.get(network_class(spec, path), {})
+    config = spec.get("config", {})
+    return legacy | config if isinstance(config, dict) else config
 
 
-def check_network_config(config: Any) -> None:
-    """Raise as the network's constructor would for a config it refuses (a test keeps the two in step)."""
+def check_network_config(config: Any, arch: str = "DomainShiftNet") -> None:
+    """Raise as the constructor of the network class ``arch`` would for a config it refuses (a test keeps the two in
+    step)."""
     if not isinstance(config, dict):
         raise TypeError(f"the network config must be a mapping, got {type(config).__name__}")
-    unexpected = sorted(set(config) - {"width"})
+    accepted = {"upsample"} if arch == "LocalAffineNet" else set()
+    unexpected = sorted(set(config) - {"width", *accepted})
     if unexpected:
         raise TypeError(f"unexpected network config keys {short_repr(unexpected)}")
     width = config.get("width", DEFAULT_NETWORK_WIDTH)
     if isinstance(width, bool) or not isinstance(width, int) or not 1 <= width <= MAX_NETWORK_WIDTH:
         raise ValueError(f"width must be an integer from 1 to {MAX_NETWORK_WIDTH}, got width={short_repr(width)}")
+    upsample = config.get("upsample", FIELD_UPSAMPLING[0])
+    if upsample not in FIELD_UPSAMPLING:
+        raise ValueError(f"upsample must be one of {FIELD_UPSAMPLING}, got upsample={short_repr(upsample)}")
 
 
 def network_shapes(width: int, arch: str = "DomainShiftNet") -> dict[str, tuple[int, ...]]:
@@ -205,7 +219,7 @@ def network_shapes_of(spec: Any, path: Path) -> dict[str, tuple[int, ...]]:
         return {}
     config = network_config(spec, path)
     try:
-        check_network_config(config)
+        check_network_config(config, spec["arch"])
     except (TypeError, ValueError) as error:
         raise ProfileError(f"profile {str(path)!r} has invalid metadata: {error}") from None
     return network_shapes(config.get("width", DEFAULT_NETWORK_WIDTH), spec["arch"])
