@@ -27,8 +27,10 @@ FAST: dict[str, Any] = {
     "precision": "auto",
     "width": 64,
     "arch": "local_affine",
+    "upsample": "bilinear",
     "val_fraction": 0.15,
     "effects": ("noise", "vignetting"),
+    "texture": "match",
 }
 #: The paper's schedule (Hegde et al.): 100 epochs, Adam at lr 0.01 halved every 30 epochs, batch 32, no early stop;
 #: 8 windows of 128² per pair and epoch.
@@ -42,12 +44,13 @@ PAPER: dict[str, Any] = {
     "schedule": "step",
     "patience": 0,
     "arch": "paper",
+    "texture": "none",
 }
 RECIPES: dict[str, dict[str, Any]] = {"fast": FAST, "paper": PAPER}
 
 #: The values of the network's training (recorded as a profile's ``fitted['recipe']`` and in a checkpoint); the
 #: other fields say how the pairs are split and which effect stages follow the network.
-TRAINING_FIELDS: tuple[str, ...] = tuple(name for name in FAST if name not in ("val_fraction", "effects"))
+TRAINING_FIELDS: tuple[str, ...] = tuple(name for name in FAST if name not in ("val_fraction", "effects", "texture"))
 
 
 @dataclass(frozen=True)
@@ -69,7 +72,12 @@ class RecipeField:
 SCHEDULES: tuple[str, ...] = ("step", "cosine")
 #: The network architectures (``camdegrade.network.ARCHITECTURES``, which imports torch; a test keeps them equal).
 ARCHS: tuple[str, ...] = ("paper", "local_affine")
+#: How ``local_affine`` brings its colour field to full resolution (``camdegrade.network.FIELD_UPSAMPLING``).
+UPSAMPLINGS: tuple[str, ...] = ("bilinear", "smooth")
 TRAIN_PRECISIONS: tuple[str, ...] = ("auto", "float32", "bfloat16")
+#: ``match``: after the effect stages, a blur and a sharpening that match the profile's band power to the captures'
+#: where the validation pairs confirm it (:mod:`camdegrade.fitting.texture`); ``none``: no such stages.
+TEXTURES: tuple[str, ...] = ("match", "none")
 
 FIELDS: tuple[RecipeField, ...] = (
     RecipeField("epochs", "count", "most epochs"),
@@ -98,8 +106,20 @@ FIELDS: tuple[RecipeField, ...] = (
         "network: local_affine (no 4-pixel grid, starts from a least-squares linear baseline) or the paper's",
         ARCHS,
     ),
+    RecipeField(
+        "upsample",
+        "choice",
+        "local_affine's colour field: bilinear, or smooth (its slope does not change every 4 pixels)",
+        UPSAMPLINGS,
+    ),
     RecipeField("val_fraction", "fraction", "share of scenes held out to choose the best epoch"),
     RecipeField("effects", "names", "effect stages fitted after the network, from the registry (none: network only)"),
+    RecipeField(
+        "texture",
+        "choice",
+        "match: add a blur and a sharpening that match the captures' band power, where validation confirms it",
+        TEXTURES,
+    ),
 )
 
 

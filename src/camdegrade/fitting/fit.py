@@ -34,6 +34,7 @@ from camdegrade.fitting.evidence import as_stored
 from camdegrade.fitting.pairs import MISSING, UNREADABLE
 from camdegrade.fitting.pairset import PairSet, PairsSource, simulate
 from camdegrade.fitting.stages import fit_effects
+from camdegrade.fitting.texture import fit_texture
 from camdegrade.fitting.training import (
     EpochResult,
     FitConfig,
@@ -122,7 +123,7 @@ def fit_profile(
     check_device(device)
     initial, init_label = _initial_network(init_from, config)
     if initial is not None:  # a refit continues the network it starts from, whatever the recipe's default
-        config = config.replace(arch=initial.arch)
+        config = config.replace(arch=initial.arch, upsample=getattr(initial, "upsample", None))
     with torch_threads(threads):
         pair_set = pairs if isinstance(pairs, PairSet) else PairSet.load(pairs, log=say)
         train, val = pair_set.validation_split(config.val_fraction, config.seed)
@@ -157,10 +158,13 @@ def fit_profile(
             )
         profile = CameraProfile(network if keep_network else None, name=name, description=description)
         eight_bit = all(captured.dtype == torch.uint8 for _, captured in pair_set.images)
-        profile, effect_notes = fit_effects(
-            profile, train.unit_pairs(), val.unit_pairs(), config.effects, say, eight_bit=eight_bit
-        )
+        train_pairs, val_pairs = train.unit_pairs(), val.unit_pairs()
+        profile, effect_notes = fit_effects(profile, train_pairs, val_pairs, config.effects, say, eight_bit=eight_bit)
+        texture_note = {"kept": False, "reason": f"texture={config.texture!r}" if keep_network else "no network"}
+        if config.texture == "match" and keep_network:
+            profile, texture_note = fit_texture(profile, train_pairs, val_pairs, say, seed=config.seed)
         profile.fitted = _record(pair_set, train, val, config, history, minutes, effect_notes)
+        profile.fitted["texture"] = texture_note
         profile.fitted["init_from"] = init_label
         profile.fitted["network"] = _network_note(keep_network, network_gain)
         profile.fitted["trained_in"] = str(training_dtype(config.precision, torch.device(device))).split(".")[-1]

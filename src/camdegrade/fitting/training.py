@@ -27,7 +27,7 @@ from camdegrade._checks import check_seed
 from camdegrade._distributed import is_distributed, rank_and_world_size
 from camdegrade._files import check_writable
 from camdegrade._pixels import as_unit
-from camdegrade._recipes import FAST, RECIPES, TRAINING_FIELDS
+from camdegrade._recipes import FAST, RECIPES, TEXTURES, TRAINING_FIELDS, UPSAMPLINGS
 from camdegrade._seeds import derive_seed, derived_generator
 from camdegrade.effects import check_effect_names
 from camdegrade.errors import CamdegradeError
@@ -72,10 +72,15 @@ class FitConfig:
         width: the network's width (the paper's 64).
         arch: the network (:data:`~camdegrade.network.ARCHITECTURES`): ``"local_affine"`` (the fast recipe's; no
             4-pixel grid) or ``"paper"`` (the paper recipe's, :class:`~camdegrade.network.DomainShiftNet`).
+        upsample: how ``local_affine`` brings its colour field to full resolution, one of
+            :data:`~camdegrade.network.FIELD_UPSAMPLING` (the paper network ignores it).
         val_fraction: share of *scenes* held out for choosing the best epoch and checking the effect stages
             (``fit_profile``; ``distill_profile`` holds out that share of its images, at least one).
         effects: effect stages ``fit_profile`` fits after the network (names from ``EFFECTS``; ``()``: network only).
             ``distill_profile`` copies its teacher's stages instead.
+        texture: one of :data:`~camdegrade._recipes.TEXTURES`: ``"match"`` (the fast recipe's) adds a blur and a
+            sharpening after the effect stages where they bring the band power closer to the captures' on the
+            validation pairs (:mod:`camdegrade.fitting.texture`); ``"none"`` (the paper recipe's) never does.
     """
 
     epochs: int = FAST["epochs"]
@@ -90,8 +95,10 @@ class FitConfig:
     precision: str = FAST["precision"]
     width: int = FAST["width"]
     arch: str = FAST["arch"]
+    upsample: str = FAST["upsample"]
     val_fraction: float = FAST["val_fraction"]
     effects: tuple[str, ...] = FAST["effects"]
+    texture: str = FAST["texture"]
 
     def __post_init__(self) -> None:
         for name in ("epochs", "crop", "batch_size", "lr_halving_epochs", "crops_per_pair", "width"):
@@ -106,7 +113,14 @@ class FitConfig:
             raise ValueError(f"crop must be a multiple of {SIZE_MULTIPLE}, got crop={self.crop}")
         if not (isinstance(self.lr, (int, float)) and math.isfinite(self.lr) and self.lr > 0):
             raise ValueError(f"lr must be a positive number, got lr={self.lr!r}")
-        for name, allowed in (("schedule", SCHEDULES), ("precision", TRAIN_PRECISIONS), ("arch", tuple(ARCHITECTURES))):
+        choices = (
+            ("schedule", SCHEDULES),
+            ("precision", TRAIN_PRECISIONS),
+            ("arch", tuple(ARCHITECTURES)),
+            ("texture", TEXTURES),
+            ("upsample", UPSAMPLINGS),
+        )
+        for name, allowed in choices:
             if getattr(self, name) not in allowed:
                 raise ValueError(f"{name} must be one of {allowed}, got {name}={getattr(self, name)!r}")
         share = self.val_fraction
@@ -324,7 +338,7 @@ def new_network(config: FitConfig) -> ShiftNetwork:
     """A network of ``config.arch`` and ``config.width``, initialised from ``config.seed``."""
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(derive_seed(config.seed, "network-init"))
-        return build_network(config.arch, config.width)
+        return build_network(config.arch, config.width, config.upsample)
 
 
 def _new_training(config: FitConfig, device: torch.device | str, initial: ShiftNetwork | None = None):

@@ -76,20 +76,26 @@ def grid_rms(image: Tensor) -> float:
     return float(grid_phases(image).pow(2).mean((-2, -1)).sqrt().mean())
 
 
-def band_power(image: Tensor) -> Tensor:
-    """``(N, 5)`` luma power (levels², Hann window, mean removed) of each frame in the bands of :data:`BAND_EDGES`,
-    per pixel of the frame."""
+def luma_spectrum(image: Tensor) -> tuple[Tensor, Tensor]:
+    """``(N, H, W // 2 + 1)`` luma power (levels², Hann window, mean removed) of each frame per frequency, per pixel
+    of the frame, and ``(H, W // 2 + 1)`` the radial frequency of each (cycles/pixel)."""
     image = _batched(image, "image")
     height, width = image.shape[-2:]
     gray = luma(image.to(torch.float32)) * 255.0
     gray = gray - gray.mean((-2, -1), keepdim=True)
-    power = torch.fft.rfft2(gray * hann2d(height, width)).abs().pow(2).double()
+    power = torch.fft.rfft2(gray * hann2d(height, width)).abs().pow(2).double() / float(height * width)
     radius = torch.sqrt(torch.fft.fftfreq(height)[:, None] ** 2 + torch.fft.rfftfreq(width)[None, :] ** 2)
+    return power, radius
+
+
+def band_power(image: Tensor) -> Tensor:
+    """``(N, 5)`` luma power (:func:`luma_spectrum`) of each frame in the bands of :data:`BAND_EDGES`."""
+    power, radius = luma_spectrum(image)
     band = torch.bucketize(radius, torch.tensor(BAND_EDGES), right=True) - 1  # −1 below, len(BAND_EDGES) − 1 above
     band = torch.where(radius == BAND_EDGES[-1], len(BAND_EDGES) - 2, band)
     inside = (band >= 0) & (band < len(BAND_EDGES) - 1)
     sums = [power[:, inside & (band == index)].sum(-1) for index in range(len(BAND_EDGES) - 1)]
-    return torch.stack(sums, -1) / float(height * width)
+    return torch.stack(sums, -1)
 
 
 def band_log2_ratios(sim: Tensor, real: Tensor) -> list[float | None]:
