@@ -10,12 +10,12 @@ from collections.abc import Callable, Iterable
 from camdegrade._checks import check_seed
 from camdegrade.diagnose.attribute import Attribution, attribute, check_candidates
 from camdegrade.diagnose.changes import KINDS, Change, check_kinds, effect_params
+from camdegrade.diagnose.critique import Critique, critiques
 from camdegrade.diagnose.report import DiagnosisReport, example_crops, flat_crops
 from camdegrade.diagnose.where import findings
 from camdegrade.errors import PairsError
-from camdegrade.fitting.pairset import PairSet, PairsSource, simulate
+from camdegrade.fitting.pairset import PairSet, PairsSource
 from camdegrade.measures import check_explains
-from camdegrade.measures.critic import CriticResult, critic_test
 from camdegrade.profile import CameraProfile, as_profile
 
 #: Fewest pairs on each side of the split: below this a held-out gap has no spread to judge it by, and the
@@ -95,7 +95,11 @@ def diagnose(
         seed=seed,
         log=log,
     )
-    critics = _critics(base, result, calibration_pairs, held_pairs, seed, say) if critic else {}
+    critics = (
+        _critics(base, result, (calibration_pairs, calibration.names), (held_pairs, held.names), seed, say)
+        if critic
+        else {}
+    )
     verdict = _verdict(result, findings_of(result), critics, base.name)
     say(verdict)
     report = _report(base, result, calibration, held, held_pairs, split, verdict, critics)
@@ -136,25 +140,18 @@ def findings_of(result: Attribution) -> list[dict]:
 def _critics(
     base: CameraProfile,
     result: Attribution,
-    calibration: list,
-    held: list,
+    calibration: tuple[list, list[str]],
+    held: tuple[list, list[str]],
     seed: int,
     say: Callable[[str], None],
-) -> dict[str, CriticResult]:
-    """The critic trained and scored on the profile as given, and on the profile with the accepted changes."""
-    cal_cleans, cal_reals = [c for c, _ in calibration], [r for _, r in calibration]
-    held_cleans, held_reals = [c for c, _ in held], [r for _, r in held]
-    out = {}
-    for label, profile, held_sims in (
-        ("before", base, result.baseline.sims),
-        ("after", result.final_profile, result.final_sims),
-    ):
-        if label == "after" and not result.accepted:
-            out[label] = out["before"]
-            break
-        cal_sims = simulate(profile, cal_cleans, seed, stream="critic-calibration")
-        out[label] = critic_test((cal_cleans, cal_reals, cal_sims), (held_cleans, held_reals, held_sims), seed)
-        say(f"critic {label}: {out[label].describe()}")
+) -> dict[str, Critique]:
+    """The critic on the profile as given and on the profile with the accepted changes (the same one when nothing
+    was accepted); ``calibration`` and ``held`` are ``(unit pairs, names)``."""
+    profiles = [("before", base, result.baseline.sims)]
+    if result.accepted:
+        profiles.append(("after", result.final_profile, result.final_sims))
+    out = critiques(profiles, calibration[0], held[0], (calibration[1], held[1]), seed, say)
+    out.setdefault("after", out["before"])
     return out
 
 
@@ -175,7 +172,7 @@ def _finding(change: Change, profile_name: str) -> tuple[str, str]:
     return "the network itself leaves a gap no effect explains", f"refitting the network ({command})"
 
 
-def _verdict(result: Attribution, where: list[dict], critics: dict[str, CriticResult], profile_name: str) -> str:
+def _verdict(result: Attribution, where: list[dict], critics: dict[str, Critique], profile_name: str) -> str:
     baseline = result.baseline
     if not baseline.significant:
         text = (
@@ -205,11 +202,11 @@ def _verdict(result: Attribution, where: list[dict], critics: dict[str, CriticRe
     return text + _critic_clause(baseline.significant, critics)
 
 
-def _critic_clause(significant_gap: bool, critics: dict[str, CriticResult]) -> str:
+def _critic_clause(significant_gap: bool, critics: dict[str, Critique]) -> str:
     """What the critic adds to the verdict: its accuracy before and after, and where it disagrees."""
     if not critics:
         return ""
-    before, after = critics["before"], critics["after"]
+    before, after = critics["before"].result, critics["after"].result
     clause = f" Critic: {before.describe()}"
     if after is not before:
         clause += f"; after the changes {after.accuracy:.2f} [{after.low:.2f}–{after.high:.2f}]"
@@ -251,7 +248,7 @@ def _report(
     held_pairs: list,
     split: str,
     verdict: str,
-    critics: dict[str, CriticResult],
+    critics: dict[str, Critique],
 ) -> DiagnosisReport:
     accepted = result.accepted
     added = [change.name for change in accepted if change.kind == "add"]
@@ -298,6 +295,7 @@ def _report(
         changes=changes,
         accepted=[change.label for change in accepted],
         critic={label: value.to_dict() for label, value in critics.items()},
+        critic_surest={label: value.explanation.surest for label, value in critics.items()},
     )
 
 
