@@ -12,10 +12,11 @@ from camdegrade.diagnose.attribute import Attribution, attribute, check_candidat
 from camdegrade.diagnose.changes import KINDS, Change, check_kinds, effect_params
 from camdegrade.diagnose.critique import Critique, critiques
 from camdegrade.diagnose.report import DiagnosisReport, example_crops, flat_crops
-from camdegrade.diagnose.where import findings
+from camdegrade.diagnose.where import findings, visible
 from camdegrade.errors import PairsError
 from camdegrade.fitting.pairset import PairSet, PairsSource
 from camdegrade.measures import check_explains
+from camdegrade.measures.visible import GridComparison, compare_grid
 from camdegrade.profile import CameraProfile, as_profile
 
 #: Fewest pairs on each side of the split: below this a held-out gap has no spread to judge it by, and the
@@ -100,9 +101,12 @@ def diagnose(
         if critic
         else {}
     )
-    verdict = _verdict(result, findings_of(result), critics, base.name)
+    grid = compare_grid(result.baseline.sims, result.held.reals)
+    where = findings_of(result, grid)
+    seen = visible(result.held.reals, result.baseline.sims, result.final_sims, grid=grid)
+    verdict = _verdict(result, where, seen, critics, base.name)
     say(verdict)
-    report = _report(base, result, calibration, held, held_pairs, split, verdict, critics)
+    report = _report(base, result, (calibration, held, held_pairs, split), (where, seen, verdict), critics)
     report.skipped = [
         {"path": str(path), "reason": reason}
         for loaded in (pair_set, given)
@@ -132,9 +136,9 @@ def _split(
     )
 
 
-def findings_of(result: Attribution) -> list[dict]:
+def findings_of(result: Attribution, grid: GridComparison | None = None) -> list[dict]:
     baseline = result.baseline
-    return findings(result.held.real, baseline.stats, baseline.families, baseline.null_families)
+    return findings(result.held.real, baseline.stats, baseline.families, baseline.null_families, grid)
 
 
 def _critics(
@@ -172,7 +176,9 @@ def _finding(change: Change, profile_name: str) -> tuple[str, str]:
     return "the network itself leaves a gap no effect explains", f"refitting the network ({command})"
 
 
-def _verdict(result: Attribution, where: list[dict], critics: dict[str, Critique], profile_name: str) -> str:
+def _verdict(
+    result: Attribution, where: list[dict], seen: list[dict], critics: dict[str, Critique], profile_name: str
+) -> str:
     baseline = result.baseline
     if not baseline.significant:
         text = (
@@ -199,7 +205,13 @@ def _verdict(result: Attribution, where: list[dict], critics: dict[str, Critique
             f"{problems[0].upper()}{problems[1:]}: {fixes} closes {_fraction_closed(result):.0%} of the held-out gap "
             f"({baseline.gap:.2f} → {result.gap_after:.2f}; noise floor {result.noise_floor:.2f})."
         )
-    return text + _critic_clause(baseline.significant, critics)
+    return text + _seen_clause(seen) + _critic_clause(baseline.significant, critics)
+
+
+def _seen_clause(seen: list[dict]) -> str:
+    """What a person sees in the simulation beside the captures (the grid, the texture), when it is significant."""
+    parts = [entry["finding"] for entry in seen if entry["significant"]]
+    return f" What a person sees: {'; '.join(parts)}." if parts else ""
 
 
 def _critic_clause(significant_gap: bool, critics: dict[str, Critique]) -> str:
@@ -243,13 +255,14 @@ def _change_rows(changes: list[Change]) -> list[dict]:
 def _report(
     base: CameraProfile,
     result: Attribution,
-    calibration: PairSet,
-    held: PairSet,
-    held_pairs: list,
-    split: str,
-    verdict: str,
+    pairs: tuple[PairSet, PairSet, list, str],
+    reading: tuple[list[dict], list[dict], str],
     critics: dict[str, Critique],
 ) -> DiagnosisReport:
+    """The report; ``pairs`` = (calibration, held-out, held-out unit pairs, how they were split), ``reading`` =
+    (where, what a person sees, verdict)."""
+    calibration, held, held_pairs, split = pairs
+    where, seen, verdict = reading
     accepted = result.accepted
     added = [change.name for change in accepted if change.kind == "add"]
     final = result.final_profile
@@ -269,7 +282,8 @@ def _report(
         gap_before=result.baseline.gap,
         gap_after=result.gap_after,
         noise_floor=result.noise_floor,
-        where=findings_of(result),
+        where=where,
+        visible=seen,
         effects=effects,
         added=added,
         verdict=verdict,

@@ -69,6 +69,8 @@ class DiagnosisReport:
     flat_crops: list[tuple[str, list[Tensor]]] = field(default_factory=list, repr=False)
     #: The held-out patches each critic was surest about (``label`` → ``SurePatch`` list), for the HTML page.
     critic_surest: dict[str, list[SurePatch]] = field(default_factory=dict, repr=False)
+    #: What a person sees, simulation beside capture: the network's 4-pixel grid and the texture (band power).
+    visible: list[dict[str, Any]] = field(default_factory=list)
 
     def to_dict(self) -> dict[str, Any]:
         """The JSON report: the required keys first, then the evidence."""
@@ -80,6 +82,7 @@ class DiagnosisReport:
             "effects": self.effects,
             "added": list(self.added),
             "verdict": self.verdict,
+            "visible": self.visible,
             "mode": self.mode,
             "fraction_closed": _number(self.fraction_closed),
             "gap_before_se": _number(self.gap_before_se),
@@ -272,7 +275,8 @@ def render_html(report: DiagnosisReport) -> str:
         f"<body><h1>{title}</h1><p class='verdict'>{html.escape(report.verdict)}</p>{_numbers(report)}"
         f"<p class='muted'>{html.escape(report.split)}. Candidates are fitted on the calibration pairs; every gap "
         "is measured on the held-out pairs. Gap = Σ over statistic families of RMS((real − sim)/τ).</p>"
-        f"{critic_section(report.critic, report.critic_surest)}<h2>Where the gap lies (before)</h2>{_where(report)}"
+        f"{critic_section(report.critic, report.critic_surest)}"
+        f"<h2>Where the gap lies (before)</h2>{_where(report)}{_visible(report)}"
         f"<h2>Which change: candidates ranked</h2>{_changes(report)}{_combinations(report)}"
         f"<h2>Evidence</h2>{_evidence(report)}{_flat_crops(report)}{_crops(report)}"
         "</body></html>\n"
@@ -303,6 +307,18 @@ def _where(report: DiagnosisReport) -> str:
         for w in report.where
     ]
     return table(rows, ("axis", "score", "null", "significant", "finding"))
+
+
+def _visible(report: DiagnosisReport) -> str:
+    if not report.visible:
+        return ""
+    rows = [
+        (entry["look"], "yes" if entry["significant"] else "no", entry["finding"], entry.get("after_finding", ""))
+        for entry in report.visible
+    ]
+    return "<h3>What a person sees (simulation beside capture)</h3>" + table(
+        rows, ("look", "significant", "profile as given", "with the accepted changes")
+    )
 
 
 def _changes(report: DiagnosisReport) -> str:
