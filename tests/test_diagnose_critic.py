@@ -15,8 +15,9 @@ from camdegrade.diagnose import DiagnosisReport, diagnose
 from camdegrade.diagnose._html import png_url
 from camdegrade.diagnose.critic_html import DETAIL_GAIN
 from camdegrade.effects import Noise, Tone
-from camdegrade.measures.critic import PATCH
-from camdegrade.measures.critic_explain import GROUPINGS, surest_png
+from camdegrade.fitting.pairset import PairSet, simulate
+from camdegrade.measures.critic import PATCH, alternate_scenes
+from camdegrade.measures.critic_explain import GROUPINGS, crossfit_critic_test, surest_png
 from camdegrade.profile import CameraProfile
 from camdegrade.sim import VirtualCamera
 from effects_images import patch_chart, photo
@@ -45,6 +46,12 @@ def camera_pairs(camera: VirtualCamera, count: int, size: int, seed: int) -> lis
         return [(clean, camera(clean[None], generator=generator)[0]) for clean in scenes(count, size, seed)]
 
 
+def named(prefix: str, pairs: list[tuple[torch.Tensor, torch.Tensor]]) -> PairSet:
+    """``pairs`` as a pair set, each pair its own scene, named ``prefix0``, ``prefix1``, ..."""
+    names = [f"{prefix}{index}" for index in range(len(pairs))]
+    return PairSet(pairs, list(names), names)
+
+
 @pytest.fixture(scope="module")
 def toned() -> DiagnosisReport:
     """A camera with a tone curve, a profile without: the critic tells most patches apart before, fewer after."""
@@ -52,11 +59,31 @@ def toned() -> DiagnosisReport:
     profile = CameraProfile(None, [Noise(a=0.0005)], name="no-tone")
     return diagnose(
         profile,
-        camera_pairs(camera, 6, 64, seed=0),
-        held_out=camera_pairs(camera, 6, 64, seed=1),
+        named("cal-", camera_pairs(camera, 6, 64, seed=0)),
+        held_out=named("held-", camera_pairs(camera, 6, 64, seed=1)),
         candidates=["tone"],
         kinds=("add",),
     )
+
+
+def test_the_critic_never_sees_a_pair_the_change_was_fitted_on(toned: DiagnosisReport) -> None:
+    """The accepted change is fitted on the calibration pairs; each critic is trained on one part of the held-out
+    pairs and scored on the other, both ways, so every held-out pair is scored by a critic that never saw it."""
+    assert toned.accepted == ["add tone"]
+    held = {f"held-{index}" for index in range(6)}
+    for label in ("before", "after"):
+        folds = toned.critic[label]["folds"]
+        assert len(folds) == 2
+        for fold in folds:
+            trained, scored = set(fold["trained_on"]), set(fold["scored_on"])
+            assert trained and scored and not trained & scored, fold
+            assert trained | scored == held, fold  # no calibration pair on either side
+            assert 0.0 <= fold["accuracy"] <= 1.0
+        assert folds[0]["trained_on"] == folds[1]["scored_on"] and folds[1]["trained_on"] == folds[0]["scored_on"]
+        assert sorted(toned.critic[label]["scored_on"]) == sorted(held)
+        assert toned.critic[label]["pairs"] == 6
+        mean = sum(fold["accuracy"] * len(fold["scored_on"]) for fold in folds) / 6  # 24 patches a pair, both folds
+        assert toned.critic[label]["accuracy"] == pytest.approx(mean, abs=1e-3)
 
 
 def test_the_json_carries_the_accuracy_by_group_and_the_surest_patches(toned: DiagnosisReport, tmp_path) -> None:
@@ -91,3 +118,35 @@ def test_the_html_shows_the_surest_patches_real_beside_simulated_and_the_table(t
     for grouping, (_, names) in GROUPINGS.items():
         assert f"<td>{grouping}</td>" in table
         assert re.search(rf"<td>{names[0]} (\d\.\d\d|n/a) \(\d+\)</td>", table), grouping
+
+
+@pytest.mark.slow
+def test_the_reported_interval_contains_a_fresh_critics_accuracy() -> None:
+    """A camera whose noise is 2× the profile's (in std) and a tone curve the profile lacks: adding the tone leaves
+    the noise for the critic to see. The accuracy the diagnosis reports after the change, and its interval, must
+    hold a fresh critic's accuracy: the same two-fold critic on 12 new pairs of the camera, simulated by the
+    changed profile."""
+    camera = VirtualCamera([Noise(a=0.0008), Tone(gamma=1.3, black=0.03)], scale=1.0)
+    profile = CameraProfile(None, [Noise(a=0.0002)], name="quiet")
+    report = diagnose(
+        profile,
+        named("cal-", camera_pairs(camera, 6, 64, seed=0)),
+        held_out=named("held-", camera_pairs(camera, 12, 64, seed=1)),
+        candidates=["tone"],
+        kinds=("add",),
+    )
+    assert report.accepted == ["add tone"]
+    after = report.critic["after"]
+    assert 0.6 < after["accuracy"] < 0.95 and after["high"] - after["low"] > 0.05, after  # neither chance nor sure
+    fresh = camera_pairs(camera, 12, 64, seed=20)
+    cleans, reals = [clean for clean, _ in fresh], [real for _, real in fresh]
+    sims = simulate(report.profile, cleans, 5, stream="fresh")
+    trains = alternate_scenes([str(index) for index in range(12)])
+    result, _, _ = crossfit_critic_test((cleans, reals, sims), trains, seed=0)
+    assert after["low"] <= result.accuracy <= after["high"], (after, result)
+
+
+def test_a_crossfit_critic_needs_pairs_on_both_sides() -> None:
+    images = [torch.zeros(3, 32, 32)] * 2
+    with pytest.raises(ValueError, match="trains must mark some but not all of the 2 pairs, got 2 of 2"):
+        crossfit_critic_test((images, images, images), [True, True], seed=0)

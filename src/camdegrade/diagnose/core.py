@@ -96,11 +96,7 @@ def diagnose(
         seed=seed,
         log=log,
     )
-    critics = (
-        _critics(base, result, (calibration_pairs, calibration.names), (held_pairs, held.names), seed, say)
-        if critic
-        else {}
-    )
+    critics = _critics(result, held, held_pairs, seed, say) if critic else {}
     grid = compare_grid(result.baseline.sims, result.held.reals)
     where = findings_of(result, grid)
     seen = visible(result.held.reals, result.baseline.sims, result.final_sims, grid=grid)
@@ -141,20 +137,13 @@ def findings_of(result: Attribution, grid: GridComparison | None = None) -> list
     return findings(result.held.real, baseline.stats, baseline.families, baseline.null_families, grid)
 
 
-def _critics(
-    base: CameraProfile,
-    result: Attribution,
-    calibration: tuple[list, list[str]],
-    held: tuple[list, list[str]],
-    seed: int,
-    say: Callable[[str], None],
-) -> dict[str, Critique]:
+def _critics(result: Attribution, held: PairSet, held_pairs: list, seed: int, say: Callable[[str], None]) -> dict:
     """The critic on the profile as given and on the profile with the accepted changes (the same one when nothing
-    was accepted); ``calibration`` and ``held`` are ``(unit pairs, names)``."""
-    profiles = [("before", base, result.baseline.sims)]
+    was accepted), each trained and scored on parts of the held-out pairs (:mod:`camdegrade.diagnose.critique`)."""
+    simulations = [("before", result.baseline.sims)]
     if result.accepted:
-        profiles.append(("after", result.final_profile, result.final_sims))
-    out = critiques(profiles, calibration[0], held[0], (calibration[1], held[1]), seed, say)
+        simulations.append(("after", result.final_sims))
+    out = critiques(simulations, held_pairs, held.names, held.scenes, seed, say)
     out.setdefault("after", out["before"])
     return out
 

@@ -25,11 +25,17 @@ def critic_section(critic: Mapping[str, Mapping[str, Any]], surest: Mapping[str,
             label,
             f"{result['accuracy']:.2f} [{result['low']:.2f}–{result['high']:.2f}]",
             result["patches"],
-            f"{len(result.get('trained_on', []))} / {len(result.get('scored_on', []))}",
+            " and ".join(
+                f"{fold['accuracy']:.2f} ({len(fold['trained_on'])} / {len(fold['scored_on'])})"
+                for fold in result.get("folds", [])
+            ),
         )
         for label, result in critic.items()
     ]
-    summary = table(rows, ("profile", "held-out accuracy [95 % CI]", "patches", "pairs trained on / scored on"))
+    summary = table(
+        rows,
+        ("profile", "held-out accuracy [95 % CI]", "patches", "each fold: accuracy (pairs trained on / scored on)"),
+    )
     return (
         "<h2>Learned critic (0.5: cannot tell real from simulated)</h2>"
         f"{summary}<h3>Where it decides: accuracy (patches) by tercile of the clean patch</h3>{_groups(critic)}"
