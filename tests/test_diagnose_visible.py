@@ -10,7 +10,7 @@ import pytest
 import torch
 
 from camdegrade.diagnose import DiagnosisReport, diagnose
-from camdegrade.diagnose.where import findings
+from camdegrade.diagnose.where import findings, visible
 from camdegrade.effects import JPEG, Blur, Noise, Sharpen
 from camdegrade.functional import blur_image
 from camdegrade.functional.analysis import flat_mask
@@ -171,6 +171,7 @@ def test_a_profile_that_blurs_too_much_is_too_smooth_and_a_blur_or_sharpen_chang
     assert "What a person sees: texture too smooth" in too_soft.verdict
     assert too_soft.accepted[:1] in (["refit blur"], ["remove blur"], ["add sharpen"]), too_soft.accepted
     assert not any(texture["after"]["significant"]), texture["after_finding"]
+    assert "With the changes:" not in too_soft.verdict  # nothing is still seen
     tried = {f"{change['kind']} {change['name']}" for change in too_soft.changes}
     assert "add sharpen" in tried  # sharpening is a candidate the search tries
 
@@ -189,3 +190,20 @@ def test_a_camera_that_sharpens_is_mended_by_adding_sharpen() -> None:
     assert texture["significant"] and "too smooth" in texture["finding"], texture
     assert report.accepted[:1] == ["add sharpen"], report.accepted
     assert report.fitted_params["sharpen"]["amount"] == pytest.approx(1.2, rel=0.3)
+
+
+def test_the_verdict_says_what_a_change_leaves_seen() -> None:
+    """A change the statistics accept can deepen what a person sees (on City100 the accepted blur refit leaves the
+    texture smoother still): the verdict then says what is still seen with the changes."""
+    from camdegrade.diagnose.core import _seen_clause
+
+    cleans = photo_crops(6, seed=0)
+    reals = noisy(cleans, seed=1)
+    soft = [blur_image(image[None], 1.0)[0] for image in reals]
+    softer = [blur_image(image[None], 2.0)[0] for image in reals]
+    deepened = _seen_clause(visible(reals, soft, softer))
+    assert deepened.startswith(" What a person sees: texture too smooth at "), deepened
+    assert " With the changes: texture too smooth at " in deepened
+    mended = _seen_clause(visible(reals, soft, reals))
+    assert "What a person sees: texture too smooth" in mended and "With the changes" not in mended
+    assert _seen_clause(visible(reals, reals, reals)) == ""

@@ -198,9 +198,21 @@ def _verdict(
 
 
 def _seen_clause(seen: list[dict]) -> str:
-    """What a person sees in the simulation beside the captures (the grid, the texture), when it is significant."""
+    """What a person sees in the simulation beside the captures (the grid, the texture) when it is significant, and
+    what is still seen with the accepted changes (a change the statistics accept can leave it, or deepen it)."""
     parts = [entry["finding"] for entry in seen if entry["significant"]]
-    return f" What a person sees: {'; '.join(parts)}." if parts else ""
+    clause = f" What a person sees: {'; '.join(parts)}." if parts else ""
+    after = [
+        entry["after_finding"]
+        for entry in seen
+        if "after_finding" in entry and entry["after"] != entry["before"] and _significant_after(entry)
+    ]
+    return clause + (f" With the changes: {'; '.join(after)}." if after else "")
+
+
+def _significant_after(entry: dict) -> bool:
+    significant = entry["after"]["significant"]
+    return any(significant) if isinstance(significant, list) else bool(significant)
 
 
 def _critic_clause(significant_gap: bool, critics: dict[str, Critique]) -> str:
