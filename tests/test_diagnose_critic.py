@@ -66,6 +66,7 @@ def toned() -> DiagnosisReport:
     )
 
 
+@pytest.mark.slow  # the fixture: a diagnosis with four critics, about 30 s on one core
 def test_the_critic_never_sees_a_pair_the_change_was_fitted_on(toned: DiagnosisReport) -> None:
     """The accepted change is fitted on the calibration pairs; each critic is trained on one part of the held-out
     pairs and scored on the other, both ways, so every held-out pair is scored by a critic that never saw it."""
@@ -86,6 +87,7 @@ def test_the_critic_never_sees_a_pair_the_change_was_fitted_on(toned: DiagnosisR
         assert toned.critic[label]["accuracy"] == pytest.approx(mean, abs=1e-3)
 
 
+@pytest.mark.slow
 def test_the_json_carries_the_accuracy_by_group_and_the_surest_patches(toned: DiagnosisReport, tmp_path) -> None:
     data = json.loads(toned.write_json(tmp_path / "r.json").read_text())
     assert data["accepted"] == ["add tone"]
@@ -102,6 +104,7 @@ def test_the_json_carries_the_accuracy_by_group_and_the_surest_patches(toned: Di
     assert data["critic"]["after"]["accuracy"] < data["critic"]["before"]["accuracy"]
 
 
+@pytest.mark.slow
 def test_the_html_shows_the_surest_patches_real_beside_simulated_and_the_table(toned: DiagnosisReport) -> None:
     page = toned.to_html()
     for label in ("before", "after"):
