@@ -85,8 +85,8 @@ def test_the_refitted_profile_shows_no_noise_finding(after: DiagnosisReport) -> 
 
 
 def test_the_built_in_is_named_by_its_4_pixel_grid(after: DiagnosisReport) -> None:
-    """What a person sees beside the captures: the built-in's network prints a 4-pixel grid (4.6× the camera's on
-    the 16 flattest crops, 7.7× on the 8 held-out whole frames), and the verdict names it."""
+    """What a person sees beside the captures: the built-in's network prints a 4-pixel grid (7.7× the camera's on
+    the 8 held-out whole frames of examples/diagnose_city100.py), and the verdict names it."""
     grid = next(entry for entry in after.visible if entry["look"] == "grid")
     assert grid["significant"] and grid["before"]["ratio"] > 2, grid
     assert "What a person sees: the simulation carries a 4-pixel grid" in after.verdict, after.verdict
