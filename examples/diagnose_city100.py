@@ -58,6 +58,11 @@ def main() -> None:
     report.write_html(args.out / "report.html")
     for entry in report.where:
         print(f"{entry['axis']:>10s} {entry['score']:7.2f} (null {entry['null']:.2f})  {entry['finding']}")
+    for entry in report.visible:  # what a person sees: the network's grid, the texture
+        said = "significant" if entry["significant"] else "not significant"
+        print(f"{entry['look']:>10s} {said}: {entry['finding']}")
+        if "after_finding" in entry:
+            print(f"{'':>10s} after the changes: {entry['after_finding']}")
     print(report.verdict)
 
 

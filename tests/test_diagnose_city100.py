@@ -84,6 +84,14 @@ def test_the_refitted_profile_shows_no_noise_finding(after: DiagnosisReport) -> 
     assert not any(label.endswith(" noise") for label in after.accepted), after.accepted
 
 
+def test_the_built_in_is_named_by_its_4_pixel_grid(after: DiagnosisReport) -> None:
+    """What a person sees beside the captures: the built-in's network prints a 4-pixel grid (7.7× the camera's on
+    the 8 held-out whole frames of examples/diagnose_city100.py), and the verdict names it."""
+    grid = next(entry for entry in after.visible if entry["look"] == "grid")
+    assert grid["significant"] and grid["before"]["ratio"] > 2, grid
+    assert "What a person sees: the simulation carries a 4-pixel grid" in after.verdict, after.verdict
+
+
 def test_the_sampled_profile_is_no_easier_to_tell_apart_than_without_its_noise(crops: list) -> None:
     """The learned critic, trained on 8 scenes and scored on the other 8: the built-in's samples are no easier to
     tell from the captures than its deterministic part (its noise adds nothing the critic can use), while the old

@@ -10,12 +10,13 @@ from collections.abc import Callable, Iterable
 from camdegrade._checks import check_seed
 from camdegrade.diagnose.attribute import Attribution, attribute, check_candidates
 from camdegrade.diagnose.changes import KINDS, Change, check_kinds, effect_params
+from camdegrade.diagnose.critique import Critique, critiques
 from camdegrade.diagnose.report import DiagnosisReport, example_crops, flat_crops
-from camdegrade.diagnose.where import findings
+from camdegrade.diagnose.where import findings, visible
 from camdegrade.errors import PairsError
-from camdegrade.fitting.pairset import PairSet, PairsSource, simulate
+from camdegrade.fitting.pairset import PairSet, PairsSource
 from camdegrade.measures import check_explains
-from camdegrade.measures.critic import CriticResult, critic_test
+from camdegrade.measures.visible import GridComparison, compare_grid
 from camdegrade.profile import CameraProfile, as_profile
 
 #: Fewest pairs on each side of the split: below this a held-out gap has no spread to judge it by, and the
@@ -95,10 +96,13 @@ def diagnose(
         seed=seed,
         log=log,
     )
-    critics = _critics(base, result, calibration_pairs, held_pairs, seed, say) if critic else {}
-    verdict = _verdict(result, findings_of(result), critics, base.name)
+    critics = _critics(result, held, held_pairs, seed, say) if critic else {}
+    grid = compare_grid(result.baseline.sims, result.held.reals)
+    where = findings_of(result, grid)
+    seen = visible(result.held.reals, result.baseline.sims, result.final_sims, grid=grid)
+    verdict = _verdict(result, where, seen, critics, base.name)
     say(verdict)
-    report = _report(base, result, calibration, held, held_pairs, split, verdict, critics)
+    report = _report(base, result, (calibration, held, held_pairs, split), (where, seen, verdict), critics)
     report.skipped = [
         {"path": str(path), "reason": reason}
         for loaded in (pair_set, given)
@@ -128,33 +132,19 @@ def _split(
     )
 
 
-def findings_of(result: Attribution) -> list[dict]:
+def findings_of(result: Attribution, grid: GridComparison | None = None) -> list[dict]:
     baseline = result.baseline
-    return findings(result.held.real, baseline.stats, baseline.families, baseline.null_families)
+    return findings(result.held.real, baseline.stats, baseline.families, baseline.null_families, grid)
 
 
-def _critics(
-    base: CameraProfile,
-    result: Attribution,
-    calibration: list,
-    held: list,
-    seed: int,
-    say: Callable[[str], None],
-) -> dict[str, CriticResult]:
-    """The critic trained and scored on the profile as given, and on the profile with the accepted changes."""
-    cal_cleans, cal_reals = [c for c, _ in calibration], [r for _, r in calibration]
-    held_cleans, held_reals = [c for c, _ in held], [r for _, r in held]
-    out = {}
-    for label, profile, held_sims in (
-        ("before", base, result.baseline.sims),
-        ("after", result.final_profile, result.final_sims),
-    ):
-        if label == "after" and not result.accepted:
-            out[label] = out["before"]
-            break
-        cal_sims = simulate(profile, cal_cleans, seed, stream="critic-calibration")
-        out[label] = critic_test((cal_cleans, cal_reals, cal_sims), (held_cleans, held_reals, held_sims), seed)
-        say(f"critic {label}: {out[label].describe()}")
+def _critics(result: Attribution, held: PairSet, held_pairs: list, seed: int, say: Callable[[str], None]) -> dict:
+    """The critic on the profile as given and on the profile with the accepted changes (the same one when nothing
+    was accepted), each trained and scored on parts of the held-out pairs (:mod:`camdegrade.diagnose.critique`)."""
+    simulations = [("before", result.baseline.sims)]
+    if result.accepted:
+        simulations.append(("after", result.final_sims))
+    out = critiques(simulations, held_pairs, held.names, held.scenes, seed, say)
+    out.setdefault("after", out["before"])
     return out
 
 
@@ -175,7 +165,9 @@ def _finding(change: Change, profile_name: str) -> tuple[str, str]:
     return "the network itself leaves a gap no effect explains", f"refitting the network ({command})"
 
 
-def _verdict(result: Attribution, where: list[dict], critics: dict[str, CriticResult], profile_name: str) -> str:
+def _verdict(
+    result: Attribution, where: list[dict], seen: list[dict], critics: dict[str, Critique], profile_name: str
+) -> str:
     baseline = result.baseline
     if not baseline.significant:
         text = (
@@ -202,14 +194,32 @@ def _verdict(result: Attribution, where: list[dict], critics: dict[str, CriticRe
             f"{problems[0].upper()}{problems[1:]}: {fixes} closes {_fraction_closed(result):.0%} of the held-out gap "
             f"({baseline.gap:.2f} → {result.gap_after:.2f}; noise floor {result.noise_floor:.2f})."
         )
-    return text + _critic_clause(baseline.significant, critics)
+    return text + _seen_clause(seen) + _critic_clause(baseline.significant, critics)
 
 
-def _critic_clause(significant_gap: bool, critics: dict[str, CriticResult]) -> str:
+def _seen_clause(seen: list[dict]) -> str:
+    """What a person sees in the simulation beside the captures (the grid, the texture) when it is significant, and
+    what is still seen with the accepted changes (a change the statistics accept can leave it, or deepen it)."""
+    parts = [entry["finding"] for entry in seen if entry["significant"]]
+    clause = f" What a person sees: {'; '.join(parts)}." if parts else ""
+    after = [
+        entry["after_finding"]
+        for entry in seen
+        if "after_finding" in entry and entry["after"] != entry["before"] and _significant_after(entry)
+    ]
+    return clause + (f" With the changes: {'; '.join(after)}." if after else "")
+
+
+def _significant_after(entry: dict) -> bool:
+    significant = entry["after"]["significant"]
+    return any(significant) if isinstance(significant, list) else bool(significant)
+
+
+def _critic_clause(significant_gap: bool, critics: dict[str, Critique]) -> str:
     """What the critic adds to the verdict: its accuracy before and after, and where it disagrees."""
     if not critics:
         return ""
-    before, after = critics["before"], critics["after"]
+    before, after = critics["before"].result, critics["after"].result
     clause = f" Critic: {before.describe()}"
     if after is not before:
         clause += f"; after the changes {after.accuracy:.2f} [{after.low:.2f}–{after.high:.2f}]"
@@ -246,13 +256,14 @@ def _change_rows(changes: list[Change]) -> list[dict]:
 def _report(
     base: CameraProfile,
     result: Attribution,
-    calibration: PairSet,
-    held: PairSet,
-    held_pairs: list,
-    split: str,
-    verdict: str,
-    critics: dict[str, CriticResult],
+    pairs: tuple[PairSet, PairSet, list, str],
+    reading: tuple[list[dict], list[dict], str],
+    critics: dict[str, Critique],
 ) -> DiagnosisReport:
+    """The report; ``pairs`` = (calibration, held-out, held-out unit pairs, how they were split), ``reading`` =
+    (where, what a person sees, verdict)."""
+    calibration, held, held_pairs, split = pairs
+    where, seen, verdict = reading
     accepted = result.accepted
     added = [change.name for change in accepted if change.kind == "add"]
     final = result.final_profile
@@ -272,7 +283,8 @@ def _report(
         gap_before=result.baseline.gap,
         gap_after=result.gap_after,
         noise_floor=result.noise_floor,
-        where=findings_of(result),
+        where=where,
+        visible=seen,
         effects=effects,
         added=added,
         verdict=verdict,
@@ -298,6 +310,7 @@ def _report(
         changes=changes,
         accepted=[change.label for change in accepted],
         critic={label: value.to_dict() for label, value in critics.items()},
+        critic_surest={label: value.explanation.surest for label, value in critics.items()},
     )
 
 

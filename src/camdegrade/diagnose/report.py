@@ -6,7 +6,6 @@ base64; without matplotlib the same evidence is shown as tables. Example crops a
 
 from __future__ import annotations
 
-import base64
 import html
 import io
 import json
@@ -18,13 +17,14 @@ from pathlib import Path
 from typing import Any
 
 import torch
-from PIL import Image
 from torch import Tensor
 
 from camdegrade._files import atomic_path
-from camdegrade._pixels import unit_to_bytes
+from camdegrade.diagnose._html import image_url, png_url, table
+from camdegrade.diagnose.critic_html import critic_section
 from camdegrade.functional.analysis import flattest_window
 from camdegrade.measures import FAMILIES
+from camdegrade.measures.critic_explain import SurePatch
 from camdegrade.measures.frequency import BANDS, Frequency
 from camdegrade.measures.intensity import INTENSITY_BINS
 from camdegrade.measures.noise import NOISE_BINS, NoiseLevel
@@ -67,6 +67,10 @@ class DiagnosisReport:
     skipped: list[dict[str, str]] = field(default_factory=list)
     fit_statistics: dict[str, Any] = field(default_factory=dict)
     flat_crops: list[tuple[str, list[Tensor]]] = field(default_factory=list, repr=False)
+    #: The held-out patches each critic was surest about (``label`` → ``SurePatch`` list), for the HTML page.
+    critic_surest: dict[str, list[SurePatch]] = field(default_factory=dict, repr=False)
+    #: What a person sees, simulation beside capture: the network's 4-pixel grid and the texture (band power).
+    visible: list[dict[str, Any]] = field(default_factory=list)
 
     def to_dict(self) -> dict[str, Any]:
         """The JSON report: the required keys first, then the evidence."""
@@ -78,6 +82,7 @@ class DiagnosisReport:
             "effects": self.effects,
             "added": list(self.added),
             "verdict": self.verdict,
+            "visible": self.visible,
             "mode": self.mode,
             "fraction_closed": _number(self.fraction_closed),
             "gap_before_se": _number(self.gap_before_se),
@@ -165,23 +170,13 @@ def flat_crops(
     return [(label, [image[crop] for image in (reals[best], before[best], after[best])])]
 
 
-def _png(image: Tensor, scale: int = 2) -> str:
-    array = unit_to_bytes(image).permute(1, 2, 0).numpy()
-    picture = Image.fromarray(array)
-    if scale > 1:
-        picture = picture.resize((picture.width * scale, picture.height * scale), Image.NEAREST)
-    buffer = io.BytesIO()
-    picture.save(buffer, format="PNG")
-    return "data:image/png;base64," + base64.b64encode(buffer.getvalue()).decode("ascii")
-
-
 def _figure_png(figure: Any) -> str:
     buffer = io.BytesIO()
     figure.savefig(buffer, format="png", dpi=80, bbox_inches="tight")
     import matplotlib.pyplot as plt
 
     plt.close(figure)
-    return "data:image/png;base64," + base64.b64encode(buffer.getvalue()).decode("ascii")
+    return png_url(buffer.getvalue())
 
 
 def _plots(report: DiagnosisReport) -> list[tuple[str, str]]:
@@ -242,12 +237,6 @@ def _pm(value: float, error: float | None) -> str:
     return f"{value:+.2f}" if error is None else f"{value:+.2f} ± {error:.2f}"
 
 
-def _table(rows: Sequence[Sequence[Any]], header: Sequence[str]) -> str:
-    head = "".join(f"<th>{html.escape(str(h))}</th>" for h in header)
-    body = "".join("<tr>" + "".join(f"<td>{html.escape(str(c))}</td>" for c in row) + "</tr>" for row in rows)
-    return f"<table><tr>{head}</tr>{body}</table>"
-
-
 def _fallback_tables(report: DiagnosisReport) -> str:
     stats = report.statistics
     if not stats:
@@ -265,7 +254,7 @@ def _fallback_tables(report: DiagnosisReport) -> str:
                     f"{float(after[name][k]):.3f}",
                 )
             )
-    return "<h2>Signatures (tables: install the 'report' extra for plots)</h2>" + _table(
+    return "<h2>Signatures (tables: install the 'report' extra for plots)</h2>" + table(
         rows, ("statistic", "bin/band", "real", "sim before", "sim after")
     )
 
@@ -286,7 +275,8 @@ def render_html(report: DiagnosisReport) -> str:
         f"<body><h1>{title}</h1><p class='verdict'>{html.escape(report.verdict)}</p>{_numbers(report)}"
         f"<p class='muted'>{html.escape(report.split)}. Candidates are fitted on the calibration pairs; every gap "
         "is measured on the held-out pairs. Gap = Σ over statistic families of RMS((real − sim)/τ).</p>"
-        f"{_critic(report)}<h2>Where the gap lies (before)</h2>{_where(report)}"
+        f"{critic_section(report.critic, report.critic_surest)}"
+        f"<h2>Where the gap lies (before)</h2>{_where(report)}{_visible(report)}"
         f"<h2>Which change: candidates ranked</h2>{_changes(report)}{_combinations(report)}"
         f"<h2>Evidence</h2>{_evidence(report)}{_flat_crops(report)}{_crops(report)}"
         "</body></html>\n"
@@ -294,7 +284,7 @@ def render_html(report: DiagnosisReport) -> str:
 
 
 def _numbers(report: DiagnosisReport) -> str:
-    return _table(
+    return table(
         [
             ("gap before (profile as is)", f"{report.gap_before:.2f} ± {report.gap_before_se:.2f}"),
             ("gap after (added: " + (", ".join(report.added) or "nothing") + ")", f"{report.gap_after:.2f}"),
@@ -316,7 +306,19 @@ def _where(report: DiagnosisReport) -> str:
         )
         for w in report.where
     ]
-    return _table(rows, ("axis", "score", "null", "significant", "finding"))
+    return table(rows, ("axis", "score", "null", "significant", "finding"))
+
+
+def _visible(report: DiagnosisReport) -> str:
+    if not report.visible:
+        return ""
+    rows = [
+        (entry["look"], "yes" if entry["significant"] else "no", entry["finding"], entry.get("after_finding", ""))
+        for entry in report.visible
+    ]
+    return "<h3>What a person sees (simulation beside capture)</h3>" + table(
+        rows, ("look", "significant", "profile as given", "with the accepted changes")
+    )
 
 
 def _changes(report: DiagnosisReport) -> str:
@@ -330,7 +332,7 @@ def _changes(report: DiagnosisReport) -> str:
         )
         for c in report.changes
     ]
-    return _table(rows, ("change", "held-out gap", "reduction", "significant", "what it says"))
+    return table(rows, ("change", "held-out gap", "reduction", "significant", "what it says"))
 
 
 def _combinations(report: DiagnosisReport) -> str:
@@ -340,26 +342,8 @@ def _combinations(report: DiagnosisReport) -> str:
         (" + ".join([*c["after"], f"{c['kind']} {c['name']}"]), f"{c['gap_after']:.2f}", f"{c['reduction']:+.2f}")
         for c in report.combinations
     ]
-    return "<h3>Combinations (fitted on top of the accepted changes)</h3>" + _table(
+    return "<h3>Combinations (fitted on top of the accepted changes)</h3>" + table(
         rows, ("changes", "held-out gap", "marginal reduction")
-    )
-
-
-def _critic(report: DiagnosisReport) -> str:
-    """The critic's accuracy before and after the changes, and where it decides."""
-    if not report.critic:
-        return ""
-    rows = []
-    for label, result in report.critic.items():
-        groups = {**result["by_position"], **result["by_intensity"], **result["by_texture"]}
-        where = ", ".join(
-            f"{name} {value['accuracy']:.2f}" for name, value in groups.items() if value["accuracy"] is not None
-        )
-        rows.append(
-            (label, f"{result['accuracy']:.2f} [{result['low']:.2f}–{result['high']:.2f}]", result["patches"], where)
-        )
-    return "<h2>Learned critic (0.5: cannot tell real from simulated)</h2>" + _table(
-        rows, ("profile", "held-out accuracy [95 % CI]", "patches", "accuracy by position, intensity, texture")
     )
 
 
@@ -386,7 +370,7 @@ def _crop_grid(title: str, crops: Sequence[tuple[str, Sequence[Tensor]]], scale:
         return ""
     rows = "".join(
         f"<div>{html.escape(label)}<br>"
-        + "".join(f"<img src='{_png(image, scale)}' alt=''>" for image in images)
+        + "".join(f"<img src='{image_url(image, scale)}' alt=''>" for image in images)
         + "</div>"
         for label, images in crops
     )

@@ -2,7 +2,9 @@
 in one registry (:mod:`camdegrade.measures.base`: what each measures, its tau, its description, which effects and
 which network faults it signals), the sets and the gap built on them, the learned critic, and the fidelity of a
 simulation to the camera read from the images (:mod:`camdegrade.measures.fidelity`: grid, texture bands, flat
-noise), and the AKLD of simulated against real noise (:mod:`camdegrade.measures.akld`).
+noise) and what a person sees of them, judged against their spread (:mod:`camdegrade.measures.visible`: the
+4-pixel grid, texture too smooth or too sharp), and the AKLD of simulated against real noise
+(:mod:`camdegrade.measures.akld`).
 
 The modules below are imported in the order the families are registered (the order of every report).
 """

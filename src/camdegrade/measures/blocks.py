@@ -57,3 +57,11 @@ class Blocks(PairedFamily):
         if not bool(torch.isfinite(edge)):
             return "block-edge energy not measurable: the captures have no gradients (too little texture)"
         return f"gradient energy on 8×8 block edges: real {edge:.2f}× the mean vs sim {simulated:.2f}×"
+
+
+def block_excess(real: Tensor, sim: Tensor) -> tuple[float, float]:
+    """``(edge, mid)``: how much more relative gradient energy the simulation has than the camera on the 8×8 block
+    edges (phase 7) and in the middle of the blocks (phase 3), mean of columns and rows, from the :class:`Blocks`
+    values. A codec's blocking moves the edge alone; a 4-pixel grid moves both alike (its period divides 8)."""
+    excess = sim - real
+    return float((excess[7] + excess[15]) / 2), float((excess[3] + excess[11]) / 2)

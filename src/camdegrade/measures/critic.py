@@ -23,7 +23,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, fields, replace
 
 import torch
 import torch.nn.functional as F
@@ -122,6 +122,15 @@ class Patches:
 
     def __len__(self) -> int:
         return self.labels.numel()
+
+    @classmethod
+    def concat(cls, parts: Sequence[Patches]) -> Patches:
+        """The patches of ``parts`` in order, the pairs of each numbered after those of the parts before it."""
+        offset, shifted = 0, []
+        for part in parts:
+            shifted.append(replace(part, pair=part.pair + offset))
+            offset += int(part.pair.max()) + 1 if len(part) else 0
+        return cls(*(torch.cat([getattr(part, f.name) for part in shifted]) for f in fields(cls)))
 
 
 def _pair_patches(
@@ -233,7 +242,12 @@ def logits(net: CriticNet, patches: Patches) -> Tensor:
 
 def score(net: CriticNet, patches: Patches, seed: int, seconds: float = 0.0) -> CriticResult:
     """Held-out accuracy, its bootstrap interval over pairs, and the breakdown by where the patches lie."""
-    answers = (logits(net, patches) > 0).float()
+    return score_logits(logits(net, patches), patches, seed, seconds)
+
+
+def score_logits(towards_real: Tensor, patches: Patches, seed: int, seconds: float = 0.0) -> CriticResult:
+    """:func:`score` from the logits a critic (or several, each on the pairs it never saw) gave ``patches``."""
+    answers = (towards_real > 0).float()
     correct = (answers == patches.labels).float()
     pairs = torch.unique(patches.pair)
     per_pair = torch.stack([correct[patches.pair == pair].mean() for pair in pairs])
@@ -302,16 +316,26 @@ def split_critic_test(
     Raises:
         ValueError: fewer than two scenes, or no pair of at least :data:`PATCH` pixels on either side.
     """
-    names = sorted(set(scenes))
+    names = set(scenes)
     if len(names) < 2 or len(scenes) != len(pairs[0]):
         raise ValueError(
             f"the critic needs pairs of at least two scenes (one side trains it, the other scores it), got "
             f"{len(names)} scene(s) for {len(pairs[0])} pair(s)"
         )
-    trains = [names.index(scene) % 2 == 0 for scene in scenes]
+    trains = alternate_scenes(scenes)
     calibration = tuple([item for item, chosen in zip(column, trains, strict=True) if chosen] for column in pairs)
     held_out = tuple([item for item, chosen in zip(column, trains, strict=True) if not chosen] for column in pairs)
     if steps is None:
         patches = 2 * PATCHES_PER_PAIR * sum(min(clean.shape[-2:]) >= PATCH for clean in calibration[0])
         steps = max(1, min(STEPS, math.ceil(SPLIT_PASSES * patches / BATCH)))
     return critic_test(calibration, held_out, seed, steps, image_only)
+
+
+def alternate_scenes(scenes: Sequence[str]) -> list[bool]:
+    """For each pair of ``scenes`` (its scene id), whether it trains a critic (True) or scores it: the scenes in
+    sorted order alternate between the two, so no scene is on both sides. With a single scene, the pairs alternate
+    instead (its pairs still differ, though less than scenes would)."""
+    names = sorted(set(scenes))
+    if len(names) < 2:
+        return [index % 2 == 0 for index in range(len(scenes))]
+    return [names.index(scene) % 2 == 0 for scene in scenes]

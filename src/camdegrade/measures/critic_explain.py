@@ -38,6 +38,7 @@ from camdegrade.measures.critic import (
     _groups,
     logits,
     score,
+    score_logits,
     train_critic,
 )
 
@@ -124,9 +125,13 @@ def surest_patches(net: CriticNet, patches: Patches, k: int, per_pair: int | Non
     (fewer when the class has fewer), surest first; at most ``per_pair`` of each class from one pair (``None``:
     no limit), so that one easy image does not fill the list."""
     _check(net, patches)
+    return surest_from_logits(logits(net, patches), patches, k, per_pair)
+
+
+def surest_from_logits(towards_real: Tensor, patches: Patches, k: int, per_pair: int | None = None) -> list[SurePatch]:
+    """:func:`surest_patches` from the logits a critic (or several, each on pairs it never saw) gave ``patches``."""
     k = _positive_int(k, "k")
     per_pair = None if per_pair is None else _positive_int(per_pair, "per_pair")
-    towards_real = logits(net, patches)
     partner = _partners(patches)
     images, details = _planes(patches.inputs)
     out = []
@@ -163,7 +168,12 @@ def accuracy_by_group(net: CriticNet, patches: Patches) -> tuple[dict[str, dict[
     """The critic's accuracy and patch count per tercile of texture, intensity, colour and position, and the
     tercile edges."""
     _check(net, patches)
-    correct = ((logits(net, patches) > 0).float() == patches.labels).float()
+    return groups_from_logits(logits(net, patches), patches)
+
+
+def groups_from_logits(towards_real: Tensor, patches: Patches) -> tuple[dict[str, dict[str, dict]], dict]:
+    """:func:`accuracy_by_group` from the logits a critic (or several) gave ``patches``."""
+    correct = ((towards_real > 0).float() == patches.labels).float()
     groups, edges = {}, {}
     for grouping, (attribute, names) in GROUPINGS.items():
         value = getattr(patches, attribute).float()
@@ -195,6 +205,45 @@ def explained_critic_test(
     net = train_critic(Patches.sample(*calibration, seed, "critic-calibration", image_only), seed, steps)
     held = Patches.sample(*held_out, seed, "critic-held-out", image_only)
     return score(net, held, seed, time.perf_counter() - started), explain_critic(net, held, k, per_pair)
+
+
+def crossfit_critic_test(
+    pairs: tuple[Sequence[Tensor], Sequence[Tensor], Sequence[Tensor]],
+    trains: Sequence[bool],
+    seed: int,
+    steps: int = STEPS,
+    k: int = 6,
+    per_pair: int | None = None,
+) -> tuple[CriticResult, CriticExplanation, tuple[float, float]]:
+    """A two-fold critic on one set of ``pairs`` = (cleans, reals, sims): a critic trained on the pairs ``trains``
+    marks scores the others, a second trained on those others scores the first, so every pair is scored by a critic
+    that never saw it. Returns the pooled score (its interval a bootstrap over all the pairs), the explanation of
+    the pooled logits, and each fold's accuracy (how much the critic depends on which pairs trained it).
+
+    References:
+        D. Lopez-Paz, M. Oquab, "Revisiting Classifier Two-Sample Tests", ICLR 2017.
+    """
+    if len(trains) != len(pairs[0]) or all(trains) or not any(trains):
+        raise ValueError(
+            f"trains must mark some but not all of the {len(pairs[0])} pairs, got {sum(map(bool, trains))} of "
+            f"{len(trains)}"
+        )
+    started = time.perf_counter()
+    scored, folds, fold_logits = [], [], []
+    for side in (True, False):
+        train = tuple([item for item, t in zip(column, trains, strict=True) if bool(t) is side] for column in pairs)
+        held = tuple([item for item, t in zip(column, trains, strict=True) if bool(t) is not side] for column in pairs)
+        net = train_critic(Patches.sample(*train, seed, "critic-calibration"), seed, steps)
+        patches = Patches.sample(*held, seed, "critic-held-out")
+        towards_real = logits(net, patches)
+        folds.append(float(((towards_real > 0).float() == patches.labels).float().mean()))
+        scored.append(patches)
+        fold_logits.append(towards_real)
+    patches, towards_real = Patches.concat(scored), torch.cat(fold_logits)
+    result = score_logits(towards_real, patches, seed, time.perf_counter() - started)
+    groups, edges = groups_from_logits(towards_real, patches)
+    explanation = CriticExplanation(surest_from_logits(towards_real, patches, k, per_pair), groups, edges)
+    return result, explanation, (folds[0], folds[1])
 
 
 def render_surest(
