@@ -8,7 +8,8 @@ paired PSNR of the sampled profile and of its network alone, and :func:`~camdegr
 Compare it with the built-ins in one table with ``examples/fidelity_city100.py --profile "default fit=OUT"``. Run
 from the repo root::
 
-    OMP_NUM_THREADS=2 .venv/bin/python examples/fit_city100_default.py [--arch local_affine] [--out PATH]
+    OMP_NUM_THREADS=2 .venv/bin/python examples/fit_city100_default.py [--arch local_affine] [--out PATH] \
+        [--upsample smooth] [--texture none]
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ import torch
 
 from camdegrade import CameraDegrade
 from camdegrade._pixels import as_unit
+from camdegrade._recipes import TEXTURES, UPSAMPLINGS
 from camdegrade.fitting import FitConfig, PairSet, discover_pairs, filter_pairs, fit_profile, load_pair
 from camdegrade.measures.fidelity import measure_fidelity
 from camdegrade.metrics import psnr
@@ -36,12 +38,14 @@ def main() -> None:
     parser.add_argument("--data", type=Path, default=DEFAULT_DATA)
     parser.add_argument("--arch", default="local_affine", choices=("local_affine", "paper"))
     parser.add_argument("--epochs", type=int, default=None, help="default: the fast recipe's")
+    parser.add_argument("--upsample", default=None, choices=UPSAMPLINGS, help="default: the fast recipe's")
+    parser.add_argument("--texture", default=None, choices=TEXTURES, help="default: the fast recipe's")
     parser.add_argument("--out", type=Path, default=ROOT / "out" / "city100-default.safetensors")
     args = parser.parse_args()
     pairs = filter_pairs(discover_pairs(args.data / "pairs.csv").pairs, subset="city100_iPhoneX")
     fitted = [pair for pair in pairs if pair.scene <= LAST_FITTED_SCENE]
     held = [pair for pair in pairs if pair.scene > LAST_FITTED_SCENE]
-    config = FitConfig.recipe("fast", arch=args.arch, epochs=args.epochs)
+    config = FitConfig.recipe("fast", arch=args.arch, epochs=args.epochs, upsample=args.upsample, texture=args.texture)
     started = time.perf_counter()
     profile = fit_profile(PairSet.load(fitted), config, name="city100-default", log=print, progress=True)
     print(f"fit: {time.perf_counter() - started:.0f} s")

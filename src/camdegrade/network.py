@@ -111,11 +111,10 @@ LINEAR_TAPS = 7
 FIELD_CHANNELS = 12
 #: How :class:`LocalAffineNet` brings its quarter-resolution colour field to full resolution. ``"bilinear"`` (the
 #: default): a bilinear field changes slope every 4 pixels, which a trained network can print as a faint grid;
-#: ``"smooth"``: bilinear, then :data:`FIELD_SMOOTHING` along each axis. Measured with the fast recipe (issue 23,
-#: docs/fitting.md): on a soft simulated camera the smooth field halves the grid (ratio 2.82 → 1.37) at the same
-#: held-out PSNR, but on City100 its fit stopped early (best epoch 1 of 5, held-out 29.86 dB against the bilinear
-#: field's 30.72 dB), so it is not the default. Profiles written before this choice existed hold no ``upsample`` key
-#: and load as ``"bilinear"``.
+#: ``"smooth"``: bilinear, then :data:`FIELD_SMOOTHING` along each axis. Not the default: on City100 with the fast
+#: recipe its fit stopped at the linear baseline's validation PSNR (29.59 dB at epoch 1 of 5, held-out 29.86 dB)
+#: where the bilinear field's reached 30.39 dB (held-out 30.72 dB; docs/fitting.md). Profiles written before this
+#: choice existed hold no ``upsample`` key and load as ``"bilinear"``.
 FIELD_UPSAMPLING = ("bilinear", "smooth")
 #: ``[1 2 2 2 1] / 8`` = a 4-tap box convolved with a 2-tap box: it keeps a constant field exactly, puts zeros at
 #: 1/4 and 1/2 cycles/pixel (the period-4 harmonics), and after bilinear upsampling (itself two 4-tap boxes and a

@@ -47,8 +47,8 @@ RADIAL_BIN = 0.005
 MIN_BAND_GAIN_LOG2 = 0.1
 #: ... and cost the profile's deterministic output at most this much validation PSNR (dB). Giving a least-squares
 #: prediction the captures' spectrum costs PSNR by design: a sample of the posterior has up to twice the MMSE's
-#: squared error, 3 dB (Blau and Michaeli); on City100 the stages cost the default fit 0.49 dB on 16 held-out
-#: scenes and took the image-only critic from 0.96 to 0.75. A fit that is wrong loses far more.
+#: squared error, 3 dB (Blau and Michaeli). On City100 the stages kept cost the default fit 0.55 dB on its validation
+#: pairs and 0.29 dB on the 16 held-out scenes (docs/fitting.md); the soft simulated camera's would have cost 2.1 dB.
 MAX_PSNR_LOSS_DB = 1.0
 #: At most this many training pairs fit them, and as many validation pairs judge them (City100: 16 frames of
 #: 840×600, 8 M pixels each way).
