@@ -21,7 +21,7 @@ from __future__ import annotations
 import itertools
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 
 import torch
 from torch import Tensor
@@ -43,6 +43,7 @@ GAUSSIAN_IDENTITY_SIGMA = 0.05
 DIRECTIONS = 16
 #: Width (cycles/pixel) of the radial bins the spectrum is pooled in: every band edge is a multiple of it.
 RADIAL_BIN = 0.005
+_BINS = round(BAND_EDGES[-1] / RADIAL_BIN)
 #: The stages are kept only if they lower the validation pairs' RMS band error (log2) by at least this much ...
 MIN_BAND_GAIN_LOG2 = 0.1
 #: ... and cost the profile's deterministic output at most this much validation PSNR (dB). Giving a least-squares
@@ -92,18 +93,16 @@ def _rounded(value: object) -> object:
 def radial_powers(images: Sequence[Tensor]) -> Tensor:
     """``(N, B)``: each frame's luma power (:func:`~camdegrade.measures.fidelity.luma_spectrum`) summed in radial
     bins of :data:`RADIAL_BIN` up to 0.5 cycles/pixel."""
-    bins = round(BAND_EDGES[-1] / RADIAL_BIN)
     rows = []
     for image in images:
         power, radius = luma_spectrum(image)
-        index = (radius / RADIAL_BIN).floor().long().clamp(max=bins)  # bin `bins` gathers the corners, unused
-        rows.append(torch.bincount(index.flatten(), weights=power[0].flatten(), minlength=bins + 1)[:bins])
+        index = (radius / RADIAL_BIN).floor().long().clamp(max=_BINS)  # bin _BINS gathers the corners, unused
+        rows.append(torch.bincount(index.flatten(), weights=power[0].flatten(), minlength=_BINS + 1)[:_BINS])
     return torch.stack(rows)
 
 
 def _bin_centres() -> Tensor:
-    bins = round(BAND_EDGES[-1] / RADIAL_BIN)
-    return (torch.arange(bins, dtype=torch.float64) + 0.5) * RADIAL_BIN
+    return (torch.arange(_BINS, dtype=torch.float64) + 0.5) * RADIAL_BIN
 
 
 def _band_of_bins() -> Tensor:
@@ -223,15 +222,13 @@ def judge_texture(
         means = simulate(stages, outputs, seed=seed, deterministic=True)
         scores.append(sum(psnr(mean, captured) for mean, captured in zip(means, captures)) / len(captures))
     kept = errors[0] - errors[1] >= MIN_BAND_GAIN_LOG2 and scores[0] - scores[1] <= MAX_PSNR_LOSS_DB
-    return TextureFit(
-        fitted.blur_sigma,
-        fitted.sharpen_sigma,
-        fitted.sharpen_amount,
-        kept,
-        fitted.train_error_before,
-        fitted.train_error_after,
-        *errors,
-        *scores,
+    return replace(
+        fitted,
+        kept=kept,
+        val_error_before=errors[0],
+        val_error_after=errors[1],
+        val_psnr_before=scores[0],
+        val_psnr_after=scores[1],
     )
 
 
