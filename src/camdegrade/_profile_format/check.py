@@ -23,6 +23,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol
 
 from camdegrade._profile_format.effect_facts import BUILT_IN, json_value, short_repr
+from camdegrade._recipes import UPSAMPLINGS
 from camdegrade._version import __version__
 from camdegrade.errors import ProfileError, ProfileTypeError
 
@@ -158,8 +159,6 @@ def network_class(spec: Any, path: Path) -> str:
 #: Constructor arguments a profile may leave out because it was written before they existed, with the value such a
 #: profile means: a ``LocalAffineNet`` without ``upsample`` was fitted with a bilinear colour field.
 LEGACY_NETWORK_CONFIG = {"LocalAffineNet": {"upsample": "bilinear"}}
-#: ``LocalAffineNet``'s colour-field upsamplings (``camdegrade.network.FIELD_UPSAMPLING``; a test keeps them in step).
-FIELD_UPSAMPLING = ("bilinear", "smooth")
 
 
 def network_config(spec: Any, path: Path) -> Any:
@@ -182,9 +181,9 @@ def check_network_config(config: Any, arch: str = "DomainShiftNet") -> None:
     width = config.get("width", DEFAULT_NETWORK_WIDTH)
     if isinstance(width, bool) or not isinstance(width, int) or not 1 <= width <= MAX_NETWORK_WIDTH:
         raise ValueError(f"width must be an integer from 1 to {MAX_NETWORK_WIDTH}, got width={short_repr(width)}")
-    upsample = config.get("upsample", FIELD_UPSAMPLING[0])
-    if upsample not in FIELD_UPSAMPLING:
-        raise ValueError(f"upsample must be one of {FIELD_UPSAMPLING}, got upsample={short_repr(upsample)}")
+    upsample = config.get("upsample", UPSAMPLINGS[0])
+    if upsample not in UPSAMPLINGS:
+        raise ValueError(f"upsample must be one of {UPSAMPLINGS}, got upsample={short_repr(upsample)}")
 
 
 def network_shapes(width: int, arch: str = "DomainShiftNet") -> dict[str, tuple[int, ...]]:
