@@ -17,6 +17,7 @@ from camdegrade.effects import (
     Blur,
     ChromaticAberration,
     Color,
+    Denoise,
     Distortion,
     Effect,
     Misalignment,
@@ -40,6 +41,7 @@ VOCABULARY = {
     "tone",
     "distortion",
     "sharpen",
+    "denoise",
 }
 
 
@@ -55,6 +57,7 @@ STRONG = {
     "misalignment": lambda: Misalignment(0.5, -0.3, 0.4, shift_std=0.5, angle_std=0.2),
     "noise": lambda: Noise(0.01, 1e-4, 0.003, gain_jitter=0.3),
     "sharpen": lambda: Sharpen(1.2, 1.0, 0.01),
+    "denoise": lambda: Denoise(1.0, 0.02),
     "tone": lambda: Tone(1.2, 0.03, 0.95, 0.2, exposure_jitter=0.3),
     "vignetting": lambda: Vignetting(-0.4, 0.1),
 }

@@ -81,6 +81,13 @@ KERNELS: dict[str, tuple[Callable[..., Tensor], Kwargs, Any, list[Any], Tensor]]
         [0.25, 0.5, 1.0],
         torch.tensor([0.0, -1.0, 0.5]),
     ),
+    "denoise": (
+        F.denoise_image,
+        lambda im, s: {"sigma": 1.0, "threshold": s},
+        0.0,
+        [0.01, 0.03, 0.1, 0.25],
+        torch.tensor([0.0, 0.02, 0.1]),
+    ),
     "sharpen": (
         F.unsharp_mask_image,
         lambda im, s: {"sigma": 1.0, "amount": s, "threshold": 0.01},

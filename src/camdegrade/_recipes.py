@@ -76,7 +76,8 @@ ARCHS: tuple[str, ...] = ("paper", "local_affine")
 UPSAMPLINGS: tuple[str, ...] = ("bilinear", "smooth")
 TRAIN_PRECISIONS: tuple[str, ...] = ("auto", "float32", "bfloat16")
 #: ``match``: after the effect stages, a blur and a sharpening that match the profile's band power to the captures'
-#: where the validation pairs confirm it (:mod:`camdegrade.fitting.texture`); ``none``: no such stages.
+#: (:mod:`camdegrade.fitting.texture`), then a noise reduction that matches its faint detail to theirs
+#: (:mod:`camdegrade.fitting.faint_detail`), each where the validation pairs confirm it; ``none``: no such stages.
 TEXTURES: tuple[str, ...] = ("match", "none")
 
 FIELDS: tuple[RecipeField, ...] = (
@@ -117,7 +118,8 @@ FIELDS: tuple[RecipeField, ...] = (
     RecipeField(
         "texture",
         "choice",
-        "match: add a blur and a sharpening that match the captures' band power, where validation confirms it",
+        "match: add a blur, a sharpening and a noise reduction that match the captures' band power and faint "
+        "detail, where validation confirms it",
         TEXTURES,
     ),
 )

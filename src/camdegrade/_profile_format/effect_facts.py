@@ -232,6 +232,14 @@ BUILT_IN: dict[str, EffectFacts] = {
         {"gain_jitter": Setting(float, 0.0, _UNIT), "linear": _LINEAR},
         {"matrix": Buffer((3, 3), bound=Bound(-16.0, 16.0))},
     ),
+    "denoise": EffectFacts(
+        "isp",
+        {"luma": Setting(bool, True)},
+        {
+            "sigma": Buffer(bound=Bound(0.0, 8.0)),  # Denoise.MAX_SIGMA
+            "threshold": Buffer(bound=Bound(0.0, 0.25)),  # Denoise.MAX_THRESHOLD
+        },
+    ),
     "distortion": EffectFacts("optics", {}, _scalars(Bound(-2.0, 2.0), "k1", "k2")),
     "jpeg": EffectFacts(
         "codec",

@@ -17,6 +17,7 @@ from camdegrade.effects.base import (
 from camdegrade.effects.blur import Blur
 from camdegrade.effects.codec import JPEG
 from camdegrade.effects.color import Color, Tone
+from camdegrade.effects.denoise import Denoise
 from camdegrade.effects.geometry import ChromaticAberration, Distortion, Misalignment, Vignetting
 from camdegrade.effects.noise import Noise
 from camdegrade.effects.sharpen import Sharpen
@@ -28,6 +29,7 @@ __all__ = [
     "Blur",
     "ChromaticAberration",
     "Color",
+    "Denoise",
     "Distortion",
     "Effect",
     "Misalignment",

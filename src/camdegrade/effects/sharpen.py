@@ -9,15 +9,13 @@ from collections.abc import Callable, Mapping, Sequence
 from typing import Any, ClassVar
 
 import torch
-import torch.nn.functional as F
 from torch import Tensor
 
 from camdegrade.effects._common import scalar
-from camdegrade.effects._fitting import PairList, affine_residual, as_pairs, grid_search, minimize, textured_crops
+from camdegrade.effects._detail import crop_options, detail_loss
+from camdegrade.effects._fitting import PairList, as_pairs, grid_search, minimize
 from camdegrade.effects.base import Effect, Pairs, check_range, register_effect
 from camdegrade.effects.blur import fit_margin
-from camdegrade.functional import blur_image
-from camdegrade.functional.analysis import luma as luma_of
 from camdegrade.functional.sharpen import coring, unsharp_mask_image
 
 #: Where :meth:`Sharpen.fit` starts: every sigma × amount (threshold 0), then every threshold at the best of those.
@@ -92,9 +90,7 @@ class Sharpen(Effect):
     @classmethod
     def fit_options(cls, images: Sequence[Tensor]) -> dict[str, Any]:
         """Sigmas up to 4 px, on crops as large as the smallest image allows (16 to 64 px) rather than failing."""
-        max_sigma = 4.0
-        side = min(min(image.shape[-2:]) for image in images)
-        return {"max_sigma": max_sigma, "crop": max(16, min(64, side - 2 * fit_margin(max_sigma)))}
+        return crop_options(images, 4.0)
 
     def forward(self, image: Tensor, params: Mapping[str, Tensor] | None = None) -> Tensor:
         device = image.device
@@ -153,39 +149,11 @@ def _sharpen_loss(
 ) -> Callable[[Tensor, Tensor, Tensor], Tensor]:
     """Mean squared error of ``sharpen(source)`` against ``target`` on the most textured crops, as a function of
     ``(sigma, amount, threshold)``; with ``align``, a per-pair affine colour map is projected out."""
-    src, tgt, groups = textured_crops(pairs, crop, crops_per_image, margin)
-    src, tgt = src.double(), tgt[..., margin:-margin, margin:-margin].double()
-    inner = src[..., margin:-margin, margin:-margin]
-    planes = luma_of(src) if luma else src.flatten(0, 1)  # the planes whose detail is taken, one by one
-    details: dict[float, Tensor] = {}
 
-    def detail_of(sigma: Tensor) -> Tensor:
-        """The cropped detail at ``sigma``; cached for the grid's fixed sigmas (no graph to keep)."""
-        if sigma.requires_grad:
-            return cropped_detail(sigma)
-        key = float(sigma)
-        if key not in details:
-            details[key] = cropped_detail(sigma)
-        return details[key]
+    def sharpened(inner: Tensor, detail: Tensor, amount: Tensor, threshold: Tensor) -> Tensor:
+        return inner + amount * coring(detail, threshold)
 
-    def cropped_detail(sigma: Tensor) -> Tensor:
-        detail = (planes - _blur_planes(planes, sigma))[..., margin:-margin, margin:-margin]
-        return detail.reshape(inner.shape[0], 1 if luma else 3, *inner.shape[-2:])
-
-    def loss_of(sigma: Tensor, amount: Tensor, threshold: Tensor) -> Tensor:
-        sharpened = (inner + amount * coring(detail_of(sigma), threshold)).clamp(0.0, 1.0)
-        residual = affine_residual(sharpened, tgt, groups=groups) if align else sharpened - tgt
-        return residual.pow(2).mean()
-
-    return loss_of
-
-
-def _blur_planes(planes: Tensor, sigma: Tensor) -> Tensor:
-    """Each of the ``(P, H, W)`` planes blurred alone. :func:`blur_image` takes them three at a time as the channels
-    of an image, so that a luma fit blurs one plane per crop rather than three."""
-    count, size = planes.shape[0], planes.shape[-2:]
-    padded = F.pad(planes, (0, 0, 0, 0, 0, -count % 3))
-    return blur_image(padded.reshape(-1, 3, *size), sigma).reshape(-1, *size)[:count]
+    return detail_loss(pairs, crop, crops_per_image, margin, luma=luma, align=align, combine=sharpened)
 
 
 def _grid_start(loss_of: Callable[[Tensor, Tensor, Tensor], Tensor], max_sigma: float) -> tuple[float, float, float]:

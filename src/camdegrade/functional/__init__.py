@@ -23,7 +23,7 @@ from camdegrade.functional.geometry import (
     vignetting_image,
 )
 from camdegrade.functional.noise import poisson_gaussian_noise_image
-from camdegrade.functional.sharpen import unsharp_mask_image
+from camdegrade.functional.sharpen import denoise_image, unsharp_mask_image
 from camdegrade.functional.tone import tone_curve, tone_curve_image
 
 __all__ = [
@@ -32,6 +32,7 @@ __all__ = [
     "color_matrix_image",
     "convolve_image",
     "convolve_separable",
+    "denoise_image",
     "distortion_image",
     "jpeg_image",
     "linear_to_srgb",

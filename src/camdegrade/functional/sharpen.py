@@ -1,4 +1,5 @@
-"""Sharpening kernel: unsharp masking with soft coring, as a camera's ISP sharpens its sRGB output.
+"""Detail kernels of a camera's ISP on its sRGB output: unsharp masking with soft coring (sharpening), and coring
+alone (noise reduction: the faint detail removed, the strong detail kept).
 
 References:
     W. F. Schreiber, "Wirephoto quality improvement by unsharp masking", Pattern Recognition 2(2), 1970 (unsharp
@@ -60,3 +61,44 @@ def unsharp_mask_image(
         return (x + amount_t.to(x.dtype) * detail).clamp(0.0, 1.0)
 
     return apply_float(image, kernel)
+
+
+def denoise_image(image: Tensor, sigma: ParamLike, threshold: ParamLike, *, luma: bool = True) -> Tensor:
+    """Noise reduction by coring: ``clip(x − (d − coring(d, threshold)), 0, 1)`` with ``d = x − G_σ ⊛ x``: detail well
+    below ``threshold`` is smoothed away (the output is ``G_σ ⊛ x`` there), detail well above it is kept, so edges
+    stay sharp while faint grain and fine texture vanish — the "painted" look of a phone's processed output.
+
+    Args:
+        image: ``[..., 3, H, W]`` uint8 or float in [0, 1] (sRGB-encoded).
+        sigma: the Gaussian's standard deviation in pixels (the scale of the detail removed).
+        threshold: the detail amplitude (in [0, 1] units) at which half of it is removed; 0 is the identity.
+        luma: core the Rec. 601 luma detail and take it off R, G and B alike (the chroma detail is kept), rather
+            than each channel.
+
+    Every parameter is a scalar or per-sample ``(N,)``.
+
+    Examples:
+        >>> image = torch.rand(2, 3, 32, 32, generator=torch.Generator().manual_seed(0))
+        >>> bool((denoise_image(image, 1.0, 0.0) == image).all())
+        True
+    """
+    check_image(image)
+    threshold_t = as_channel_view(per_sample(threshold, image, "threshold"))
+    if bool((threshold_t < 0).any()):
+        raise ValueError(f"threshold must be non-negative, got threshold={threshold_t[threshold_t < 0][0].item():g}")
+    if not threshold_t.requires_grad and not bool((threshold_t > 0).any()):
+        return image.clone()
+
+    def kernel(x: Tensor) -> Tensor:
+        detail = x - blur_image(x, sigma)
+        if luma:
+            detail = luma_of(detail).unsqueeze(-3)
+        return (x - faint_part(detail, threshold_t.to(x.dtype))).clamp(0.0, 1.0)
+
+    return apply_float(image, kernel)
+
+
+def faint_part(detail: Tensor, threshold: Tensor) -> Tensor:
+    """The part of ``detail`` that :func:`coring` removes: ``detail · t² / (d² + t²)`` (all of it well below the
+    threshold, none well above it)."""
+    return detail - coring(detail, threshold)
