@@ -15,9 +15,11 @@ rounded to 8 bits, as the captures are. Rows:
 - the least-squares linear baseline (a 7×7 colour filter fitted on scenes 001–055).
 
 It prints per row the mean accuracy over the critics (image-only: what a model trained on the simulation sees;
-paired: it also sees the clean source) with their spread, and :func:`~camdegrade.measures.measure_fidelity`'s grid
-ratio and log2 band power sim/real. The profile comes from ``examples/fit_city100_default.py``. Run from the repo
-root::
+paired: it also sees the clean source) with their spread, :func:`~camdegrade.measures.measure_fidelity`'s grid
+ratio and log2 band power sim/real, and the detail-amplitude distance the fit's noise-reduction step minimises
+(:func:`~camdegrade.fitting.faint_detail.amplitude_distance`, levels; 0: the captures' own). ``--no-critics``
+prints the measures alone, in a minute or two. The profile comes from ``examples/fit_city100_default.py``. Run
+from the repo root::
 
     OMP_NUM_THREADS=2 .venv/bin/python examples/fit_city100_default.py --out out/city100-default.safetensors
     OMP_NUM_THREADS=2 .venv/bin/python examples/critic_ablation_fit.py --profile out/city100-default.safetensors
@@ -43,6 +45,7 @@ from camdegrade._pixels import as_unit
 from camdegrade.effects import Denoise
 from camdegrade.fitting import discover_pairs, filter_pairs, load_pair
 from camdegrade.fitting.baseline import apply_linear_baseline, fit_linear_baseline
+from camdegrade.fitting.faint_detail import amplitude_distance, detail_amplitudes
 from camdegrade.functional import blur_image, denoise_image, unsharp_mask_image
 from camdegrade.functional.analysis import luma
 from camdegrade.measures.critic import critic_test
@@ -133,7 +136,10 @@ def critic_scores(cleans: list[Tensor], reals: list[Tensor], sims: list[Tensor],
 
 
 def _cell(values: list[float]) -> str:
-    return f"{statistics.mean(values):.3f} ± {statistics.stdev(values):.3f}"
+    if not values:
+        return "—"
+    spread = statistics.stdev(values) if len(values) > 1 else 0.0
+    return f"{statistics.mean(values):.3f} ± {spread:.3f}"
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -141,6 +147,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--profile", type=Path, required=True, help="a default fit (examples/fit_city100_default.py)")
     parser.add_argument("--data", type=Path, default=DEFAULT_DATA)
     parser.add_argument("--seeds", type=int, default=3, help="critic seeds per row and mode (default 3)")
+    parser.add_argument("--no-critics", dest="critics", action="store_false", help="the measures alone")
     parser.add_argument("--json", type=Path, default=ROOT / "out" / "results" / "critic_ablation_fit.json")
     args = parser.parse_args(argv)
     if not (args.data / "pairs.csv").is_file():
@@ -153,23 +160,25 @@ def main(argv: list[str] | None = None) -> int:
     cleans, reals = [clean for clean, _ in held], [real for _, real in held]
     rows = rows_of(profile, city100_pairs(args.data, TRAINING))
     print(f"profile stages: {[type(effect).__name__ for effect in profile.effects]}", flush=True)
-    print("| row | image-only | paired | grid ratio | log2 band power sim/real |")
-    print("|---|---|---|---|---|")
+    real_amplitudes = detail_amplitudes(reals)
+    print("| row | image-only | paired | grid ratio | log2 band power sim/real | detail-amplitude distance |")
+    print("|---|---|---|---|---|---|")
     record = {}
     for name, row in rows.items():
         with torch.no_grad():
             sims = [eight_bit(row(index, clean, real)) for index, (clean, real) in enumerate(held)]
         fidelity = measure_fidelity(sims, reals, cleans)
-        scores = critic_scores(cleans, reals, sims, args.seeds)
+        distance = amplitude_distance(detail_amplitudes(sims), real_amplitudes)
+        scores = critic_scores(cleans, reals, sims, args.seeds) if args.critics else {mode: [] for mode in MODES}
         bands = " / ".join("n/a" if b is None else f"{b:+.2f}" for b in fidelity.bands)
         print(
             f"| {name} | {_cell(scores['image-only'])} | {_cell(scores['paired'])} | {fidelity.grid_ratio:.2f} "
-            f"| {bands} |",
+            f"| {bands} | {distance:.2f} |",
             flush=True,
         )
-        record[name] = {"critics": scores, "fidelity": fidelity.to_dict()}
+        record[name] = {"critics": scores, "fidelity": fidelity.to_dict(), "amplitude_distance": round(distance, 4)}
     seconds = time.perf_counter() - started
-    print(f"{len(rows) * len(MODES) * 2 * args.seeds} critics in {seconds:.0f} s")
+    print(f"{len(rows) * len(MODES) * 2 * args.seeds * args.critics} critics; {seconds:.0f} s in all")
     args.json.parent.mkdir(parents=True, exist_ok=True)
     args.json.write_text(json.dumps({"rows": record, "seconds": round(seconds, 1)}, indent=2) + "\n")
     return 0
