@@ -17,7 +17,9 @@ rounded to 8 bits, as the captures are. Rows:
 It prints per row the mean accuracy over the critics (image-only: what a model trained on the simulation sees;
 paired: it also sees the clean source) with their spread, :func:`~camdegrade.measures.measure_fidelity`'s grid
 ratio and log2 band power sim/real, and the detail-amplitude distance the fit's noise-reduction step minimises
-(:func:`~camdegrade.fitting.faint_detail.amplitude_distance`, levels; 0: the captures' own). ``--no-critics``
+(:func:`~camdegrade.fitting.faint_detail.amplitude_distance`, levels; 0: the captures' own) and the fine detail on
+flat pixels (:func:`flat_fine_detail`: the std of the 8-bit luma minus its 3×3 mean on the clean image's flat
+pixels, over the captures'). ``--no-critics``
 prints the measures alone, in a minute or two. The profile comes from ``examples/fit_city100_default.py``. Run
 from the repo root::
 
@@ -38,6 +40,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 import torch
+import torch.nn.functional as F
 from torch import Tensor
 
 from camdegrade import CameraDegrade, CameraProfile, load_profile
@@ -47,7 +50,7 @@ from camdegrade.fitting import discover_pairs, filter_pairs, load_pair
 from camdegrade.fitting.baseline import apply_linear_baseline, fit_linear_baseline
 from camdegrade.fitting.faint_detail import amplitude_distance, detail_amplitudes
 from camdegrade.functional import blur_image, denoise_image, unsharp_mask_image
-from camdegrade.functional.analysis import luma
+from camdegrade.functional.analysis import flat_mask, luma
 from camdegrade.measures.critic import critic_test
 from camdegrade.measures.fidelity import measure_fidelity
 
@@ -71,6 +74,18 @@ def city100_pairs(data: Path, scenes: list[str]) -> list[tuple[Tensor, Tensor]]:
 
 def eight_bit(image: Tensor) -> Tensor:
     return (image.clamp(0, 1) * 255).round() / 255
+
+
+def flat_fine_detail(images: list[Tensor], cleans: list[Tensor]) -> tuple[float, int]:
+    """The std (8-bit levels) of the 8-bit luma minus its 3×3 mean, over the pixels that are flat in the clean images
+    (:func:`~camdegrade.functional.analysis.flat_mask`), and how many pixels that is."""
+    squares, count = 0.0, 0
+    for image, clean in zip(images, cleans, strict=True):
+        gray = luma(eight_bit(image)) * 255.0
+        mean = F.avg_pool2d(F.pad(gray[None, None], (1, 1, 1, 1), mode="replicate"), 3, stride=1)[0, 0]
+        detail = (gray - mean)[flat_mask(clean)]
+        squares, count = squares + float(detail.pow(2).sum()), count + detail.numel()
+    return (squares / max(count, 1)) ** 0.5, count
 
 
 def with_white_noise(image: Tensor, index: int) -> Tensor:
@@ -161,22 +176,33 @@ def main(argv: list[str] | None = None) -> int:
     rows = rows_of(profile, city100_pairs(args.data, TRAINING))
     print(f"profile stages: {[type(effect).__name__ for effect in profile.effects]}", flush=True)
     real_amplitudes = detail_amplitudes(reals)
-    print("| row | image-only | paired | grid ratio | log2 band power sim/real | detail-amplitude distance |")
-    print("|---|---|---|---|---|---|")
+    real_fine, flat_pixels = flat_fine_detail(reals, cleans)
+    print(f"captures' fine detail on {flat_pixels} flat pixels: {real_fine:.3f} levels")
+    print(
+        "| row | image-only | paired | grid ratio | log2 band power sim/real | detail-amplitude distance "
+        "| flat fine detail / capture's |"
+    )
+    print("|---|---|---|---|---|---|---|")
     record = {}
     for name, row in rows.items():
         with torch.no_grad():
             sims = [eight_bit(row(index, clean, real)) for index, (clean, real) in enumerate(held)]
         fidelity = measure_fidelity(sims, reals, cleans)
         distance = amplitude_distance(detail_amplitudes(sims), real_amplitudes)
+        fine = flat_fine_detail(sims, cleans)[0] / real_fine
         scores = critic_scores(cleans, reals, sims, args.seeds) if args.critics else {mode: [] for mode in MODES}
         bands = " / ".join("n/a" if b is None else f"{b:+.2f}" for b in fidelity.bands)
         print(
             f"| {name} | {_cell(scores['image-only'])} | {_cell(scores['paired'])} | {fidelity.grid_ratio:.2f} "
-            f"| {bands} | {distance:.2f} |",
+            f"| {bands} | {distance:.2f} | {fine:.2f} |",
             flush=True,
         )
-        record[name] = {"critics": scores, "fidelity": fidelity.to_dict(), "amplitude_distance": round(distance, 4)}
+        record[name] = {
+            "critics": scores,
+            "fidelity": fidelity.to_dict(),
+            "amplitude_distance": round(distance, 4),
+            "flat_fine_detail_ratio": round(fine, 4),
+        }
     seconds = time.perf_counter() - started
     print(f"{len(rows) * len(MODES) * 2 * args.seeds * args.critics} critics; {seconds:.0f} s in all")
     args.json.parent.mkdir(parents=True, exist_ok=True)
