@@ -7,12 +7,11 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from typing import Any
 
-import torch.nn.functional as F
 from torch import Tensor
 
 from camdegrade.effects._fitting import PairList, affine_residual, textured_crops
 from camdegrade.effects.blur import fit_margin
-from camdegrade.functional import blur_image
+from camdegrade.functional import blur_planes
 from camdegrade.functional.analysis import luma as luma_of
 
 #: ``(inner, detail, *values) → output``: the stage applied to the crops given their detail.
@@ -48,7 +47,7 @@ def detail_loss(
         return details[key]
 
     def cropped_detail(sigma: Tensor) -> Tensor:
-        detail = (planes - _blur_planes(planes, sigma))[..., margin:-margin, margin:-margin]
+        detail = (planes - blur_planes(planes, sigma))[..., margin:-margin, margin:-margin]
         return detail.reshape(inner.shape[0], 1 if luma else 3, *inner.shape[-2:])
 
     def loss_of(sigma: Tensor, *values: Tensor) -> Tensor:
@@ -57,11 +56,3 @@ def detail_loss(
         return residual.pow(2).mean()
 
     return loss_of
-
-
-def _blur_planes(planes: Tensor, sigma: Tensor) -> Tensor:
-    """Each of the ``(P, H, W)`` planes blurred alone. :func:`blur_image` takes them three at a time as the channels
-    of an image, so that a luma fit blurs one plane per crop rather than three."""
-    count, size = planes.shape[-3], planes.shape[-2:]
-    padded = F.pad(planes, (0, 0, 0, 0, 0, -count % 3))
-    return blur_image(padded.reshape(-1, 3, *size), sigma).reshape(-1, *size)[:count]

@@ -30,7 +30,7 @@ from camdegrade._seeds import derived_generator
 from camdegrade.effects import Denoise
 from camdegrade.fitting.pairset import simulate
 from camdegrade.fitting.texture import band_errors, radial_powers
-from camdegrade.functional import blur_image, denoise_image
+from camdegrade.functional import blur_planes, denoise_image
 from camdegrade.functional.analysis import luma
 from camdegrade.metrics import psnr
 from camdegrade.profile import CameraProfile
@@ -61,10 +61,10 @@ def detail_amplitudes(images: Sequence[Tensor], seed: int = 0) -> Tensor:
     generator = derived_generator(seed, "detail-amplitudes")
     per_scale: list[list[Tensor]] = [[] for _ in MEASURE_SIGMAS]
     for image in images:
-        gray = luma(_eight_bit(image))[None].expand(3, -1, -1)
-        where = torch.randint(0, gray[0].numel(), (SAMPLES_PER_FRAME,), generator=generator)
+        gray = luma(_eight_bit(image))[None]
+        where = torch.randint(0, gray.numel(), (SAMPLES_PER_FRAME,), generator=generator)
         for column, sigma in zip(per_scale, MEASURE_SIGMAS, strict=True):
-            column.append((gray[0] - blur_image(gray, sigma)[0]).abs().flatten()[where] * 255.0)
+            column.append((gray - blur_planes(gray, sigma)).abs().flatten()[where] * 255.0)
     return torch.stack([torch.cat(column).sort().values for column in per_scale])
 
 

@@ -5,7 +5,14 @@ and draw no random numbers: noise kernels take pre-drawn standard normals, so ev
 exactly. This package imports nothing from the rest of camdegrade but the leaf helper ``camdegrade._pixels``.
 """
 
-from camdegrade.functional.blur import blur_image, convolve_image, convolve_separable, psf_kernel, separable_taps
+from camdegrade.functional.blur import (
+    blur_image,
+    blur_planes,
+    convolve_image,
+    convolve_separable,
+    psf_kernel,
+    separable_taps,
+)
 from camdegrade.functional.codec import jpeg_image
 from camdegrade.functional.color import (
     color_matrix_image,
@@ -28,6 +35,7 @@ from camdegrade.functional.tone import tone_curve, tone_curve_image
 
 __all__ = [
     "blur_image",
+    "blur_planes",
     "chromatic_aberration_image",
     "color_matrix_image",
     "convolve_image",

@@ -176,6 +176,14 @@ def blur_image(
     return apply_float(image, kernel)
 
 
+def blur_planes(planes: Tensor, sigma: ParamLike) -> Tensor:
+    """Each of the float ``(P, H, W)`` planes (a luma, say) blurred alone by the Gaussian of :func:`blur_image`:
+    they go three at a time as the channels of an image, so a single plane costs one plane's work, not three."""
+    count, size = planes.shape[-3], planes.shape[-2:]
+    padded = F.pad(planes, (0, 0, 0, 0, 0, -count % 3))
+    return blur_image(padded.reshape(-1, 3, *size), sigma).reshape(-1, *size)[:count]
+
+
 def separable_taps(
     sigma_x: Tensor, sigma_y: Tensor, angle: Tensor, motion_length: Tensor
 ) -> tuple[Tensor, Tensor] | None:

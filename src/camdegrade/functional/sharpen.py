@@ -47,15 +47,11 @@ def unsharp_mask_image(
     """
     check_image(image)
     amount_t = as_channel_view(per_sample(amount, image, "amount"))
-    threshold_t = as_channel_view(per_sample(threshold, image, "threshold"))
-    if bool((threshold_t < 0).any()):
-        raise ValueError(f"threshold must be non-negative, got threshold={threshold_t[threshold_t < 0][0].item():g}")
+    threshold_t = _checked_threshold(threshold, image)
     cored = threshold_t.requires_grad or bool((threshold_t > 0).any())
 
     def kernel(x: Tensor) -> Tensor:
-        detail = x - blur_image(x, sigma)
-        if luma:
-            detail = luma_of(detail).unsqueeze(-3)
+        detail = _detail(x, sigma, luma)
         if cored:
             detail = coring(detail, threshold_t.to(x.dtype))
         return (x + amount_t.to(x.dtype) * detail).clamp(0.0, 1.0)
@@ -83,17 +79,12 @@ def denoise_image(image: Tensor, sigma: ParamLike, threshold: ParamLike, *, luma
         True
     """
     check_image(image)
-    threshold_t = as_channel_view(per_sample(threshold, image, "threshold"))
-    if bool((threshold_t < 0).any()):
-        raise ValueError(f"threshold must be non-negative, got threshold={threshold_t[threshold_t < 0][0].item():g}")
+    threshold_t = _checked_threshold(threshold, image)
     if not threshold_t.requires_grad and not bool((threshold_t > 0).any()):
         return image.clone()
 
     def kernel(x: Tensor) -> Tensor:
-        detail = x - blur_image(x, sigma)
-        if luma:
-            detail = luma_of(detail).unsqueeze(-3)
-        return (x - faint_part(detail, threshold_t.to(x.dtype))).clamp(0.0, 1.0)
+        return (x - faint_part(_detail(x, sigma, luma), threshold_t.to(x.dtype))).clamp(0.0, 1.0)
 
     return apply_float(image, kernel)
 
@@ -102,3 +93,17 @@ def faint_part(detail: Tensor, threshold: Tensor) -> Tensor:
     """The part of ``detail`` that :func:`coring` removes: ``detail · t² / (d² + t²)`` (all of it well below the
     threshold, none well above it)."""
     return detail - coring(detail, threshold)
+
+
+def _checked_threshold(threshold: ParamLike, image: Tensor) -> Tensor:
+    """``threshold`` per sample, viewed against the channels of ``image``; a negative one is refused."""
+    threshold_t = as_channel_view(per_sample(threshold, image, "threshold"))
+    if bool((threshold_t < 0).any()):
+        raise ValueError(f"threshold must be non-negative, got threshold={threshold_t[threshold_t < 0][0].item():g}")
+    return threshold_t
+
+
+def _detail(x: Tensor, sigma: ParamLike, luma: bool) -> Tensor:
+    """``x − G_σ ⊛ x``: of the Rec. 601 luma, ``[..., 1, H, W]`` (to add to R, G and B alike), or per channel."""
+    detail = x - blur_image(x, sigma)
+    return luma_of(detail).unsqueeze(-3) if luma else detail
