@@ -12,6 +12,10 @@ import pytest
 
 _REAL_PAIRS_ENV = "CAMDEGRADE_REAL_PAIRS"
 REPOSITORY = Path(__file__).resolve().parents[1]
+#: The built-in city100-iphonex as shipped until 2026-11-27: the paper's network (DomainShiftNet, width 64) with blur,
+#: noise and tone stages. Tests of the paper network's CPU plan, of its 4-pixel grid and of the file checks on that
+#: stage layout read it; the built-in itself is now a local-affine fit.
+PAPER_BUILT_IN = REPOSITORY / "tests" / "fixtures" / "city100-iphonex-paper.safetensors"
 
 # albumentations asks PyPI for a newer version when first imported (and warns when offline); tests download nothing.
 # Set here, before collection, because the doctests under src/ import camdegrade.integrations.albumentations too.

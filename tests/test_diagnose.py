@@ -24,6 +24,7 @@ from camdegrade.io import write_image
 from camdegrade.measures import FAMILIES, StatisticSet, bootstrap_indices, family_gaps, gap, measurement_scale
 from camdegrade.profile import CameraProfile, load_profile
 from camdegrade.sim import VirtualCamera
+from conftest import PAPER_BUILT_IN
 from effects_images import patch_chart, photo
 
 torch.set_num_threads(1)
@@ -312,7 +313,7 @@ def test_captures_identical_to_the_clean_images_say_the_profile_degrades_more() 
     """Issue 26: a camera that changes nothing, a profile (network and effects) that degrades a lot. No single change
     closes the gap, but the verdict must not call it unexplained: the profile degrades more than the camera."""
     pairs = [(clean, clean.clone()) for clean in _content(16, 64, seed=5)]
-    report = diagnose(load_profile("city100-iphonex"), pairs[:8], held_out=pairs[8:], candidates=["tone"], critic=False)
+    report = diagnose(load_profile(PAPER_BUILT_IN), pairs[:8], held_out=pairs[8:], candidates=["tone"], critic=False)
     assert report.accepted == []
     assert report.verdict.startswith("The profile degrades more than the camera"), report.verdict
     assert "Unexplained" not in report.verdict

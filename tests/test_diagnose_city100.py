@@ -4,8 +4,9 @@ The 16 held-out City100 iPhone X scenes (056–070, 098), each cut to its 256² 
 noise statistics rest on flat pixels; a centre crop of a city scene holds almost none). The profile as shipped before
 the flat-region noise fit (``tests/fixtures/city100-iphonex-2026-11-23.safetensors``: its noise is 4.7× the camera's
 and banded) must be flagged: its noise stage too strong and banded, refitting or removing it the first accepted
-change, and the critic less sure after it. The built-in profile, refitted since, must show no significant noise
-finding. Skipped when the shared real-pairs folder is absent.
+change, and the critic less sure after it. The profile refitted since (the paper-network built-in as shipped until
+2026-11-27, ``PAPER_BUILT_IN``) must show no significant noise finding, and be named by its network's 4-pixel grid.
+Skipped when the shared real-pairs folder is absent.
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ from camdegrade._pixels import as_unit
 from camdegrade.diagnose import DiagnosisReport, diagnose
 from camdegrade.functional.analysis import flattest_window
 from camdegrade.measures.critic import critic_test
-from conftest import load_script
+from conftest import PAPER_BUILT_IN, load_script
 
 pytestmark = [pytest.mark.realdata, pytest.mark.slow]
 torch.set_num_threads(1)
@@ -53,7 +54,7 @@ def before(crops: list) -> DiagnosisReport:
 @pytest.fixture(scope="module")
 def after(crops: list) -> DiagnosisReport:
     """Where the gap lies, and whether refitting or removing the noise stage would help."""
-    return diagnose("city100-iphonex", crops, candidates=[], kinds=("remove", "refit"), seed=0, critic=False)
+    return diagnose(PAPER_BUILT_IN, crops, candidates=[], kinds=("remove", "refit"), seed=0, critic=False)
 
 
 def _where(report: DiagnosisReport) -> dict[str, dict]:
@@ -96,7 +97,7 @@ def test_the_sampled_profile_is_no_easier_to_tell_apart_than_without_its_noise(c
     """The learned critic, trained on 8 scenes and scored on the other 8: the built-in's samples are no easier to
     tell from the captures than its deterministic part (its noise adds nothing the critic can use), while the old
     profile's noise gives every patch away."""
-    current = load_profile("city100-iphonex")
+    current = load_profile(PAPER_BUILT_IN)
     cleans = [as_unit(clean) for clean, _ in crops]
     reals = [as_unit(real) for _, real in crops]
 

@@ -19,6 +19,7 @@ from camdegrade.measures.blocks import block_excess
 from camdegrade.measures.visible import compare_grid, compare_texture
 from camdegrade.profile import CameraProfile, load_profile
 from camdegrade.sim import VirtualCamera
+from conftest import PAPER_BUILT_IN
 from effects_images import photo
 
 torch.set_num_threads(1)
@@ -123,9 +124,10 @@ def _camera_pairs(camera: CameraProfile | VirtualCamera, count: int, seed: int) 
 
 
 def test_a_network_that_prints_a_checkerboard_is_named_by_its_grid() -> None:
-    """The camera is the built-in's network; the profile's network has its last layer's weights moved by ±0.004 in
-    a 2×2 checkerboard (as in bench/bench_diagnose.py): the diagnosis names the grid and its size."""
-    clean = load_profile("city100-iphonex").network
+    """The camera is the network of the paper-network built-in (as shipped until 2026-11-27); the profile's network
+    has its last layer's weights moved by ±0.004 in a 2×2 checkerboard (as in bench/bench_diagnose.py): the
+    diagnosis names the grid and its size."""
+    clean = load_profile(PAPER_BUILT_IN).network
     checker = copy.deepcopy(clean)
     with torch.no_grad():
         checker.decode2.weight.add_(0.004 * torch.tensor([[1.0, -1.0], [-1.0, 1.0]]))

@@ -15,6 +15,7 @@ from camdegrade import load_profile
 from camdegrade.fitting import FitConfig, distill_profile, fit_profile
 from camdegrade.io import write_image
 from camdegrade.synthetic import dead_leaves_images
+from conftest import PAPER_BUILT_IN
 
 QUICK = ["--epochs", "1", "--crop", "16", "--batch-size", "4", "--crops-per-pair", "2", "--quiet"]
 
@@ -75,7 +76,7 @@ def test_a_student_further_from_its_teacher_than_the_clean_images_is_warned_abou
         epochs=epochs, crop=32, batch_size=4, crops_per_pair=2, patience=0, lr=0.01 if epochs > 1 else 0.003
     )
     student = distill_profile(
-        "city100-iphonex", dead_leaves_images(6, 64, seed=1), width=8, recipe=recipe, log=lines.append
+        PAPER_BUILT_IN, dead_leaves_images(6, 64, seed=1), width=8, recipe=recipe, log=lines.append
     )
     quality = student.quality
     assert (quality["student_vs_teacher_psnr_db"] < quality["identity_vs_teacher_psnr_db"]) == warned
@@ -89,10 +90,10 @@ def test_distill_cli_warns_on_stderr_and_strict_writes_nothing(tmp_path: Path, c
         write_image(image, images / f"{index}.png")
     tiny = ["--width", "8", "--epochs", "1", "--crop", "32", "--batch-size", "4", "--crops-per-pair", "2", "--quiet"]
     out = tmp_path / "fast.safetensors"
-    code, _, err = run_cli(["distill", "city100-iphonex", "-o", out, "--images", images, *tiny], capsys)
+    code, _, err = run_cli(["distill", PAPER_BUILT_IN, "-o", out, "--images", images, *tiny], capsys)
     assert code == 0 and out.exists()
     assert "camdegrade distill: warning: the student is far from its teacher" in err
     assert "far from its teacher" in load_profile(out).fitted["warnings"][0]
     strict = tmp_path / "strict.safetensors"
-    code, _, err = run_cli(["distill", "city100-iphonex", "-o", strict, "--images", images, *tiny, "--strict"], capsys)
+    code, _, err = run_cli(["distill", PAPER_BUILT_IN, "-o", strict, "--images", images, *tiny, "--strict"], capsys)
     assert code == 1 and not strict.exists() and "not written (--strict)" in one_line_error(err)

@@ -33,6 +33,7 @@ from camdegrade.effects import EFFECTS, JPEG, Effect, Noise
 from camdegrade.errors import ProfileError
 from camdegrade.network import ARCHITECTURES
 from camdegrade.profile import METADATA_KEY, builtin_profiles_dir
+from conftest import PAPER_BUILT_IN
 from test_effects import REGISTERED, strong
 
 # --- a profile file taken apart and put together again ------------------------------------------------------------
@@ -86,19 +87,19 @@ def _scale_row(parts: ProfileParts, key: str, factor: float) -> None:
     parts.set_values(key, *(rows[0] * factor), *rows[1:].reshape(-1))
 
 
-#: (case, built-in profile, corruption, message naming what is wrong). city100-iphonex: blur, noise, tone (width 64);
-#: lowcost-robot-sim: distortion, vignetting, noise.
+#: (case, built-in profile or file, corruption, message naming what is wrong). PAPER_BUILT_IN: blur, noise, tone
+#: (width 64); lowcost-robot-sim: distortion, vignetting, noise.
 Corruption = Callable[[ProfileParts], None]
-CASES: list[tuple[str, str, Corruption, str]] = [
+CASES: list[tuple[str, str | Path, Corruption, str]] = [
     (
         "unknown-effect-with-a-stage-key",
-        "city100-iphonex",
+        PAPER_BUILT_IN,
         lambda p: _effects(p)[0].update(name="lens_flare"),
         "uses effect 'lens_flare', unknown to camdegrade",
     ),
     (
         "width-disagrees-with-the-tensors",
-        "city100-iphonex",
+        PAPER_BUILT_IN,
         lambda p: p.metadata["network"]["config"].update(width=32),
         "wrong shapes: network.decode1.bias (64,) (expected (32,))",
     ),
@@ -110,7 +111,7 @@ CASES: list[tuple[str, str, Corruption, str]] = [
     ),
     (
         "nan-effect-value",
-        "city100-iphonex",
+        PAPER_BUILT_IN,
         lambda p: p.set_values("effects.0.sigma_x", math.nan),
         "effect 0 (blur): sigma_x must be finite, got sigma_x=nan",
     ),
@@ -122,13 +123,13 @@ CASES: list[tuple[str, str, Corruption, str]] = [
     ),
     (
         "infinite-network-weight",
-        "city100-iphonex",
+        PAPER_BUILT_IN,
         lambda p: p.set_values("network.encode1.weight", math.inf),
         "network.encode1.weight must be finite, got 1 NaN or infinite values",
     ),
     (
         "out-of-range-effect-value",
-        "city100-iphonex",
+        PAPER_BUILT_IN,
         lambda p: p.set_values("effects.2.gamma", 100.0),
         "effect 2 (tone): gamma must be from 0 (exclusive) to 16, got gamma=100",
     ),
@@ -140,13 +141,13 @@ CASES: list[tuple[str, str, Corruption, str]] = [
     ),
     (
         "noise-kernel-rows-not-unit-norm",
-        "city100-iphonex",
+        PAPER_BUILT_IN,
         lambda p: _scale_row(p, "effects.1.across", 1.5),
         "effect 1 (noise): every row of across must have unit norm",
     ),
     (
         "white-level-below-black",
-        "city100-iphonex",
+        PAPER_BUILT_IN,
         lambda p: p.set_values("effects.2.white", -1.0),
         "effect 2 (tone): white must be greater than black",
     ),
@@ -158,19 +159,19 @@ CASES: list[tuple[str, str, Corruption, str]] = [
     ),
     (
         "dtype-relabelled-same-size",
-        "city100-iphonex",
+        PAPER_BUILT_IN,
         lambda p: p.header["effects.0.sigma_x"].update(dtype="I32"),
         "wrong dtypes: effects.0.sigma_x has dtype int32, expected float32 or float64",
     ),
     (
         "dtype-relabelled-other-size",
-        "city100-iphonex",
+        PAPER_BUILT_IN,
         lambda p: p.header["effects.1.a"].update(dtype="F64"),
         "tensor 'effects.1.a' holds 12 bytes, but 3 values of dtype float64 take 24",
     ),
     (
         "dtype-relabelled-with-its-shape",
-        "city100-iphonex",
+        PAPER_BUILT_IN,
         lambda p: p.header["effects.1.a"].update(dtype="BF16", shape=[6]),
         "wrong shapes: effects.1.a (6,) (expected (3,)); wrong dtypes: effects.1.a has dtype bfloat16",
     ),
@@ -182,19 +183,19 @@ CASES: list[tuple[str, str, Corruption, str]] = [
     ),
     (
         "shape-swapped",
-        "city100-iphonex",
+        PAPER_BUILT_IN,
         lambda p: p.header["effects.1.across"].update(shape=[5, 3]),
         "wrong shapes: effects.1.across (5, 3) (expected (3, 5))",
     ),
     (
         "network-shape-swapped",
-        "city100-iphonex",
+        PAPER_BUILT_IN,
         lambda p: p.header["network.encode1.weight"].update(shape=[3, 64, 3, 3]),
         "wrong shapes: network.encode1.weight (3, 64, 3, 3) (expected (64, 3, 3, 3))",
     ),
     (
         "unknown-config-key",
-        "city100-iphonex",
+        PAPER_BUILT_IN,
         lambda p: _effects(p)[0]["config"].update(radius=2),
         "effect 0 (blur): unknown config keys ['radius']",
     ),
@@ -206,13 +207,13 @@ CASES: list[tuple[str, str, Corruption, str]] = [
     ),
     (
         "unknown-key-in-an-effect-entry",
-        "city100-iphonex",
+        PAPER_BUILT_IN,
         lambda p: _effects(p)[2].update(strength=0.5),
         "effect 2 (tone) has unknown keys ['strength']",
     ),
     (
         "extra-effect-tensor",
-        "city100-iphonex",
+        PAPER_BUILT_IN,
         lambda p: p.add_tensor("effects.0.extra", [0.0], [1]),
         "unexpected tensors: effects.0.extra",
     ),
@@ -224,13 +225,13 @@ CASES: list[tuple[str, str, Corruption, str]] = [
     ),
     (
         "stage-recorded-under-the-wrong-kind",
-        "city100-iphonex",
+        PAPER_BUILT_IN,
         lambda p: _effects(p)[0].update(stage="codec"),
         "effect 0 (blur) is recorded at stage 'codec', but blur belongs to stage 'optics'",
     ),
     (
         "infinity-knots",
-        "city100-iphonex",
+        PAPER_BUILT_IN,
         lambda p: _effects(p)[1]["config"].update(knots=math.inf),
         "effect 1 (noise): knots must be an integer from 0 to 64, got knots=inf",
     ),
@@ -242,19 +243,19 @@ CASES: list[tuple[str, str, Corruption, str]] = [
     ),
     (
         "nan-gain-jitter",
-        "city100-iphonex",
+        PAPER_BUILT_IN,
         lambda p: _effects(p)[1]["config"].update(gain_jitter=math.nan),
         "effect 1 (noise): gain_jitter must be from 0 to 2, got gain_jitter=nan",
     ),
     (
         "whole-number-knots-written-as-text",
-        "city100-iphonex",
+        PAPER_BUILT_IN,
         lambda p: _effects(p)[1]["config"].update(knots="8"),
         "effect 1 (noise): config 'knots' must be an integer from 0 to 64, got a string '8'",
     ),
     (
         "string-false-for-a-boolean",
-        "city100-iphonex",
+        PAPER_BUILT_IN,
         lambda p: _effects(p)[0]["config"].update(linear="false"),
         "effect 0 (blur): config 'linear' must be true or false, got a string 'false'",
     ),
@@ -267,15 +268,16 @@ CASES: list[tuple[str, str, Corruption, str]] = [
 ]
 
 
-def _corrupted(tmp_path: Path, builtin: str, corrupt: Corruption) -> Path:
-    parts = ProfileParts(builtin_profiles_dir() / f"{builtin}.safetensors")
+def _corrupted(tmp_path: Path, builtin: str | Path, corrupt: Corruption) -> Path:
+    source = builtin if isinstance(builtin, Path) else builtin_profiles_dir() / f"{builtin}.safetensors"
+    parts = ProfileParts(source)
     corrupt(parts)
-    return parts.write(tmp_path / f"{builtin}-corrupted.safetensors")
+    return parts.write(tmp_path / f"{source.stem}-corrupted.safetensors")
 
 
 @pytest.mark.parametrize(("builtin", "corrupt", "message"), [case[1:] for case in CASES], ids=[c[0] for c in CASES])
 def test_info_and_load_profile_refuse_the_same_corrupted_file(
-    tmp_path: Path, builtin: str, corrupt: Corruption, message: str, capsys: pytest.CaptureFixture[str]
+    tmp_path: Path, builtin: str | Path, corrupt: Corruption, message: str, capsys: pytest.CaptureFixture[str]
 ) -> None:
     path = _corrupted(tmp_path, builtin, corrupt)
     with pytest.raises(ProfileError) as loaded:
@@ -367,7 +369,7 @@ def _config_values() -> list[tuple[str, str, Any]]:
 def _full(name: str) -> Effect:
     """The effect with every optional part (a noise stage with a level table, kernels, columns and mixing)."""
     if name == "noise":
-        return load_profile("city100-iphonex").effects[1]
+        return load_profile(PAPER_BUILT_IN).effects[1]
     return strong(name)
 
 

@@ -192,7 +192,9 @@ class CameraProfile(nn.Module):
 
     def describe(self) -> str:
         """A few lines for humans: name, network, effect chain, how it was fitted, held-out quality."""
-        network = "none" if self.network is None else f"{type(self.network).__name__}({self.network.config()})"
+        # the config's keys sorted, as the file stores them and as the torch-free ``camdegrade info`` shows them
+        config = None if self.network is None else dict(sorted(self.network.config().items()))
+        network = "none" if self.network is None else f"{type(self.network).__name__}({config})"
         lines = [
             f"name:        {self.name or '(unnamed)'}",
             f"description: {self.description or '-'}",

@@ -279,7 +279,7 @@ def read_header(name_or_path: str | os.PathLike[str]) -> ProfileHeader:
 
     Examples:
         >>> read_header("city100-iphonex").metadata["network"]
-        {'arch': 'DomainShiftNet', 'config': {'width': 64}}
+        {'arch': 'LocalAffineNet', 'config': {'upsample': 'bilinear', 'width': 64}}
     """
     path = resolve_profile_path(name_or_path)
     refuse_non_safetensors(path)
