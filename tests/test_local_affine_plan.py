@@ -9,8 +9,8 @@ import torch
 from skimage import data
 
 from camdegrade import load_profile
-from camdegrade.inference import LocalAffineInference, cpu_inference, run_network
-from camdegrade.network import FIELD_UPSAMPLING, LocalAffineNet
+from camdegrade.inference import LocalAffineInference, cpu_inference, run_network, upsampled_field
+from camdegrade.network import FIELD_UPSAMPLING, LocalAffineNet, smoothed
 
 #: Largest difference from the module: the plan only sums in another order.
 TOLERANCE = 2e-6
@@ -118,3 +118,13 @@ def test_the_plan_refuses_other_dtypes():
         LocalAffineInference(_network(), torch.float16)
     with pytest.raises(ValueError, match=r"dtype must be torch.float32 or torch.bfloat16, got dtype=torch.float16"):
         cpu_inference(copy.deepcopy(_network()), torch.float16)
+
+
+@pytest.mark.parametrize("smooth", [False, True])
+@pytest.mark.parametrize("size", [(1, 1), (1, 5), (7, 9), (56, 64), (70, 65)])  # the last: interpolated
+def test_the_field_is_upsampled_as_the_module_does_it(size, smooth):
+    field = torch.randn(1, 12, *size, generator=torch.Generator().manual_seed(8))
+    exact = torch.nn.functional.interpolate(field, scale_factor=4, mode="bilinear", align_corners=False)
+    exact = smoothed(exact) if smooth else exact
+    ours = upsampled_field(field, smooth)
+    assert ours.shape == exact.shape and (ours - exact).abs().max() < 1e-5
