@@ -19,6 +19,7 @@ from camdegrade.network import (
     DomainShiftNet,
     LocalAffineNet,
     ShiftNetwork,
+    check_batch,
     smoothed,
 )
 from camdegrade.synthetic import dead_leaves_images
@@ -194,8 +195,7 @@ class CpuInference:
 
     def run(self, image: Tensor) -> Tensor:
         """``(N, 3, H, W)`` float in [0, 1] or uint8 → the network's float32 output, contiguous, same shape."""
-        if image.ndim != 4 or image.shape[1] != 3:
-            raise ValueError(f"image must have shape (N, 3, H, W), got shape {tuple(image.shape)}")
+        check_batch(image)
         n, _, height, width = image.shape
         pad_bottom, pad_right = -height % SIZE_MULTIPLE, -width % SIZE_MULTIPLE
         output = torch.empty(n, 3, height + pad_bottom, width + pad_right)
@@ -317,8 +317,7 @@ class LocalAffineInference:
 
     def run(self, image: Tensor) -> Tensor:
         """``(N, 3, H, W)`` float in [0, 1] or uint8 → the network's float32 output, contiguous, same shape."""
-        if image.ndim != 4 or image.shape[1] != 3:
-            raise ValueError(f"image must have shape (N, 3, H, W), got shape {tuple(image.shape)}")
+        check_batch(image)
         n, _, height, width = image.shape
         pad_bottom, pad_right = -height % SIZE_MULTIPLE, -width % SIZE_MULTIPLE
         output = torch.empty(n, 3, height, width)

@@ -60,8 +60,7 @@ class ShiftNetwork(nn.Module):
         raise NotImplementedError
 
     def forward(self, image: Tensor) -> Tensor:
-        if image.ndim != 4 or image.shape[1] != 3:
-            raise ValueError(f"image must have shape (N, 3, H, W), got shape {tuple(image.shape)}")
+        check_batch(image)
         height, width = image.shape[-2:]
         pad_bottom = -height % SIZE_MULTIPLE
         pad_right = -width % SIZE_MULTIPLE
@@ -202,6 +201,12 @@ def smoothed(field: Tensor) -> Tensor:
     padded = F.pad(field, (half, half, half, half), mode="replicate")
     across = F.conv2d(padded, taps.view(1, 1, 1, -1).expand(channels, 1, 1, -1), groups=channels)
     return F.conv2d(across, taps.view(1, 1, -1, 1).expand(channels, 1, -1, 1), groups=channels)
+
+
+def check_batch(image: Tensor) -> None:
+    """Refuse anything but an ``(N, 3, H, W)`` batch, what every network and its CPU plans take."""
+    if image.ndim != 4 or image.shape[1] != 3:
+        raise ValueError(f"image must have shape (N, 3, H, W), got shape {tuple(image.shape)}")
 
 
 #: arch name → class, as profiles, recipes and ``--arch`` name them.
