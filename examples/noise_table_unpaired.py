@@ -9,12 +9,14 @@ divided by the real noise's; ``oracle`` is the real noise of the fitting half ov
 reproducing the fitting images' noise exactly would score). Printed: per subset, the median and the worst
 ``|log2 ratio|`` over the measurable bins of each. Run from the repo root::
 
-    OMP_NUM_THREADS=1 .venv/bin/python examples/noise_table_unpaired.py [REAL_PAIRS_DIR] [--measurement]
+    OMP_NUM_THREADS=1 .venv/bin/python examples/noise_table_unpaired.py [REAL_PAIRS_DIR] [--measurement] [--calibrated]
 
 ``--measurement`` prints instead what limits the captures-only column: on the checking half itself, the noise read
 from each capture's own flat pixels (binned by its own local mean, :func:`~camdegrade.fitting._unpaired_noise.
 flat_sums`, what the unpaired fit matches) against the real noise there (clean-referenced), with no fit between:
 how much of the error is the single-image measurement (content texture, the capture's own mask and bins).
+``--calibrated`` adds a column: the captures' own-flat moments matched by simulated moments on the fitting half's
+clean images (what turning the measurement into a stage by calibration gives at best).
 """
 
 from __future__ import annotations
@@ -22,6 +24,8 @@ from __future__ import annotations
 import argparse
 import sys
 from collections import defaultdict
+from collections.abc import Sequence
+from functools import partial
 from pathlib import Path
 
 import torch
@@ -31,7 +35,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from noise_table import SUBSETS, _load, _residual_sums, _simulate, default_real_pairs_dir, noise_groups
 
 from camdegrade.effects import Noise
-from camdegrade.fitting._unpaired_noise import flat_sums
+from camdegrade.fitting._unpaired_noise import fit_noise_unpaired, flat_sums
 from camdegrade.fitting.unpaired import MIN_IMAGES, fit_unpaired
 
 
@@ -60,9 +64,14 @@ def measurement_rows(root: Path) -> list[dict]:
     return rows
 
 
-def subset_rows(root: Path) -> list[dict]:
+def subset_rows(root: Path, only: Sequence[str] | None = None, calibrated: bool = False) -> list[dict]:
+    """Per subset (``only`` these, default all): the captures-only and paired stages' and the oracle's spread;
+    ``calibrated`` adds the captures' own-flat moments matched by simulation on the fitting half's *clean* images
+    (the calibration the captures-only fit used until 2026-11-27, given the best source it could have)."""
     rows = []
     for subset, paths in _subsets(root).items():
+        if only is not None and subset not in only:
+            continue
         cleans, reals = _load(paths[::2])
         held_cleans, held_reals = _load(paths[1::2])
         real = _residual_sums(held_reals, held_cleans)
@@ -74,6 +83,9 @@ def subset_rows(root: Path) -> list[dict]:
             "unpaired (captures only)": unpaired[0] if len(unpaired) else None,
             "paired Noise.fit": Noise.fit(cleans, reals, estimator="residual", seed=0),
         }
+        if calibrated:
+            simulate = partial(_simulate_or_clean, cleans=cleans)
+            stages["own moments calibrated on clean"] = fit_noise_unpaired(flat_sums(reals), simulate)[0]
         row = {"subset": subset, "fit": len(reals), "check": len(held_reals), "flat_pixels": real.pixels}
         for label, noise in stages.items():
             sims = _simulate(noise, held_cleans, 1) if noise is not None else held_cleans
@@ -83,10 +95,15 @@ def subset_rows(root: Path) -> list[dict]:
     return rows
 
 
+def _simulate_or_clean(noise: Noise | None, cleans: list[torch.Tensor]) -> list[torch.Tensor]:
+    return cleans if noise is None else _simulate(noise, cleans, 1)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("root", nargs="?", type=Path, default=default_real_pairs_dir())
     parser.add_argument("--measurement", action="store_true", help="the single-image measurement's error only")
+    parser.add_argument("--calibrated", action="store_true", help="add the calibration by simulated moments")
     args = parser.parse_args(argv)
     torch.set_num_threads(1)
     if args.measurement:
@@ -100,9 +117,11 @@ def main(argv: list[str] | None = None) -> int:
             )
         return 0
     columns = ("unpaired (captures only)", "paired Noise.fit", "oracle")
+    if args.calibrated:
+        columns = ("own moments calibrated on clean", *columns)
     print("| subset | fit / check images | flat pixels (check) | " + " | ".join(columns) + " |")
     print("|---|---|---|" + "---|" * len(columns))
-    for row in subset_rows(args.root):
+    for row in subset_rows(args.root, calibrated=args.calibrated):
         cells = [f"{row[c][0]:.2f} / {row[c][1]:.2f} ({row[c][2]} bins)" for c in columns]
         print(f"| {row['subset']} | {row['fit']} / {row['check']} | {row['flat_pixels']} | " + " | ".join(cells) + " |")
     return 0

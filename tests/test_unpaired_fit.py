@@ -82,6 +82,7 @@ def test_the_combined_camera_is_recovered_from_other_scenes(combined: CameraProf
     assert combined.fitted["captures"] == COUNT and combined.fitted["clean_images"] == COUNT
     noise = _stage(combined, "noise")
     assert noise is not None and 3.2 <= noise.magnitude() <= 4.8, combined.fitted["effects"]["noise"]  # ±20 %
+    assert combined.fitted["effects"]["noise"]["direct"] is False  # a clean set and stages after: calibrated
     blur = _stage(combined, "blur")
     assert blur is not None and abs(float(blur.sigma_x) - 1.5) <= 0.5, combined.fitted["effects"]["transfer"]
     vignetting = _stage(combined, "vignetting")
@@ -92,6 +93,18 @@ def test_the_combined_camera_is_recovered_from_other_scenes(combined: CameraProf
     fidelity = combined.quality["unpaired_fidelity"]
     assert 0.8 <= fidelity["noise_ratio"] <= 1.25, fidelity
     assert all(abs(value) <= 0.5 for value in fidelity["bands"]), fidelity
+
+
+def test_captures_alone_give_the_noise_their_own_flat_pixels_show() -> None:
+    """No clean set and no stage after the noise: the stage is the captures' own flat-pixel moments read straight
+    (no simulated calibration); 4 levels come back within 10 %, and a second fit gives the same bytes."""
+    captures = _captures(Noise(levels=torch.full((3, 4), 4.0 / 255), linear=False))
+    profile = fit_unpaired(captures, effects=("noise",))
+    notes = profile.fitted["effects"]["noise"]
+    assert profile.effect_names == ["noise"] and notes["direct"] is True, notes
+    assert abs(_stage(profile, "noise").magnitude() - 4.0) <= 0.4, notes
+    again = fit_unpaired(captures, effects=("noise",))
+    assert all(torch.equal(a, b) for a, b in zip(profile.state_dict().values(), again.state_dict().values()))
 
 
 def test_a_tone_curve_is_recovered_within_five_hundredths(clean: list[torch.Tensor]) -> None:

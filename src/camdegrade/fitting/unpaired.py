@@ -242,6 +242,11 @@ class _UnpairedFit:
                 out.append(profile(batch, params)[0].mul(255).round().div(255))
         return out
 
+    def stages_after(self, kind: type[Effect]) -> list[str]:
+        """The kept stages that come after ``kind``'s place in the chain."""
+        later = CHAIN_ORDER[CHAIN_ORDER.index(kind.name) + 1 :]
+        return [name for name in later if self.stages.get(name) is not None]
+
     def wants(self, *kinds: type[Effect]) -> bool:
         """Whether any of these stages is to be fitted."""
         return any(kind.name in self.wanted for kind in kinds)
@@ -359,7 +364,8 @@ class _UnpairedFit:
         def simulate(noise: Noise | None) -> list[Tensor]:
             return self.simulate(self.chain(noise=noise), self.noise_crops, "unpaired-noise")
 
-        noise, notes = fit_noise_unpaired(self.real_noise, simulate)
+        direct = self.cleans is None and not self.stages_after(Noise)
+        noise, notes = fit_noise_unpaired(self.real_noise, simulate, direct=direct)
         self.notes[Noise.name] = notes
         self.stages.pop(Noise.name, None)
         if noise is not None:
