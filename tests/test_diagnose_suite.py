@@ -31,11 +31,12 @@ def bench() -> ModuleType:
 def test_the_expected_change_is_accepted_first(bench: ModuleType, name: str, candidates: list[str]) -> None:
     row = bench.run_scenario(name, 24, 24, 128, candidates=candidates)
     assert row["top1"] == row["expected"], row
+    assert row["misfit"] == [row["expected"]] and row["missing_accepted"] == [] and row["correct"], row
     assert row["fraction_closed"] >= 0.5, row
     assert row["critic_after"] < row["critic_before"] or row["critic_before"] <= 0.6, row
 
 
 def test_the_control_accepts_nothing(bench: ModuleType) -> None:
     row = bench.run_scenario("control", 24, 24, 128, candidates=["noise", "tone", "blur"])
-    assert row["accepted"] == [], row
+    assert row["accepted"] == [] and row["correct"], row
     assert row["critic_before"] <= 0.6, row

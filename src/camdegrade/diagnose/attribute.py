@@ -15,6 +15,14 @@ Each kind is one class in :mod:`camdegrade.diagnose.changes`; :mod:`camdegrade.d
 them. Changes are ranked by held-out gap. The best is accepted when its reduction is significant (beyond three bootstrap
 standard errors and a minimum size); the other significant changes are then refitted on top of it (combinations),
 until nothing helps or ``max_changes`` are accepted.
+
+**Two findings.** A change to what the profile has (refit or remove a stage, fine-tune the network) fixes the
+profile's own **misfit**; adding an effect names one the camera has and the profile **lacks**. A large misfit must
+not hide a missing effect: the minimum reduction is relative to the gap left
+(:meth:`~camdegrade.diagnose.heldout.Baseline.threshold_at`); while every accepted change is a misfit fix, *every*
+candidate effect is refitted on top of them, not only the ones significant alone, and the missing effects are
+ranked by their held-out closure there (:attr:`Attribution.missing_ranking`); and an effect the network fine-tune
+would absorb is named first when fine-tuning on top of it ends closer to the camera (:func:`_named_first`).
 """
 
 from __future__ import annotations
@@ -50,6 +58,30 @@ class Attribution:
     identity: Change | None = None
 
     @property
+    def misfit(self) -> list[Change]:
+        """The accepted changes to what the profile has: its own misfit, fixed."""
+        return [change for change in self.accepted if change.kind in MISFIT_KINDS]
+
+    @property
+    def missing(self) -> list[Change]:
+        """The accepted effects the profile lacks."""
+        return [change for change in self.accepted if change.kind not in MISFIT_KINDS]
+
+    @property
+    def missing_ranking(self) -> list[Change]:
+        """Every candidate effect the profile lacks, ranked by held-out gap once the profile's own misfit is fixed:
+        refitted on top of the misfit fixes accepted first, or alone when the first accepted change adds an
+        effect (or nothing was accepted)."""
+        leading = 0
+        while leading < len(self.accepted) and self.accepted[leading].kind in MISFIT_KINDS:
+            leading += 1
+        if leading:
+            on_top = [c for c in self.combinations if len(c.before) == leading and c.kind not in MISFIT_KINDS]
+            if on_top:
+                return sorted(on_top, key=lambda change: change.gap_after)
+        return [change for change in self.singles if change.kind not in MISFIT_KINDS]
+
+    @property
     def chosen(self) -> Change | None:
         return self.accepted[-1] if self.accepted else None
 
@@ -62,8 +94,33 @@ class Attribution:
         return family_gaps(self.held.real, self.final_stats, scale=self.held.scale)
 
 
+#: Kinds of change that fix what the profile has (its own misfit); the rest add an effect it lacks.
+MISFIT_KINDS = frozenset({"refit", "remove", "network"})
+
+
 def check_candidates(candidates: Iterable[str] | str | None) -> list[str]:
     return list(EFFECTS) if candidates is None else check_effect_names(candidates, "candidates")
+
+
+def _named_first(
+    search: Search, ranked: list[Change], accepted: list[Change], adds: list[str], say: Log
+) -> tuple[list[Change], list[Change]]:
+    """The changes to accept next from ``ranked`` (best first, the first significant), and the combinations tried
+    to decide. The best, unless it is the network fine-tune and adding the best significant effect first, then
+    fine-tuning on top, ends closer to the camera than the fine-tune alone: the fine-tune absorbs a colour cast as
+    readily as it fixes its own grid, so an effect the camera has is named first. A stage refitted to hide the
+    network's artefact fails that test (the fine-tune on top undoes what it compensated), so it is never preferred."""
+    best = ranked[0]
+    named = [change for change in ranked if change.significant and change.kind == "add"]
+    if best.kind != "network" or not named:
+        return [best], []
+    first = named[0]
+    say(f"on top of {' + '.join(change.label for change in [*accepted, first])} (before the network):")
+    stats = first.stats if first.stats is not None else search.held.statistics(first.profile)[0]
+    tried = search.changes(first.profile, stats, first.gap_after, [*accepted, first], {best.key}, adds, say)
+    if tried and tried[0].significant and tried[0].gap_after < best.gap_after:
+        return [first, tried[0]], tried
+    return [best], tried
 
 
 def _grow(
@@ -76,20 +133,25 @@ def _grow(
     if not (search.baseline.significant and singles and singles[0].significant):
         return accepted, combinations
     pool = {change.key for change in singles if change.significant}
-    best = singles[0]
+    every_add = {("add", name) for name in adds} if "add" in search.kinds else set()
+    chosen, tried = _named_first(search, singles, accepted, adds, say)
     while True:
-        accepted.append(best)
-        pool.discard(best.key)
-        if len(accepted) >= max_changes or not pool:
+        combinations.extend(tried)
+        accepted.extend(chosen[: max_changes - len(accepted)])
+        pool.difference_update(change.key for change in chosen)
+        best = accepted[-1]
+        misfit_only = all(change.kind in MISFIT_KINDS for change in accepted)
+        allowed = pool | (every_add if misfit_only else set())  # a misfit may have hidden a missing effect
+        if len(accepted) >= max_changes or not allowed:
             return accepted, combinations
         current: CameraProfile = best.profile  # type: ignore[assignment]  # significant ones were fitted
         stats = best.stats if best.stats is not None else search.held.statistics(current)[0]
         say(f"on top of {' + '.join(change.label for change in accepted)}:")
-        extended = search.changes(current, stats, best.gap_after, list(accepted), pool, adds, say)
+        extended = search.changes(current, stats, best.gap_after, list(accepted), allowed, adds, say)
         combinations.extend(extended)
         if not extended or not extended[0].significant:
             return accepted, combinations
-        best = extended[0]
+        chosen, tried = _named_first(search, extended, accepted, adds, say)
 
 
 def attribute(

@@ -165,6 +165,17 @@ def _finding(change: Change, profile_name: str) -> tuple[str, str]:
     return "the network itself leaves a gap no effect explains", f"refitting the network ({command})"
 
 
+def _finding_sentence(misfit: bool, changes: list[Change], profile_name: str) -> str:
+    """One finding in words, the profile's own misfit or the effects it lacks: what is wrong and what fixes it, each
+    fix with the gap it took off where it was accepted."""
+    parts = [_finding(change, profile_name) for change in changes]
+    fixes = ", then ".join(f"{fix} (gap −{change.reduction:.2f})" for (_, fix), change in zip(parts, changes))
+    if misfit:
+        return f"The profile does not reproduce the camera: {'; '.join(p for p, _ in parts)}; fix: {fixes}."
+    lacks = "an effect the profile lacks" if len(changes) == 1 else "effects the profile lacks"
+    return f"The camera has {lacks}: {', '.join(change.name for change in changes)}; fix: {fixes}."
+
+
 def _verdict(
     result: Attribution, where: list[dict], seen: list[dict], critics: dict[str, Critique], profile_name: str
 ) -> str:
@@ -187,12 +198,15 @@ def _verdict(
             f"{where[0]['axis']}; no change to the profile closes a significant part of it."
         )
     else:
-        parts = [_finding(change, profile_name) for change in result.accepted]
-        problems = "; ".join(problem for problem, _ in parts)
-        fixes = ", then ".join(fix for _, fix in parts)
-        text = (
-            f"{problems[0].upper()}{problems[1:]}: {fixes} closes {_fraction_closed(result):.0%} of the held-out gap "
-            f"({baseline.gap:.2f} → {result.gap_after:.2f}; noise floor {result.noise_floor:.2f})."
+        text = " ".join(
+            _finding_sentence(misfit, changes, profile_name)
+            for misfit, changes in ((True, result.misfit), (False, result.missing))
+            if changes
+        )
+        text += (
+            f" {'This closes' if len(result.accepted) == 1 else 'Together they close'} "
+            f"{_fraction_closed(result):.0%} of the held-out gap ({baseline.gap:.2f} → {result.gap_after:.2f}; "
+            f"noise floor {result.noise_floor:.2f})."
         )
     return text + _seen_clause(seen) + _critic_clause(baseline.significant, critics)
 
@@ -234,8 +248,12 @@ def _critic_clause(significant_gap: bool, critics: dict[str, Critique]) -> str:
     return clause
 
 
+def _errors_last(changes: list[Change]) -> list[Change]:
+    return [c for c in changes if c.error is None] + [c for c in changes if c.error is not None]
+
+
 def _change_rows(changes: list[Change]) -> list[dict]:
-    ranked = [c for c in changes if c.error is None] + [c for c in changes if c.error is not None]
+    ranked = _errors_last(changes)
     return [
         {
             "kind": c.kind,
@@ -311,7 +329,16 @@ def _report(
         accepted=[change.label for change in accepted],
         critic={label: value.to_dict() for label, value in critics.items()},
         critic_surest={label: value.explanation.surest for label, value in critics.items()},
+        misfit=_change_rows(result.misfit),
+        missing=_missing_rows(result),
     )
+
+
+def _missing_rows(result: Attribution) -> list[dict]:
+    """The effects the profile lacks, ranked once its misfit is fixed, each marked whether it was accepted."""
+    accepted = {change.key for change in result.missing}
+    ranking = _errors_last(result.missing_ranking)
+    return [{**row, "accepted": change.key in accepted} for row, change in zip(_change_rows(ranking), ranking)]
 
 
 def _finite(value: float) -> float | None:

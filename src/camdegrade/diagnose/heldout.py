@@ -79,7 +79,6 @@ class Baseline:
     gap_se: float
     families: dict[str, float]
     null_families: dict[str, float]
-    threshold: float
     significant: bool
 
     @classmethod
@@ -98,13 +97,18 @@ class Baseline:
             se,
             family_gaps(held.real, stats, scale=held.scale),
             null_families,
-            max(MIN_REDUCTION, MIN_RELATIVE * excess),
             excess > max(SIGNIFICANCE * se, MIN_REDUCTION),
         )
 
     @property
     def null(self) -> float:
         return sum(self.null_families.values())
+
+    def threshold_at(self, gap: float) -> float:
+        """The smallest reduction that can count on top of a profile whose held-out gap is ``gap``: its share of
+        *that* gap above the noise, not of the first one (after a misfit fix took most of the gap away, a missing
+        effect's smaller reduction must still be able to count)."""
+        return max(MIN_REDUCTION, MIN_RELATIVE * max(0.0, gap - self.null))
 
     def significant_axes(self) -> set[str]:
         """The signature families whose score stands out of their null band (as ``where`` marks them)."""

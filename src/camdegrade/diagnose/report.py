@@ -71,6 +71,11 @@ class DiagnosisReport:
     critic_surest: dict[str, list[SurePatch]] = field(default_factory=dict, repr=False)
     #: What a person sees, simulation beside capture: the network's 4-pixel grid and the texture (band power).
     visible: list[dict[str, Any]] = field(default_factory=list)
+    #: The accepted changes to what the profile has (its own misfit), each a change row.
+    misfit: list[dict[str, Any]] = field(default_factory=list)
+    #: Every candidate effect the profile lacks, ranked by held-out gap once its misfit is fixed; ``accepted`` marks
+    #: the ones the diagnosis added.
+    missing: list[dict[str, Any]] = field(default_factory=list)
 
     def to_dict(self) -> dict[str, Any]:
         """The JSON report: the required keys first, then the evidence."""
@@ -83,6 +88,8 @@ class DiagnosisReport:
             "added": list(self.added),
             "verdict": self.verdict,
             "visible": self.visible,
+            "misfit": self.misfit,
+            "missing": self.missing,
             "mode": self.mode,
             "fraction_closed": _number(self.fraction_closed),
             "gap_before_se": _number(self.gap_before_se),
@@ -277,7 +284,7 @@ def render_html(report: DiagnosisReport) -> str:
         "is measured on the held-out pairs. Gap = Σ over statistic families of RMS((real − sim)/τ).</p>"
         f"{critic_section(report.critic, report.critic_surest)}"
         f"<h2>Where the gap lies (before)</h2>{_where(report)}{_visible(report)}"
-        f"<h2>Which change: candidates ranked</h2>{_changes(report)}{_combinations(report)}"
+        f"<h2>Which change: candidates ranked</h2>{_findings(report)}{_changes(report)}{_combinations(report)}"
         f"<h2>Evidence</h2>{_evidence(report)}{_flat_crops(report)}{_crops(report)}"
         "</body></html>\n"
     )
@@ -333,6 +340,28 @@ def _changes(report: DiagnosisReport) -> str:
         for c in report.changes
     ]
     return table(rows, ("change", "held-out gap", "reduction", "significant", "what it says"))
+
+
+def _findings(report: DiagnosisReport) -> str:
+    """The two findings: the profile's own misfit (the accepted fixes) and the effects it lacks, ranked once the
+    misfit is fixed."""
+    misfit = [(f"{c['kind']} {c['name']}", f"{c['reduction']:+.2f}", c.get("description", "")) for c in report.misfit]
+    missing = [
+        (
+            f"{c['kind']} {c['name']}",
+            f"{c['gap_after']:.2f}",
+            _pm(c["reduction"], c.get("reduction_se")),
+            "yes" if c.get("accepted") else "no",
+        )
+        for c in report.missing
+    ]
+    on_top = " (once the misfit is fixed)" if report.misfit else ""
+    return (
+        "<h3>The profile's own misfit (what it has, refitted)</h3>"
+        + (table(misfit, ("change", "reduction", "what it says")) if misfit else "<p>none found</p>")
+        + f"<h3>Effects the camera has and the profile lacks, ranked{on_top}</h3>"
+        + table(missing, ("effect", "held-out gap", "reduction", "accepted"))
+    )
 
 
 def _combinations(report: DiagnosisReport) -> str:

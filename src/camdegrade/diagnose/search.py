@@ -143,10 +143,11 @@ class Round:
         after = held.gap(stats)
         reduction = self.gap_now - after
         se, significant = float("nan"), False
-        if reduction > baseline.threshold:  # otherwise it cannot be significant: skip the bootstrap
+        threshold = baseline.threshold_at(self.gap_now)
+        if reduction > threshold:  # otherwise it cannot be significant: skip the bootstrap
             spreads = gap_spread(held.real, [self.stats, stats], held.indices, held.scale)
             se = float((spreads[:, 0] - spreads[:, 1]).std())
-            significant = reduction > max(SIGNIFICANCE * se, baseline.threshold)
+            significant = reduction > max(SIGNIFICANCE * se, threshold)
         families = family_gaps(held.real, stats, scale=held.scale)
         return Change(
             kind,
