@@ -113,3 +113,26 @@ def test_a_stage_refitted_to_hide_the_network_artefact_is_not_named_first() -> N
     search = StubSearch([[_change("network", "network", 3.0, 6.85, True)], []])
     accepted, _ = _grow(search, singles, ADDS, 3, lambda line: None)
     assert accepted[0].label == "network network"
+
+
+def test_the_report_carries_both_findings_in_json_and_html() -> None:
+    from camdegrade.diagnose.report import DiagnosisReport, render_html
+
+    misfit = [{"kind": "refit", "name": "blur", "gap_after": 3.02, "reduction": 14.6, "description": "too weak"}]
+    missing = [
+        {
+            "kind": "add",
+            "name": "chromatic_aberration",
+            "gap_after": 1.82,
+            "reduction": 1.2,
+            "reduction_se": 0.14,
+            "accepted": True,
+        },
+        {"kind": "add", "name": "color", "gap_after": 3.0, "reduction": 0.0, "reduction_se": None, "accepted": False},
+    ]
+    report = DiagnosisReport(17.6, 1.8, 1.3, [], [], ["chromatic_aberration"], misfit=misfit, missing=missing)
+    data = report.to_dict()
+    assert data["misfit"] == misfit and [row["accepted"] for row in data["missing"]] == [True, False]
+    page = render_html(report)
+    own, lacks = page.index("The profile's own misfit"), page.index("ranked (once the misfit is fixed)")
+    assert own < page.index("refit blur") < lacks < page.index("add chromatic_aberration") < page.index("add color")
