@@ -9,7 +9,8 @@ runs exactly this arithmetic. A third case is the built-in of that name as shipp
 what a user gets). One 224² uint8 image per call at ``--precision`` (default ``auto``: bfloat16 where the CPU has
 it natively), medians of interleaved rounds (see ``bench_transform.interleaved_rates``). The local-affine network
 runs with each colour-field upsampling (:data:`~camdegrade.network.FIELD_UPSAMPLING`): ``bilinear`` (the default,
-whose time the bound applies to) and ``smooth``. Run from the repo root::
+whose time the bound applies to) and ``smooth``, and with the bilinear field and the pointwise curves
+(``curves=True``, the fast recipe's since 2026-11-27). Run from the repo root::
 
     .venv/bin/python bench/bench_arch.py [--quick] [--precision float32]   # writes out/bench/arch.json
 """
@@ -37,11 +38,11 @@ PROFILES = {
 SLOWDOWN_BOUND = 1.15
 
 
-def local_affine_twin(profile: CameraProfile, upsample: str = "bilinear") -> CameraProfile:
-    """``profile`` with a LocalAffineNet of its width and colour-field ``upsample`` that shares its encoder (and its
-    stages)."""
+def local_affine_twin(profile: CameraProfile, upsample: str = "bilinear", curves: bool = False) -> CameraProfile:
+    """``profile`` with a LocalAffineNet of its width, colour-field ``upsample`` and ``curves`` that shares its
+    encoder (and its stages)."""
     paper = profile.network
-    twin = LocalAffineNet(paper.width, upsample=upsample)
+    twin = LocalAffineNet(paper.width, upsample=upsample, curves=curves)
     twin.load_state_dict(
         {**twin.state_dict(), **{k: v for k, v in paper.state_dict().items() if k.startswith("encode")}}
     )
@@ -60,6 +61,7 @@ def main() -> None:
     for name, paper_path in PROFILES.items():
         profile = load_profile(paper_path)
         twins = {f"local_affine/{upsample}": local_affine_twin(profile, upsample) for upsample in FIELD_UPSAMPLING}
+        twins["local_affine/curves"] = local_affine_twin(profile, curves=True)
         for label, chosen in (("paper", profile), *twins.items(), ("built-in now", load_profile(name))):
             degrade = CameraDegrade(chosen, seed=0, precision=args.precision)
             cases[f"{name}:{label}"] = Case(lambda degrade=degrade: degrade(image), calls=5 if args.quick else 20)
@@ -69,14 +71,17 @@ def main() -> None:
     for name in PROFILES:
         paper, local = rates[f"{name}:paper"], rates[f"{name}:local_affine/bilinear"]
         smooth, now = rates[f"{name}:local_affine/smooth"], rates[f"{name}:built-in now"]
+        curved = rates[f"{name}:local_affine/curves"]
         print(
-            f"{name:24s} paper {paper:8.1f} img/s   local_affine {local:8.1f} img/s (smooth field {smooth:8.1f})"
-            f"   time ratio {paper / local:.3f}   built-in now {now:8.1f} img/s"
+            f"{name:24s} paper {paper:8.1f} img/s   local_affine {local:8.1f} img/s (smooth field {smooth:8.1f}, "
+            f"curves {curved:8.1f})   time ratio {paper / local:.3f}   built-in now {now:8.1f} img/s"
         )
         results[name] = {
             "paper_images_per_s": paper,
             "local_affine_images_per_s": local,
             "local_affine_smooth_images_per_s": smooth,
+            "local_affine_curves_images_per_s": curved,
+            "curves_over_plain_time": local / curved,
             "built_in_now_images_per_s": now,
             "time_ratio": paper / local,
             "smooth_over_bilinear_time": local / smooth,

@@ -10,7 +10,7 @@ with the critic trained on half the held-out scenes and scored on the other half
 one table with ``examples/fidelity_city100.py --profile "default fit=OUT"``. Run from the repo root::
 
     OMP_NUM_THREADS=2 .venv/bin/python examples/fit_city100_default.py [--arch local_affine] [--out PATH] \
-        [--upsample smooth] [--texture none] [--name NAME]
+        [--upsample smooth] [--curves none] [--texture none] [--name NAME]
 
 The built-in ``city100-iphonex`` is this fit with the defaults::
 
@@ -29,7 +29,7 @@ import torch
 
 from camdegrade import CameraDegrade
 from camdegrade._pixels import as_unit
-from camdegrade._recipes import TEXTURES, UPSAMPLINGS
+from camdegrade._recipes import CURVES, TEXTURES, UPSAMPLINGS
 from camdegrade.fitting import FitConfig, PairSet, discover_pairs, filter_pairs, fit_profile, load_pair
 from camdegrade.measures.critic import split_critic_test
 from camdegrade.measures.fidelity import measure_fidelity
@@ -47,6 +47,7 @@ def main() -> None:
     parser.add_argument("--arch", default="local_affine", choices=("local_affine", "paper"))
     parser.add_argument("--epochs", type=int, default=None, help="default: the fast recipe's")
     parser.add_argument("--upsample", default=None, choices=UPSAMPLINGS, help="default: the fast recipe's")
+    parser.add_argument("--curves", default=None, choices=CURVES, help="default: the fast recipe's")
     parser.add_argument("--texture", default=None, choices=TEXTURES, help="default: the fast recipe's")
     parser.add_argument("--out", type=Path, default=ROOT / "out" / "city100-default.safetensors")
     parser.add_argument("--name", default="city100-default", help="the profile's name")
@@ -54,7 +55,9 @@ def main() -> None:
     pairs = filter_pairs(discover_pairs(args.data / "pairs.csv").pairs, subset="city100_iPhoneX")
     fitted = [pair for pair in pairs if pair.scene <= LAST_FITTED_SCENE]
     held = [pair for pair in pairs if pair.scene > LAST_FITTED_SCENE]
-    config = FitConfig.recipe("fast", arch=args.arch, epochs=args.epochs, upsample=args.upsample, texture=args.texture)
+    config = FitConfig.recipe(
+        "fast", arch=args.arch, epochs=args.epochs, upsample=args.upsample, curves=args.curves, texture=args.texture
+    )
     started = time.perf_counter()
     profile = fit_profile(
         PairSet.load(fitted), config, name=args.name, description=DESCRIPTION, log=print, progress=True
@@ -71,7 +74,7 @@ def main() -> None:
             + [
                 f"--{key} {value}"
                 for key, value in vars(args).items()
-                if key in ("epochs", "upsample", "texture") and value is not None
+                if key in ("epochs", "upsample", "curves", "texture") and value is not None
             ]
             + [f"--name {args.name}"]
         ),

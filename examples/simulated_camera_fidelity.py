@@ -17,7 +17,8 @@ trained on half the held-out pairs, scored on the other half) and, with ``--diag
 textured crop at 2×, nearest). Run from the repo root::
 
     OMP_NUM_THREADS=2 .venv/bin/python examples/simulated_camera_fidelity.py [--pairs 240] [--held-out 64] \
-        [--cameras soft dark] [--diagnose] [--png out/simulated_cameras.png] [--upsample smooth] [--texture none]
+        [--cameras soft dark] [--diagnose] [--png out/simulated_cameras.png] [--upsample smooth] [--curves none] \
+        [--texture none]
 """
 
 from __future__ import annotations
@@ -32,7 +33,7 @@ from effect_evidence import SIZE, chart
 from PIL import Image
 
 from camdegrade._pixels import as_unit, unit_to_bytes
-from camdegrade._recipes import TEXTURES, UPSAMPLINGS
+from camdegrade._recipes import CURVES, TEXTURES, UPSAMPLINGS
 from camdegrade.diagnose import diagnose
 from camdegrade.effects import Blur, Color, Noise, Tone
 from camdegrade.fitting import FitConfig, fit_profile
@@ -82,7 +83,7 @@ def evaluate(name: str, args: argparse.Namespace) -> tuple[dict, list[torch.Tens
     train, held = pairs(name, args.pairs, seed=3), pairs(name, args.held_out, seed=11)
     started = time.perf_counter()
     lines: list[str] = []
-    recipe = FitConfig.recipe("fast", upsample=args.upsample, texture=args.texture)
+    recipe = FitConfig.recipe("fast", upsample=args.upsample, curves=args.curves, texture=args.texture)
     profile = fit_profile(train, recipe, log=lines.append)
     fit_seconds = time.perf_counter() - started
     if args.save:
@@ -144,6 +145,7 @@ def main() -> None:
     parser.add_argument("--cameras", nargs="+", default=["soft", "dark"], choices=["soft", "dark"])
     parser.add_argument("--diagnose", action="store_true")
     parser.add_argument("--upsample", default=None, choices=UPSAMPLINGS, help="default: the fast recipe's")
+    parser.add_argument("--curves", default=None, choices=CURVES, help="default: the fast recipe's")
     parser.add_argument("--texture", default=None, choices=TEXTURES, help="default: the fast recipe's")
     parser.add_argument("--png", default=None)
     parser.add_argument("--json", default=None)

@@ -40,10 +40,10 @@ def _fidelity(profile: str | Path, held_out: list[tuple[torch.Tensor, torch.Tens
 def test_the_built_in_has_no_grid_and_the_cameras_flat_noise(held_out: list) -> None:
     report = _fidelity("city100-iphonex", held_out)
     assert report.frames == 16 and report.flat_pixels > 2_000_000, report
-    assert report.grid_ratio is not None and report.grid_ratio <= 2.0, report  # 1.6 measured
+    assert report.grid_ratio is not None and report.grid_ratio <= 1.5, report  # 1.36 measured (1.58 without curves)
     assert report.noise_ratio is not None and 0.8 <= report.noise_ratio <= 1.25, report
     assert report.banding_ratio is not None and report.banding_ratio <= 1.5, report
-    assert report.psnr >= 30.5, report  # 30.70 measured
+    assert report.psnr >= 30.5, report  # 30.73 measured
     low, mid, high = report.bands[0], report.bands[1], report.bands[4]
     assert all(band is not None and abs(band) <= 0.3 for band in (low, mid, high)), report.bands
 
@@ -58,6 +58,7 @@ def test_the_built_ins_record_what_they_were_fitted_with() -> None:
     full, fast = load_profile("city100-iphonex"), load_profile("city100-iphonex-fast")
     assert full.metadata()["network"]["arch"] == fast.metadata()["network"]["arch"] == "LocalAffineNet"
     assert (full.network.width, fast.network.width) == (64, 32)
+    assert full.network.curves and fast.network.curves  # the fast recipe's pointwise curves
     assert [e.name for e in full.effects] == [e.name for e in fast.effects] == ["blur", "sharpen", "denoise"]
     assert full.fitted["command"].startswith("python examples/fit_city100_default.py")
     assert full.fitted["effects"]["noise"]["kept"] is False

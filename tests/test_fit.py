@@ -220,9 +220,10 @@ def test_fit_network_starts_from_the_initial_weights():
 
 def test_fit_network_refuses_an_initial_network_it_cannot_start_from():
     config = FitConfig(epochs=1, crop=16, batch_size=4, crops_per_pair=1, arch="paper")
-    with pytest.raises(ValueError, match=r"initial must be a network of arch 'paper' and width 64 .*width=8"):
+    expected = r"initial must be a network of arch 'paper', width 64 and curves False .*width=8"
+    with pytest.raises(ValueError, match=expected):
         fit_network(_tiny_pairs(), [], config, initial=DomainShiftNet(width=8))
-    with pytest.raises(ValueError, match=r"initial must be a network of arch 'paper' .*got arch='local_affine'"):
+    with pytest.raises(ValueError, match=r"initial must be a network of arch 'paper', .*got arch='local_affine'"):
         fit_network(_tiny_pairs(), [], config, initial=LocalAffineNet())
     with pytest.raises(TypeError, match="initial must be a DomainShiftNet, a LocalAffineNet or None, got dict"):
         fit_network(_tiny_pairs(), [], config, initial={})  # type: ignore[arg-type]

@@ -114,7 +114,8 @@ def test_the_recipe_chooses_the_colour_field_and_a_refit_keeps_its_start() -> No
     with pytest.raises(ValueError, match=r"upsample must be one of \('bilinear', 'smooth'\), got upsample='cubic'"):
         FitConfig(upsample="cubic")
     network = new_network(FitConfig(width=4, upsample="smooth"))
-    assert isinstance(network, LocalAffineNet) and network.config() == {"width": 4, "upsample": "smooth"}
+    assert isinstance(network, LocalAffineNet)
+    assert network.config() == {"width": 4, "upsample": "smooth", "curves": True}
 
 
 def test_the_smooth_field_keeps_a_constant_and_a_ramp_and_bends_at_every_phase_alike() -> None:
@@ -175,7 +176,7 @@ def test_a_fit_that_never_beats_its_start_returns_the_start() -> None:
     images = dead_leaves_images(4, 64, seed=7)
     pairs = [(image, (image.float() * 0.8 + 10).clamp(0, 255).to(torch.uint8)) for image in images]
     config = FitConfig(epochs=2, crop=32, batch_size=4, crops_per_pair=2, lr=5.0, patience=0, precision="float32")
-    start = LocalAffineNet(config.width)
+    start = LocalAffineNet(config.width, curves=True)
     with torch.no_grad():
         start.linear.weight.mul_(0.8)
         start.linear.bias.fill_(10 / 255)
@@ -187,7 +188,7 @@ def test_a_fit_that_never_beats_its_start_returns_the_start() -> None:
 def test_a_start_of_another_architecture_is_refused() -> None:
     images = dead_leaves_images(2, 32, seed=8)
     pairs = [(image, image) for image in images]
-    with pytest.raises(ValueError, match="initial must be a network of arch 'local_affine' and width 64"):
+    with pytest.raises(ValueError, match="initial must be a network of arch 'local_affine', width 64 and curves True"):
         fit_network(pairs, [], FitConfig(epochs=1, crop=32), initial=DomainShiftNet())
 
 

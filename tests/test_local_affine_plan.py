@@ -19,14 +19,17 @@ TOLERANCE = 2e-6
 SIZES = [(1, 3, 1, 1), (2, 3, 5, 7), (3, 3, 37, 61), (1, 3, 64, 48), (2, 3, 132, 128)]
 
 
-def _network(upsample: str = "bilinear", seed: int = 0, width: int = 16) -> LocalAffineNet:
-    """A LocalAffineNet with every parameter drawn small (so that few outputs are clamped)."""
-    network = LocalAffineNet(width, upsample=upsample)
+def _network(upsample: str = "bilinear", seed: int = 0, width: int = 16, curves: bool = False) -> LocalAffineNet:
+    """A LocalAffineNet with every parameter drawn small (so that few outputs are clamped); its curves (if any) bent
+    away from the identity."""
+    network = LocalAffineNet(width, upsample=upsample, curves=curves)
     generator = torch.Generator().manual_seed(seed)
     with torch.no_grad():
         for parameter in network.parameters():
             parameter.copy_(torch.randn(parameter.shape, generator=generator) * 0.08)
         network.linear.weight[:, :, 3, 3] += torch.eye(3)
+        if curves:
+            network.curve.copy_(torch.linspace(0, 1, network.curve.shape[-1]) ** torch.tensor([0.6, 1.3]).view(2, 1, 1))
     return network.eval()
 
 
@@ -34,10 +37,14 @@ def _image(shape: tuple[int, ...], seed: int = 1) -> torch.Tensor:
     return torch.rand(shape, generator=torch.Generator().manual_seed(seed))
 
 
-@pytest.mark.parametrize("upsample", FIELD_UPSAMPLING)
+#: Both field upsamplings without curves, and one with them.
+NETWORKS = [(upsample, False) for upsample in FIELD_UPSAMPLING] + [("smooth", True)]
+
+
+@pytest.mark.parametrize(("upsample", "curves"), NETWORKS)
 @pytest.mark.parametrize("shape", SIZES)
-def test_the_plan_follows_the_module_at_every_size(shape, upsample):
-    network = _network(upsample)
+def test_the_plan_follows_the_module_at_every_size(shape, upsample, curves):
+    network = _network(upsample, curves=curves)
     image = _image(shape)
     with torch.no_grad():
         exact = network(image)
@@ -68,9 +75,11 @@ def test_every_image_gets_the_bytes_it_gets_alone():
             assert torch.equal(plan.run(batch[index : index + 1]), together[index : index + 1])
 
 
-def test_uint8_images_are_read_as_their_value_over_255():
-    plan = LocalAffineInference(_network())
-    image = torch.randint(0, 256, (2, 3, 40, 36), generator=torch.Generator().manual_seed(3), dtype=torch.uint8)
+@pytest.mark.parametrize("curves", [False, True])
+def test_uint8_images_are_read_as_their_value_over_255(curves):
+    """With curves, a byte image's input curve is a table lookup: the same bytes as the curve on the floats."""
+    plan = LocalAffineInference(_network(curves=curves))
+    image = torch.randint(0, 256, (2, 3, 41, 37), generator=torch.Generator().manual_seed(3), dtype=torch.uint8)
     assert torch.equal(plan.run(image), plan.run(image.float() / 255))
 
 

@@ -28,6 +28,7 @@ FAST: dict[str, Any] = {
     "width": 64,
     "arch": "local_affine",
     "upsample": "bilinear",
+    "curves": "channel",
     "val_fraction": 0.15,
     "effects": ("noise", "vignetting"),
     "texture": "match",
@@ -44,6 +45,7 @@ PAPER: dict[str, Any] = {
     "schedule": "step",
     "patience": 0,
     "arch": "paper",
+    "curves": "none",
     "texture": "none",
 }
 RECIPES: dict[str, dict[str, Any]] = {"fast": FAST, "paper": PAPER}
@@ -74,6 +76,10 @@ SCHEDULES: tuple[str, ...] = ("step", "cosine")
 ARCHS: tuple[str, ...] = ("paper", "local_affine")
 #: How ``local_affine`` brings its colour field to full resolution (``camdegrade.network.FIELD_UPSAMPLING``).
 UPSAMPLINGS: tuple[str, ...] = ("bilinear", "smooth")
+#: ``local_affine``'s pointwise curves (``camdegrade.network.LocalAffineNet``'s ``curves``): ``channel``, one learned
+#: curve per channel before its filter and one after its colour transform (a lens blurs linear light and the ISP's
+#: tone curve follows it); ``none``, the network without them (what profiles written before this option hold).
+CURVES: tuple[str, ...] = ("none", "channel")
 TRAIN_PRECISIONS: tuple[str, ...] = ("auto", "float32", "bfloat16")
 #: ``match``: after the effect stages, a blur and a sharpening that match the profile's band power to the captures'
 #: (:mod:`camdegrade.fitting.texture`), then a noise reduction that matches its faint detail to theirs
@@ -112,6 +118,13 @@ FIELDS: tuple[RecipeField, ...] = (
         "choice",
         "local_affine's colour field: bilinear, or smooth (its slope does not change every 4 pixels)",
         UPSAMPLINGS,
+    ),
+    RecipeField(
+        "curves",
+        "choice",
+        "local_affine's pointwise curves: channel (one per channel before its filter and after its colour "
+        "transform, as a lens blurs linear light before the tone curve) or none",
+        CURVES,
     ),
     RecipeField("val_fraction", "fraction", "share of scenes held out to choose the best epoch"),
     RecipeField("effects", "names", "effect stages fitted after the network, from the registry (none: network only)"),

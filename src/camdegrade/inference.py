@@ -20,6 +20,7 @@ from camdegrade.network import (
     LocalAffineNet,
     ShiftNetwork,
     check_batch,
+    piecewise_linear,
     smoothed,
 )
 from camdegrade.synthetic import dead_leaves_images
@@ -294,6 +295,8 @@ class LocalAffineInference:
         self.dtype = dtype
         self.fingerprint = fingerprint
         self.smooth = network.upsample == "smooth"
+        self.curve = network.curve.detach().clone() if network.curves else None
+        self._byte_curve = None if self.curve is None else byte_curve(self.curve[0])
         self._fused = _use_fused_kernels(dtype)
         channels_last = torch.channels_last
         with torch.no_grad():
@@ -325,13 +328,25 @@ class LocalAffineInference:
             for index in range(n):
                 one = image[index : index + 1]
                 unit = bytes_to_unit(one) if one.dtype == torch.uint8 else one.float()
+                curved = self._input_curve(one, unit)
                 if pad_bottom or pad_right:
                     unit = F.pad(unit, (0, pad_right, 0, pad_bottom), mode="replicate")
-                output[index] = self._run_aligned(unit)[0, :, :height, :width]
+                    curved = F.pad(curved, (0, pad_right, 0, pad_bottom), mode="replicate")
+                output[index] = self._run_aligned(unit, curved)[0, :, :height, :width]
         return output
 
-    def _run_aligned(self, image: Tensor) -> Tensor:
-        """``clamp(A(x) · (K ∗ x) + b(x), 0, 1)`` for one ``(1, 3, H, W)`` image with H and W multiples of 4."""
+    def _input_curve(self, image: Tensor, unit: Tensor) -> Tensor:
+        """``f(x)`` of one image (``unit`` itself without curves): a byte image by table lookup, the same values."""
+        if self.curve is None:
+            return unit
+        if image.dtype == torch.uint8:
+            offsets = torch.arange(0, 3 * 256, 256).view(1, 3, 1, 1)
+            return torch.take(self._byte_curve, image.long().add_(offsets))
+        return piecewise_linear(unit, self.curve[0])
+
+    def _run_aligned(self, image: Tensor, curved: Tensor) -> Tensor:
+        """``clamp(g(A(x) · (K ∗ f(x)) + b(x)), 0, 1)`` for one ``(1, 3, H, W)`` image with H and W multiples of 4
+        and ``curved`` = ``f(image)`` (``f`` and ``g`` the network's curves, or none: ``curved`` is ``image``)."""
         hidden = image.to(self.dtype)
         for weight, bias in self.encode:
             hidden = _conv_relu(hidden, weight, bias, self._fused)
@@ -341,12 +356,14 @@ class LocalAffineInference:
         field = torch.addmm(second_bias, self._decode1(pixels), second.t()).float()
         field = upsampled_field(field.t().reshape(1, -1, rows, cols), self.smooth)
         half = self.linear[0].shape[-1] // 2
-        padded = F.pad(image, (half, half, half, half), mode="replicate").contiguous(memory_format=torch.channels_last)
+        padded = F.pad(curved, (half, half, half, half), mode="replicate").contiguous(memory_format=torch.channels_last)
         filtered = F.conv2d(padded, *self.linear)[:, :3].contiguous()
         out = filtered + field[:, 9:]
         for row in range(3):
             for column in range(3):
                 out[:, row].addcmul_(field[:, 3 * row + column], filtered[:, column])
+        if self.curve is not None:
+            out = piecewise_linear(out, self.curve[1])
         return out.clamp_(0.0, 1.0)
 
     def _decode1(self, pixels: Tensor) -> Tensor:
@@ -372,6 +389,14 @@ FILTER_OUTPUTS = 8
 #: against 0.96 ms on a Xeon with AMX, 0.82 against 0.94 on an AMD EPYC Zen 3; at 128 rows the interpolation is
 #: already as fast (2 threads).
 MATRIX_UPSAMPLING_MAX = 64
+
+
+def byte_curve(knots: Tensor) -> Tensor:
+    """The curve through ``knots`` ``(3, K)`` at every byte value, per channel, flattened ``(3 · 256,)``: exactly what
+    :func:`~camdegrade.network.piecewise_linear` gives a byte image read as ``value / 255`` (the same arithmetic on
+    the same floats), in a lookup of about a third of its time."""
+    values = bytes_to_unit(torch.arange(256, dtype=torch.uint8)).expand(1, 3, 1, 256)
+    return piecewise_linear(values, knots).reshape(-1)
 
 
 def upsampled_field(field: Tensor, smooth: bool) -> Tensor:

@@ -119,6 +119,8 @@ FIELD_UPSAMPLING = ("bilinear", "smooth")
 #: 1/4 and 1/2 cycles/pixel (the period-4 harmonics), and after bilinear upsampling (itself two 4-tap boxes and a
 #: 2-tap box on the zero-filled field) makes the field a smooth spline of its quarter-resolution samples.
 FIELD_SMOOTHING = (1.0, 2.0, 2.0, 2.0, 1.0)
+#: Knots of :class:`LocalAffineNet`'s optional per-channel curves (``curves=True``), evenly spaced on [0, 1].
+CURVE_KNOTS = 17
 
 
 class LocalAffineNet(ShiftNetwork):
@@ -132,6 +134,13 @@ class LocalAffineNet(ShiftNetwork):
     resolution, never through a stride-2 decoder, so nothing repeats every 4 pixels; the transform is smooth, so a
     tone curve is followed locally.
 
+    With ``curves=True``: ``output = clamp(g(A(x) · (K ∗ f(x)) + b(x)), 0, 1)``, where ``f`` and ``g`` are learned
+    pointwise curves, one per channel (piecewise linear through :data:`CURVE_KNOTS` values, the identity at first).
+    A camera's lens blurs linear light and its tone curve follows: ``f`` can decode, ``K`` blur, ``g`` apply the tone
+    curve, at every pixel, where the smooth field alone bends its transform across an edge at a quarter of the
+    resolution and prints that every 4 pixels (a soft camera with a tone curve: grid ratio 3.3 without the curves,
+    1.2 with them; docs/fitting.md).
+
     Initialised to pass the image through (``K`` the identity, ``A`` the identity, ``b`` zero); a fit starts it
     from a least-squares linear baseline (:func:`camdegrade.fitting.baseline.fit_linear_baseline`). About the
     paper network's arithmetic per pixel (its encoder dominates both).
@@ -140,6 +149,8 @@ class LocalAffineNet(ShiftNetwork):
         width: channels of the first conv layer, as :class:`DomainShiftNet`'s.
         upsample: how the colour field reaches full resolution, one of :data:`FIELD_UPSAMPLING` (``"bilinear"``,
             the default and what older profiles hold, or ``"smooth"``, whose slope does not change every 4 pixels).
+        curves: whether to learn the curves ``f`` and ``g`` (the fast recipe's default; profiles written before
+            they existed hold none and load without them).
 
     References:
         M. Gharbi, J. Chen, J. T. Barron, S. W. Hasinoff, F. Durand, "Deep Bilateral Learning for Real-Time Image
@@ -155,11 +166,17 @@ class LocalAffineNet(ShiftNetwork):
 
     arch = "local_affine"
 
-    def __init__(self, width: int = 64, upsample: str = "bilinear") -> None:
+    def __init__(self, width: int = 64, upsample: str = "bilinear", curves: bool = False) -> None:
         super().__init__(width)
         if upsample not in FIELD_UPSAMPLING:
             raise ValueError(f"upsample must be one of {FIELD_UPSAMPLING}, got upsample={upsample!r}")
+        if not isinstance(curves, bool):
+            raise ValueError(f"curves must be True or False, got curves={curves!r}")
         self.upsample = upsample
+        self.curves = curves
+        if curves:
+            # rows: the input curve (before K, per input channel) and the output curve (after the colour transform)
+            self.curve = nn.Parameter(torch.linspace(0.0, 1.0, CURVE_KNOTS).repeat(2, 3, 1))
         self.linear = nn.Conv2d(3, 3, kernel_size=LINEAR_TAPS)
         self.decode1 = nn.Conv2d(2 * width, width, kernel_size=1)
         self.decode2 = nn.Conv2d(width, FIELD_CHANNELS, kernel_size=1)
@@ -171,7 +188,7 @@ class LocalAffineNet(ShiftNetwork):
             self.decode2.bias.zero_()
 
     def config(self) -> dict[str, Any]:
-        return super().config() | {"upsample": self.upsample}
+        return super().config() | {"upsample": self.upsample} | ({"curves": True} if self.curves else {})
 
     def filtered(self, image: Tensor) -> Tensor:
         """``K ∗ x``, with the border replicated so that edges are not darkened."""
@@ -185,12 +202,60 @@ class LocalAffineNet(ShiftNetwork):
         return smoothed(field) if self.upsample == "smooth" else field
 
     def forward_aligned(self, image: Tensor) -> Tensor:
-        filtered = self.filtered(image)
+        filtered = self.filtered(piecewise_linear(image, self.curve[0]) if self.curves else image)
         field = self.colour_field(image)
         n, _, height, width = filtered.shape
         matrix = field[:, :9].reshape(n, 3, 3, height, width)
         mixed = filtered + (matrix * filtered[:, None]).sum(dim=2)
-        return (mixed + field[:, 9:]).clamp(0.0, 1.0)
+        out = mixed + field[:, 9:]
+        if self.curves:
+            out = piecewise_linear(out, self.curve[1])
+        return out.clamp(0.0, 1.0)
+
+
+def piecewise_linear(image: Tensor, knots: Tensor) -> Tensor:
+    """Each channel ``c`` of ``image`` ``(N, C, H, W)`` through the curve through ``knots[c]`` ``(C, K)``, the values
+    at ``K`` evenly spaced points of [0, 1]; inputs outside [0, 1] take the end values. Differentiable in both, with
+    gradients summed in a fixed order (same seed, same bytes: a gather's own backward adds them in any order)."""
+    if torch.is_grad_enabled() and (image.requires_grad or knots.requires_grad):
+        return _PiecewiseLinear.apply(image, knots)
+    _, weight, low, high = _segments(image, knots)
+    return high.sub_(low).mul_(weight).add_(low)  # low + weight · (high − low), as the autograd path computes it
+
+
+def _segments(image: Tensor, knots: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    """Per value of ``image``: its segment's index into ``knots`` flattened, its place in the segment (0 to 1), and
+    the knot values at the segment's two ends."""
+    segments = knots.shape[-1] - 1
+    position = image.clamp(0.0, 1.0).mul_(segments)
+    index = position.floor().clamp_(max=segments - 1)
+    weight = position.sub_(index)
+    flat = index.long() + (torch.arange(image.shape[1], device=image.device) * (segments + 1)).view(1, -1, 1, 1)
+    table = knots.reshape(-1)
+    return flat, weight, torch.take(table, flat), torch.take(table, flat + 1)
+
+
+class _PiecewiseLinear(torch.autograd.Function):
+    @staticmethod
+    def forward(ctx: Any, image: Tensor, knots: Tensor) -> Tensor:
+        flat, weight, low, high = _segments(image, knots)
+        inside = (image >= 0.0) & (image <= 1.0)
+        ctx.save_for_backward(flat, weight, (high - low) * (knots.shape[-1] - 1) * inside)
+        ctx.knots_shape = knots.shape
+        return low + weight * (high - low)
+
+    @staticmethod
+    def backward(ctx: Any, grad: Tensor) -> tuple[Tensor | None, Tensor | None]:
+        flat, weight, slope = ctx.saved_tensors
+        grad_image = grad * slope if ctx.needs_input_grad[0] else None
+        grad_knots = None
+        if ctx.needs_input_grad[1]:
+            indices, share = flat.reshape(-1), (grad * weight).reshape(-1)
+            size = ctx.knots_shape.numel()
+            low = torch.bincount(indices, weights=grad.reshape(-1) - share, minlength=size)
+            high = torch.bincount(indices + 1, weights=share, minlength=size)
+            grad_knots = (low + high).to(grad.dtype).reshape(ctx.knots_shape)
+        return grad_image, grad_knots
 
 
 def smoothed(field: Tensor) -> Tensor:
@@ -213,13 +278,15 @@ def check_batch(image: Tensor) -> None:
 ARCHITECTURES: dict[str, type[ShiftNetwork]] = {cls.arch: cls for cls in (DomainShiftNet, LocalAffineNet)}
 
 
-def build_network(arch: str = "paper", width: int = 64, upsample: str = "bilinear") -> ShiftNetwork:
+def build_network(
+    arch: str = "paper", width: int = 64, upsample: str = "bilinear", *, curves: bool = False
+) -> ShiftNetwork:
     """A fresh network of architecture ``arch`` (a key of :data:`ARCHITECTURES`) and ``width``; ``upsample`` (one of
-    :data:`FIELD_UPSAMPLING`) is :class:`LocalAffineNet`'s, which the paper network has no use for."""
+    :data:`FIELD_UPSAMPLING`) and ``curves`` are :class:`LocalAffineNet`'s, which the paper network has no use for."""
     if arch not in ARCHITECTURES:
         raise ValueError(f"arch must be one of {tuple(ARCHITECTURES)}, got arch={arch!r}")
     if ARCHITECTURES[arch] is LocalAffineNet:
-        return LocalAffineNet(width, upsample)
+        return LocalAffineNet(width, upsample, curves)
     if upsample not in FIELD_UPSAMPLING:
         raise ValueError(f"upsample must be one of {FIELD_UPSAMPLING}, got upsample={upsample!r}")
     return ARCHITECTURES[arch](width)

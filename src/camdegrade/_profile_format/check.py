@@ -141,7 +141,7 @@ def _declared(
 #: torch; a test keeps the two in step), each with the tensors it holds for a width.
 NETWORK_CLASSES = ("DomainShiftNet", "LocalAffineNet")
 #: Taps of ``LocalAffineNet``'s full-resolution filter and channels of its colour field (``camdegrade.network``).
-LINEAR_TAPS, FIELD_CHANNELS = 7, 12
+LINEAR_TAPS, FIELD_CHANNELS, CURVE_KNOTS = 7, 12, 17
 
 
 def network_class(spec: Any, path: Path) -> str:
@@ -174,7 +174,7 @@ def check_network_config(config: Any, arch: str = "DomainShiftNet") -> None:
     step)."""
     if not isinstance(config, dict):
         raise TypeError(f"the network config must be a mapping, got {type(config).__name__}")
-    accepted = {"upsample"} if arch == "LocalAffineNet" else set()
+    accepted = {"upsample", "curves"} if arch == "LocalAffineNet" else set()
     unexpected = sorted(set(config) - {"width", *accepted})
     if unexpected:
         raise TypeError(f"unexpected network config keys {short_repr(unexpected)}")
@@ -184,9 +184,12 @@ def check_network_config(config: Any, arch: str = "DomainShiftNet") -> None:
     upsample = config.get("upsample", UPSAMPLINGS[0])
     if upsample not in UPSAMPLINGS:
         raise ValueError(f"upsample must be one of {UPSAMPLINGS}, got upsample={short_repr(upsample)}")
+    curves = config.get("curves", False)
+    if not isinstance(curves, bool):
+        raise ValueError(f"curves must be True or False, got curves={short_repr(curves)}")
 
 
-def network_shapes(width: int, arch: str = "DomainShiftNet") -> dict[str, tuple[int, ...]]:
+def network_shapes(width: int, arch: str = "DomainShiftNet", curves: bool = False) -> dict[str, tuple[int, ...]]:
     """The tensors of the network class ``arch`` at ``width`` in a profile (a test compares them with the module's)."""
     double = 2 * width
     shapes = {
@@ -196,14 +199,18 @@ def network_shapes(width: int, arch: str = "DomainShiftNet") -> dict[str, tuple[
         "network.encode2.bias": (double,),
     }
     if arch == "LocalAffineNet":
-        return shapes | {
-            "network.linear.weight": (3, 3, LINEAR_TAPS, LINEAR_TAPS),
-            "network.linear.bias": (3,),
-            "network.decode1.weight": (width, double, 1, 1),
-            "network.decode1.bias": (width,),
-            "network.decode2.weight": (FIELD_CHANNELS, width, 1, 1),
-            "network.decode2.bias": (FIELD_CHANNELS,),
-        }
+        return (
+            shapes
+            | {
+                "network.linear.weight": (3, 3, LINEAR_TAPS, LINEAR_TAPS),
+                "network.linear.bias": (3,),
+                "network.decode1.weight": (width, double, 1, 1),
+                "network.decode1.bias": (width,),
+                "network.decode2.weight": (FIELD_CHANNELS, width, 1, 1),
+                "network.decode2.bias": (FIELD_CHANNELS,),
+            }
+            | ({"network.curve": (2, 3, CURVE_KNOTS)} if curves else {})
+        )
     return shapes | {
         "network.decode1.weight": (double, width, 2, 2),
         "network.decode1.bias": (width,),
@@ -221,7 +228,7 @@ def network_shapes_of(spec: Any, path: Path) -> dict[str, tuple[int, ...]]:
         check_network_config(config, spec["arch"])
     except (TypeError, ValueError) as error:
         raise ProfileError(f"profile {str(path)!r} has invalid metadata: {error}") from None
-    return network_shapes(config.get("width", DEFAULT_NETWORK_WIDTH), spec["arch"])
+    return network_shapes(config.get("width", DEFAULT_NETWORK_WIDTH), spec["arch"], config.get("curves", False))
 
 
 # --- the effects --------------------------------------------------------------------------------------------------

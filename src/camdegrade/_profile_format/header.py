@@ -209,7 +209,9 @@ class ProfileHeader:
         self.check_values()
         metadata = self.metadata
         spec = metadata.get("network")
-        network = "none" if spec is None else f"{network_class(spec, self.path)}({network_config(spec, self.path)})"
+        # the config's keys sorted (what older files leave out comes first from network_config), as describe() shows
+        config = None if spec is None else dict(sorted(network_config(spec, self.path).items()))
+        network = "none" if spec is None else f"{network_class(spec, self.path)}({config})"
         lines = [
             f"name:        {self.name or '(unnamed)'}",
             f"description: {self.description or '-'}",
@@ -279,7 +281,7 @@ def read_header(name_or_path: str | os.PathLike[str]) -> ProfileHeader:
 
     Examples:
         >>> read_header("city100-iphonex").metadata["network"]
-        {'arch': 'LocalAffineNet', 'config': {'upsample': 'bilinear', 'width': 64}}
+        {'arch': 'LocalAffineNet', 'config': {'curves': True, 'upsample': 'bilinear', 'width': 64}}
     """
     path = resolve_profile_path(name_or_path)
     refuse_non_safetensors(path)

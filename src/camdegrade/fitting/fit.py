@@ -124,7 +124,11 @@ def fit_profile(
     check_device(device)
     initial, init_label = _initial_network(init_from, config)
     if initial is not None:  # a refit continues the network it starts from, whatever the recipe's default
-        config = config.replace(arch=initial.arch, upsample=getattr(initial, "upsample", None))
+        config = config.replace(
+            arch=initial.arch,
+            upsample=getattr(initial, "upsample", None),
+            curves="channel" if getattr(initial, "curves", False) else "none",
+        )
     with torch_threads(threads):
         pair_set = pairs if isinstance(pairs, PairSet) else PairSet.load(pairs, log=say)
         train, val = pair_set.validation_split(config.val_fraction, config.seed)

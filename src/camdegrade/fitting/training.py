@@ -27,7 +27,7 @@ from camdegrade._checks import check_seed
 from camdegrade._distributed import is_distributed, rank_and_world_size
 from camdegrade._files import check_writable
 from camdegrade._pixels import as_unit
-from camdegrade._recipes import FAST, RECIPES, TEXTURES, TRAINING_FIELDS, UPSAMPLINGS
+from camdegrade._recipes import CURVES, FAST, RECIPES, TEXTURES, TRAINING_FIELDS, UPSAMPLINGS
 from camdegrade._seeds import derive_seed, derived_generator
 from camdegrade.effects import check_effect_names
 from camdegrade.errors import CamdegradeError
@@ -74,6 +74,8 @@ class FitConfig:
             4-pixel grid) or ``"paper"`` (the paper recipe's, :class:`~camdegrade.network.DomainShiftNet`).
         upsample: how ``local_affine`` brings its colour field to full resolution, one of
             :data:`~camdegrade.network.FIELD_UPSAMPLING` (the paper network ignores it).
+        curves: ``local_affine``'s pointwise curves, one of :data:`~camdegrade._recipes.CURVES`: ``"channel"`` (the
+            fast recipe's) or ``"none"`` (the paper recipe's; the paper network ignores it).
         val_fraction: share of *scenes* held out for choosing the best epoch and checking the effect stages
             (``fit_profile``; ``distill_profile`` holds out that share of its images, at least one).
         effects: effect stages ``fit_profile`` fits after the network (names from ``EFFECTS``; ``()``: network only).
@@ -96,6 +98,7 @@ class FitConfig:
     width: int = FAST["width"]
     arch: str = FAST["arch"]
     upsample: str = FAST["upsample"]
+    curves: str = FAST["curves"]
     val_fraction: float = FAST["val_fraction"]
     effects: tuple[str, ...] = FAST["effects"]
     texture: str = FAST["texture"]
@@ -119,6 +122,7 @@ class FitConfig:
             ("arch", tuple(ARCHITECTURES)),
             ("texture", TEXTURES),
             ("upsample", UPSAMPLINGS),
+            ("curves", CURVES),
         )
         for name, allowed in choices:
             if getattr(self, name) not in allowed:
@@ -338,16 +342,17 @@ def new_network(config: FitConfig) -> ShiftNetwork:
     """A network of ``config.arch`` and ``config.width``, initialised from ``config.seed``."""
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(derive_seed(config.seed, "network-init"))
-        return build_network(config.arch, config.width, config.upsample)
+        return build_network(config.arch, config.width, config.upsample, curves=config.curves == "channel")
 
 
 def _new_training(config: FitConfig, device: torch.device | str, initial: ShiftNetwork | None = None):
     network = new_network(config)
     if initial is not None:
-        if initial.arch != network.arch or initial.width != network.width:
+        curves, wanted = getattr(initial, "curves", False), getattr(network, "curves", False)
+        if initial.arch != network.arch or initial.width != network.width or curves != wanted:
             raise ValueError(
-                f"initial must be a network of arch {network.arch!r} and width {network.width} (the recipe's), "
-                f"got arch={initial.arch!r}, width={initial.width}"
+                f"initial must be a network of arch {network.arch!r}, width {network.width} and curves {wanted} "
+                f"(the recipe's), got arch={initial.arch!r}, width={initial.width}, curves={curves}"
             )
         network.load_state_dict(initial.state_dict())  # copies the values, from any device
     network.to(device)
