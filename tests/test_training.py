@@ -101,7 +101,8 @@ def test_callback_sees_every_epoch():
 
 def test_the_paper_recipe_halves_the_learning_rate_every_30_epochs():
     paper = {"epochs": 100, "crop": 128, "batch_size": 32, "lr": 0.01, "lr_halving_epochs": 30, "crops_per_pair": 8}
-    assert FitConfig.recipe("paper") == FitConfig(**paper, schedule="step", patience=0, arch="paper", texture="none")
+    expected = FitConfig(**paper, schedule="step", patience=0, arch="paper", curves="none", texture="none")
+    assert FitConfig.recipe("paper") == expected
     seen = []
     config = FitConfig.recipe("paper", epochs=31, crop=16, batch_size=8, crops_per_pair=1)
     fit_network(synthetic_pairs(2, 16), [], config, callback=seen.append)
