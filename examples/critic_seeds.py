@@ -2,7 +2,7 @@
 pairs of a simulated camera of ``simulated_camera_fidelity.py``, for saved profiles of that camera.
 
 One critic (one seed, trained on the even held-out pairs, scored on the odd ones) either finds what tells a
-simulation from its camera or does not; on the soft camera single critics range from 0.59 to 0.99 for one profile.
+simulation from its camera or does not; on the soft camera single critics range from 0.60 to 0.99 for one profile.
 This trains ``--seeds`` critics on each half and scores each on the other half, with and without the clean source,
 and prints mean ± standard deviation and every accuracy. Run from the repo root::
 
