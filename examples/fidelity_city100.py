@@ -8,14 +8,16 @@ simulation of the clean images measured against the real captures with :mod:`cam
 - noise, banding: the flat-pixel noise std and the row-mean std, simulation over capture;
 - PSNR: mean paired PSNR of simulation against capture;
 - critic: the held-out accuracy of the learned critic (:mod:`camdegrade.measures.critic`) with the clean source
-  (paired) and from the image alone (what a model trained on the simulation sees); trained on 8 of the scenes,
-  scored on the other 8 (0.5: cannot tell).
+  (paired) and from the image alone (what a model trained on the simulation sees): ``--critic-seeds`` seeds, each
+  training one critic on 8 of the scenes and scoring it on the other 8 and back (0.5: cannot tell); the mean ± the
+  critics' std, and the 95 % interval over scenes.
 
 Rows: the clean source itself, ``city100-iphonex`` and ``city100-iphonex-fast`` sampled as training sees them
 (``CameraDegrade``, seed = scene index), the built-in's network alone, and the built-in followed by an unsharp
-mask (σ 1, amount 0.5). It prints a markdown table and writes ``docs/fidelity_city100.png``: real and simulated
-crops side by side (flat at 1:1, textured at 2× nearest-neighbour) and the radial power spectra. Run from the
-repo root::
+mask (σ 1, amount 0.5), and the simple answer issue 23 compares with: a blur and a 12-number affine colour map,
+both least squares on scenes 001–055 (``examples/critic_evidence.py``). It prints a markdown table and writes
+``docs/fidelity_city100.png``: real and simulated crops side by side (flat at 1:1, textured at 2×
+nearest-neighbour) and the radial power spectra. Run from the repo root::
 
     OMP_NUM_THREADS=2 .venv/bin/python examples/fidelity_city100.py [--data DIR] [--png PATH] [--json PATH]
 """
@@ -30,6 +32,7 @@ from pathlib import Path
 
 import torch
 import torch.nn.functional as F
+from critic_evidence import TRAINING, blurred_and_mapped, city100_pairs, fit_blur_and_colour_map
 from PIL import Image, ImageDraw
 from torch import Tensor
 
@@ -38,14 +41,21 @@ from camdegrade._pixels import as_unit, unit_to_bytes
 from camdegrade.fitting import discover_pairs, filter_pairs, load_pair
 from camdegrade.functional.analysis import flat_mask, gradient_energy, hann2d, luma
 from camdegrade.functional.blur import blur_image
-from camdegrade.measures.critic import critic_test
+from camdegrade.measures.critic import repeated_critic_test
 from camdegrade.measures.fidelity import BAND_EDGES, measure_fidelity
 
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_DATA = ROOT.parent / "shared" / "data" / "real-pairs"
 HELD_OUT = sorted({f"{n:03d}" for n in range(56, 71)} | {"098"})
 SHOWN = ("060", "062", "098")
-ROWS = ["clean source", "city100-iphonex", "city100-iphonex-fast", "network alone", "built-in + unsharp"]
+ROWS = [
+    "clean source",
+    "city100-iphonex",
+    "city100-iphonex-fast",
+    "network alone",
+    "built-in + unsharp",
+    "blur + colour map",
+]
 SHOWN_ROWS = ["real", "city100-iphonex", "city100-iphonex-fast", "network alone", "built-in + unsharp"]
 #: Extra rows: ``--profile LABEL=PATH`` profiles (a refit to compare with the built-ins), sampled like them.
 EXTRA: dict[str, CameraDegrade] = {}
@@ -94,9 +104,9 @@ def radial_power(image: Tensor, bins: int = 64) -> Tensor:
     return sums / torch.bincount(index[inside], minlength=bins).clamp_min(1)
 
 
-def measure(data: Path, seed: int = 0) -> tuple[list[dict], dict, dict]:
+def measure(data: Path, critic_seeds: int = 4) -> tuple[list[dict], dict, dict]:
     """The table's rows, the crops shown, and the mean radial spectra per row."""
-    frames = {name: [] for name in ("clean", "real", *ROWS)}
+    frames: dict[str, list[Tensor]] = {name: [] for name in ("clean", "real", *ROWS)}
     shown: dict[str, dict[str, Tensor]] = {}
     for index, (scene, clean, real) in enumerate(held_out_pairs(data)):
         images = {"clean": clean, "real": real, **simulations(index, clean)}
@@ -104,18 +114,19 @@ def measure(data: Path, seed: int = 0) -> tuple[list[dict], dict, dict]:
             frames[name].append(image)
         if scene in SHOWN:
             shown[scene] = images
+    blur, colour_map = fit_blur_and_colour_map(city100_pairs(data, TRAINING))
+    frames["blur + colour map"] = [
+        unit_to_bytes(blurred_and_mapped(clean, blur, colour_map)) for clean in frames["clean"]
+    ]
     spectra = {name: torch.stack([radial_power(i) for i in frames[name]]).mean(0) for name in ("real", *ROWS)}
     cleans = [as_unit(image) for image in frames["clean"]]
     reals = [as_unit(image) for image in frames["real"]]
-    fit, check = slice(0, None, 2), slice(1, None, 2)
     rows = []
     for name in ROWS:
         sims = [as_unit(image) for image in frames[name]]
         report = measure_fidelity(sims, reals, cleans)
         critics = {
-            mode: critic_test(
-                (cleans[fit], reals[fit], sims[fit]), (cleans[check], reals[check], sims[check]), seed, image_only=only
-            ).to_dict()
+            mode: repeated_critic_test((cleans, reals, sims), HELD_OUT, critic_seeds, image_only=only).to_dict()
             for mode, only in (("paired", False), ("image_only", True))
         }
         rows.append({"row": name, **report.to_dict(), "critic": critics})
@@ -141,10 +152,13 @@ def format_table(rows: list[dict]) -> str:
         lines.append(
             f"| {row['row']} | {_number(row['grid_ratio'], 1)} ({row['grid_sim']:.3f} / {row['grid_real']:.3f}) "
             f"| {band_text} | {_number(row['noise_ratio'])} | {_number(row['banding_ratio'])} | {row['psnr']:.2f} "
-            f"| {paired['accuracy']:.3f} [{paired['low']:.2f}–{paired['high']:.2f}] "
-            f"| {only['accuracy']:.3f} [{only['low']:.2f}–{only['high']:.2f}] |"
+            f"| {_critic(paired)} | {_critic(only)} |"
         )
     return "\n".join(lines)
+
+
+def _critic(result: dict) -> str:
+    return f"{result['accuracy']:.3f} ± {result['std']:.2f} [{result['low']:.2f}–{result['high']:.2f}]"
 
 
 def _window(score: Tensor, side: int) -> tuple[int, int]:
@@ -222,6 +236,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--png", type=Path, default=ROOT / "docs" / "fidelity_city100.png")
     parser.add_argument("--json", type=Path, default=ROOT / "out" / "results" / "fidelity_city100.json")
     parser.add_argument("--profile", action="append", default=[], metavar="LABEL=PATH", help="an extra row")
+    parser.add_argument("--critic-seeds", type=int, default=4, help="critic seeds (two critics each)")
     args = parser.parse_args(argv)
     for item in args.profile:
         label, _, path = item.partition("=")
@@ -230,7 +245,7 @@ def main(argv: list[str] | None = None) -> int:
         SHOWN_ROWS.append(label)
     if not (args.data / "pairs.csv").is_file():
         parser.error(f"no pairs.csv in {args.data}; pass --data with the real-pairs folder")
-    rows, shown, spectra = measure(args.data)
+    rows, shown, spectra = measure(args.data, args.critic_seeds)
     print(format_table(rows))
     evidence_png(shown, spectra, args.png)
     print(f"wrote {args.png}")

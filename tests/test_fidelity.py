@@ -109,6 +109,22 @@ def test_measure_fidelity_reads_twice_the_noise_and_no_grid():
     assert report.psnr == pytest.approx(10 * math.log10(255**2 / 20), abs=0.3)  # error variance 2² + 4²
 
 
+def _flat_rows(offsets_levels: torch.Tensor) -> torch.Tensor:
+    """A flat grey 8-bit frame (96²) whose rows are offset by ``offsets_levels`` (96 values), as [0, 1] floats."""
+    return ((128 + offsets_levels)[None, :, None].expand(3, 96, 96).round() / 255).clone()
+
+
+def test_banding_of_flat_rows_is_one_and_of_striped_rows_is_read():
+    capture = _flat_rows(torch.zeros(96))  # a noiseless 8-bit camera: its rows do not vary at all
+    generator = torch.Generator().manual_seed(0)
+    flips = (torch.rand(3, 96, 96, generator=generator) < 0.03).float() / 255  # 3 % of pixels a level up
+    rounding = capture + flips  # row means 0.03 ± 0.02 levels: rounding, not banding
+    striped = _flat_rows(torch.randint(0, 2, (96,), generator=generator).float())  # rows of 128 or 129 levels
+    assert measure_fidelity([rounding], [capture], [capture]).banding_ratio == 1.0
+    banded = measure_fidelity([striped], [capture], [capture]).banding_ratio
+    assert banded is not None and banded > 5  # about 0.5 levels over the 0.05 floor
+
+
 def test_fidelity_report_is_strict_json_with_none_where_not_measurable():
     clean = torch.full((3, 32, 32), 0.5)  # too few flat pixels once eroded: noise and banding not measurable
     report = measure_fidelity([clean], [clean], [clean])

@@ -17,7 +17,7 @@ from camdegrade.fitting import FitConfig, fit_profile
 from camdegrade.fitting.evidence import noise_evidence
 from camdegrade.fitting.stages import _judge
 from camdegrade.io import write_image
-from camdegrade.measures.critic import split_critic_test
+from camdegrade.measures.critic import repeated_critic_test, split_critic_test
 from camdegrade.sim import VirtualCamera
 from camdegrade.synthetic import dead_leaves_images
 
@@ -75,10 +75,11 @@ def test_a_noisy_camera_keeps_its_noise_at_its_level_and_reports_the_critic() ->
     assert note["noise_ratio_without"] < 0.2 and 0.8 <= note["noise_ratio_with"] <= 1.25
     fidelity = profile.quality["fidelity"]
     assert 0.8 <= fidelity["noise_ratio"] <= 1.25
-    for key in ("critic_paired", "critic_image_only"):  # 4 validation scenes: 2 train the critic, 2 score it
+    for key in ("critic_paired", "critic_image_only"):  # 4 validation scenes: 2 train a critic, 2 score it, and back
         critic = fidelity[key]
-        assert critic["pairs"] == 2 and critic["patches"] == 2 * 2 * 24
+        assert critic["pairs"] == 4 and critic["patches"] == 4 * 2 * 24 and critic["critics"] == 4
         assert 0.0 <= critic["low"] <= critic["accuracy"] <= critic["high"] <= 1.0
+        assert min(critic["accuracies"]) <= critic["accuracy"] <= max(critic["accuracies"]) and critic["std"] >= 0
     assert sum(line.startswith("fidelity: critic accuracy") for line in lines) == 2, lines
 
 
@@ -183,6 +184,11 @@ def test_quality_lines_show_psnr_fidelity_and_critic_and_nothing_else_from_the_f
     )
     assert "grid ratio 0.76, bands log2 +0.01 -0.30 n/a n/a -2.20, noise ratio 1.02, banding ratio n/a" in lines[1]
     assert lines[2].endswith("paired 0.62 [95 % CI 0.55-0.70, 4 held-out pairs], image-only not run")
+    quality["fidelity"]["critic_image_only"] = {"accuracy": 0.7, "low": 0.6, "high": 0.8, "pairs": 8, "std": 0.05,
+                                                "critics": 4}  # fmt: skip
+    assert quality_lines(quality)[2].endswith(
+        "image-only 0.70 ± 0.05 over 4 critics [95 % CI 0.60-0.80, 8 held-out pairs]"
+    )
     assert quality_lines({"description": "no psnr"}) == []
 
 
@@ -201,3 +207,44 @@ def test_cli_fit_prints_the_quality_block_and_info_shows_it(tmp_path, capsys) ->
     assert "no critic (2 validation scene(s); it needs 4" in printed
     code, shown, _ = run_cli(["info", out], capsys)
     assert code == 0 and [line for line in shown.splitlines() if line.startswith("validation (2 pairs)")] == block
+
+
+def _told_apart(count: int = 4) -> tuple[list[torch.Tensor], list[torch.Tensor], list[torch.Tensor]]:
+    generator = torch.Generator().manual_seed(0)
+    cleans = [torch.rand(3, 40, 40, generator=generator) for _ in range(count)]
+    return cleans, cleans, [(clean * 0.5).clamp(0, 1) for clean in cleans]  # far from the captures
+
+
+def test_repeated_critics_score_every_pair_and_the_first_is_the_split_critic() -> None:
+    pairs, scenes = _told_apart(), ["b", "a", "d", "c"]
+    result = repeated_critic_test(pairs, scenes, seeds=2, steps=30, image_only=True)
+    first = split_critic_test(pairs, scenes, seed=0, steps=30, image_only=True)
+    assert len(result.accuracies) == 4 and result.accuracies[0] == first.accuracy  # seed 0, the first half trains
+    assert result.pairs == 4 and result.patches == 4 * 2 * 24 and result.accuracy > 0.9
+    assert min(result.accuracies) <= result.accuracy <= max(result.accuracies)
+    assert result.low <= result.accuracy <= result.high
+    again = repeated_critic_test(pairs, scenes, seeds=2, steps=30, image_only=True)
+    assert again.accuracies == result.accuracies and (again.low, again.high) == (result.low, result.high)
+    described = result.describe()
+    assert described.startswith(f"critic accuracy {result.accuracy:.2f} ± {result.std:.2f} over 4 critics")
+    stored = result.to_dict()
+    assert stored["critics"] == 4 and stored["accuracies"] == [round(a, 3) for a in result.accuracies]
+
+
+def test_repeated_critics_cannot_tell_a_simulation_that_is_the_capture() -> None:
+    cleans, reals, _ = _told_apart(6)
+    result = repeated_critic_test((cleans, reals, reals), list("abcdef"), seeds=2, steps=30, image_only=True)
+    assert result.accuracy == 0.5 and result.std == 0.0  # every patch twice, once with each label
+
+
+@pytest.mark.parametrize(
+    ("scenes", "seeds", "message"),
+    [
+        (["a"] * 4, 2, r"at least two scenes .* got 1 scene\(s\) for 4 pair\(s\)"),
+        (["a", "b", "c", "d"], 0, r"seeds must be a positive integer, got seeds=0"),
+        (["a", "b", "c", "d"], True, r"seeds must be a positive integer, got seeds=True"),
+    ],
+)
+def test_repeated_critics_refuse_what_they_cannot_do(scenes, seeds, message) -> None:
+    with pytest.raises(ValueError, match=message):
+        repeated_critic_test(_told_apart(), scenes, seeds)

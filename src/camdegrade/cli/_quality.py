@@ -70,9 +70,17 @@ def _critics(fidelity: Mapping[str, Any]) -> str:
         result = fidelity.get(key)
         if isinstance(result, Mapping):
             parts.append(
-                f"{label} {_number(result.get('accuracy'))} [95 % CI {_number(result.get('low'))}-"
+                f"{label} {_number(result.get('accuracy'))}{_spread(result)} [95 % CI {_number(result.get('low'))}-"
                 f"{_number(result.get('high'))}, {_number(result.get('pairs'), 0)} held-out pairs]"
             )
         else:
             parts.append(f"{label} not run")
     return ", ".join(parts)
+
+
+def _spread(result: Mapping[str, Any]) -> str:
+    """`` ± std over N critics`` where several critics were trained (profiles before them hold one)."""
+    critics = result.get("critics")
+    if not _is_number(critics) or critics < 2:
+        return ""
+    return f" ± {_number(result.get('std'))} over {_number(critics, 0)} critics"

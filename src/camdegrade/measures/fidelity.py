@@ -114,14 +114,23 @@ def _mean_log2(sim_power: Tensor, real_power: Tensor) -> list[float | None]:
     return [float(value) if ok else None for value, ok in zip(ratios.tolist(), measurable.tolist(), strict=True)]
 
 
+#: Row-mean std (8-bit levels) that :func:`noise_ratios` does not read as banding: the rows of a noiseless 8-bit
+#: camera's flat captures do not vary (0.002 levels on the soft simulated camera's charts), and a simulation of
+#: them, rounded to 8 bits, leaves 0.02 levels: a ratio of 11 that is rounding, not banding. City100's captures
+#: hold 0.30 levels, the dark simulated camera's 1.7 (examples/simulated_camera_fidelity.py).
+MIN_ROW_STD_LEVELS = 0.05
+
+
 def noise_ratios(sim: NoiseSums, real: NoiseSums) -> tuple[float | None, float | None]:
     """``(noise, banding)``: the flat-pixel noise std of ``sim`` over ``real``'s, and the same of the std of the
-    per-row means (row banding, RMS over channels); ``None`` where either is not measurable (too few flat pixels
+    per-row means (row banding, RMS over channels), each raised to :data:`MIN_ROW_STD_LEVELS` first (rows that
+    vary less than that are flat: two such give 1); ``None`` where either is not measurable (too few flat pixels
     or rows, :mod:`camdegrade.functional.noise_stats`)."""
     noise = _finite(sim.pooled_std() / real.pooled_std()) if real.pooled_std() > 0 else None
     rows_sim = float(sim.line_variance()[0][0].mean().sqrt())
     rows_real = float(real.line_variance()[0][0].mean().sqrt())
-    banding = _finite(rows_sim / rows_real) if rows_real > 0 else None
+    measurable = math.isfinite(rows_sim) and math.isfinite(rows_real)
+    banding = max(rows_sim, MIN_ROW_STD_LEVELS) / max(rows_real, MIN_ROW_STD_LEVELS) if measurable else None
     return noise, banding
 
 
