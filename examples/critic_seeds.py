@@ -25,23 +25,14 @@ from simulated_camera_fidelity import pairs
 from camdegrade import load_profile
 from camdegrade._pixels import as_unit
 from camdegrade.fitting.pairset import simulate
-from camdegrade.measures.critic import critic_test
+from camdegrade.measures.critic import repeated_critic_test
 
 
 def accuracies(cleans: list, reals: list, sims: list, seeds: int, image_only: bool) -> list[float]:
-    """One accuracy per seed and half: trained on one half of the pairs, scored on the other."""
-    even, odd = slice(0, None, 2), slice(1, None, 2)
-    out = []
-    for seed in range(seeds):
-        for train, score in ((even, odd), (odd, even)):
-            result = critic_test(
-                (cleans[train], reals[train], sims[train]),
-                (cleans[score], reals[score], sims[score]),
-                seed,
-                image_only=image_only,
-            )
-            out.append(round(result.accuracy, 3))
-    return out
+    """One accuracy per seed and half: trained on the even pairs and scored on the odd ones, or back."""
+    names = [f"{index:04d}" for index in range(len(cleans))]  # in sorted order the pairs alternate even, odd
+    result = repeated_critic_test((cleans, reals, sims), names, seeds, image_only=image_only)
+    return [round(accuracy, 3) for accuracy in result.accuracies]
 
 
 def main() -> None:

@@ -1,10 +1,10 @@
-"""How much the critic at the end of a fit moves between critic seeds, on that fit's own validation pairs.
+"""How much the critics at the end of a fit move with more critic seeds, on that fit's own validation pairs.
 
-``fit_profile`` records one critic (seed 0) with a bootstrap interval over the held-out pairs; that interval does not
-hold the spread of the critic's own training. This re-runs
-:func:`~camdegrade.measures.critic.split_critic_test` on the fit's validation scenes (``fitted['validation_scenes']``,
-the profile sampled as the fit samples it: seed 0, stream ``quality``, rounded to 8 bits) with seeds
-``0 … --seeds − 1``, paired and image-only. Seed 0 repeats the fit's own numbers. Run from the repo root::
+``fit_profile`` records 4 critics per mode (2 seeds, each trained on one half of the validation scenes and scored
+on the other, and back; :func:`~camdegrade.measures.critic.repeated_critic_test`). This re-runs them on the fit's
+validation scenes (``fitted['validation_scenes']``, the profile sampled as the fit samples it: seed 0, stream
+``quality``, rounded to 8 bits) with ``--seeds`` seeds, paired and image-only, and prints every critic's
+accuracy. With ``--seeds 2`` it repeats the fit's own numbers. Run from the repo root::
 
     OMP_NUM_THREADS=2 .venv/bin/python examples/fit_critic_seeds.py PROFILE PAIRS [--seeds 4]
 """
@@ -16,7 +16,7 @@ import argparse
 from camdegrade import load_profile
 from camdegrade.fitting.evidence import as_stored
 from camdegrade.fitting.pairset import PairSet, simulate
-from camdegrade.measures.critic import split_critic_test
+from camdegrade.measures.critic import repeated_critic_test
 
 
 def main() -> None:
@@ -31,11 +31,11 @@ def main() -> None:
     validation = pairs.subset([index for index, scene in enumerate(pairs.scenes) if scene in scenes])
     cleans, captures = validation.cleans(), validation.captured()
     sampled = as_stored(simulate(profile, cleans, 0, stream="quality"), eight_bit=True)
-    for seed in range(args.seeds):
-        for image_only in (False, True):
-            result = split_critic_test((cleans, captures, sampled), validation.scenes, seed, image_only=image_only)
-            label = "image-only" if image_only else "paired"
-            print(f"seed {seed} {label:10s} {result.describe()} ({result.seconds:.1f} s)", flush=True)
+    for image_only in (False, True):
+        result = repeated_critic_test((cleans, captures, sampled), validation.scenes, args.seeds, image_only=image_only)
+        label = "image-only" if image_only else "paired"
+        each = " ".join(f"{accuracy:.3f}" for accuracy in result.accuracies)
+        print(f"{label:10s} {result.describe()} ({result.seconds:.1f} s); each: {each}", flush=True)
 
 
 if __name__ == "__main__":

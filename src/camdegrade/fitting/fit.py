@@ -409,8 +409,8 @@ def _quality(
 #: than this many scenes one side would hold a single scene, whose bootstrap interval says nothing.
 MIN_CRITIC_SCENES = 4
 #: Critic seeds at the end of a fit, each training one critic per half of the validation scenes (4 critics in all):
-#: single critics of the City100 built-in's image-only test range from 0.70 to 0.83 (docs/results.md). Four cost
-#: about 10 s more than one on City100's 8 validation frames (AMD EPYC Zen 3, 2 threads).
+#: single critics of the City100 built-in's image-only test range from 0.70 to 0.83 (docs/results.md). On City100's 8
+#: validation frames the 8 critics of both modes take 21 s, one per mode took 4 s (AMD EPYC Zen 3, 2 threads).
 FIT_CRITIC_SEEDS = 2
 
 
