@@ -403,12 +403,12 @@ def repeated_critic_test(
         raise ValueError(f"seeds must be a positive integer, got seeds={seeds!r}")
     started = time.perf_counter()
     trains = alternate_scenes(scenes)
+    first = [index for index, chosen in enumerate(trains) if chosen]
+    second = [index for index, chosen in enumerate(trains) if not chosen]
     correct_sum, count = torch.zeros(len(scenes)), torch.zeros(len(scenes))
     accuracies = []
     for seed in range(seeds):
-        for side in (True, False):
-            fit = [index for index, chosen in enumerate(trains) if chosen == side]
-            held = [index for index, chosen in enumerate(trains) if chosen != side]
+        for fit, held in ((first, second), (second, first)):
             calibration = tuple([column[index] for index in fit] for column in pairs)
             scored = tuple([column[index] for index in held] for column in pairs)
             patches_in = Patches.sample(*calibration, seed, "critic-calibration", image_only)
