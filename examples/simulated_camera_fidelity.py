@@ -108,6 +108,7 @@ def evaluate(name: str, args: argparse.Namespace) -> tuple[dict, list[torch.Tens
         "stages": [type(effect).__name__ for effect in profile.effects],
         "texture": profile.fitted.get("texture"),
         "denoise": profile.fitted.get("denoise"),
+        "response": profile.fitted.get("response"),
         "best_epoch": profile.fitted["best_epoch"],
         "warnings": profile.fitted.get("warnings", []),
         "psnr_network": round(sum(psnr(m, r) for m, r in zip(means, reals)) / len(means), 2),

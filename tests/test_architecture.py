@@ -106,10 +106,10 @@ def test_where_suspects_come_from_the_effect_classes() -> None:
     from camdegrade.diagnose.where import suspects
 
     for axis in FAMILIES:
-        expected = [name for name in EFFECTS if axis in EFFECTS[name].explains]
+        expected = [name for name in EFFECTS if axis in EFFECTS[name].explains and EFFECTS[name].candidate]
         assert suspects(axis) == (", ".join(expected) or "the network")
     named = suspects("frequency").split(", ")
-    assert "blur" in named and "noise" not in named
+    assert "blur" in named and "noise" not in named and "frequency_response" not in named
 
 
 def test_seed_scheme_is_a_fixed_formula() -> None:

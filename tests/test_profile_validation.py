@@ -88,7 +88,7 @@ def _scale_row(parts: ProfileParts, key: str, factor: float) -> None:
 
 
 #: (case, built-in profile or file, corruption, message naming what is wrong). PAPER_BUILT_IN: blur, noise, tone
-#: (width 64); lowcost-robot-sim: distortion, vignetting, noise.
+#: (width 64); lowcost-robot-sim: distortion, blur, noise, sharpen.
 Corruption = Callable[[ProfileParts], None]
 CASES: list[tuple[str, str | Path, Corruption, str]] = [
     (
@@ -155,7 +155,7 @@ CASES: list[tuple[str, str | Path, Corruption, str]] = [
         "jpeg-quality-not-a-whole-number",
         "lowcost-robot-sim",
         lambda p: p.add_jpeg(55.5),
-        "effect 3 (jpeg): quality must be an integer from 1 to 100, got quality=55.5",
+        "effect 4 (jpeg): quality must be an integer from 1 to 100, got quality=55.5",
     ),
     (
         "dtype-relabelled-same-size",
@@ -202,8 +202,8 @@ CASES: list[tuple[str, str | Path, Corruption, str]] = [
     (
         "constructor-argument-as-config-key",
         "lowcost-robot-sim",
-        lambda p: _effects(p)[1]["config"].update(k1=0.5),
-        "effect 1 (vignetting): unknown config keys ['k1']",
+        lambda p: _effects(p)[0]["config"].update(k1=0.5),
+        "effect 0 (distortion): unknown config keys ['k1']",
     ),
     (
         "unknown-key-in-an-effect-entry",
@@ -239,7 +239,7 @@ CASES: list[tuple[str, str | Path, Corruption, str]] = [
         "infinity-quality-jitter",
         "lowcost-robot-sim",
         lambda p: p.add_jpeg(80.0, quality_jitter=math.inf),
-        "effect 3 (jpeg): quality_jitter must be an integer from 0 to 99, got quality_jitter=inf",
+        "effect 4 (jpeg): quality_jitter must be an integer from 0 to 99, got quality_jitter=inf",
     ),
     (
         "nan-gain-jitter",

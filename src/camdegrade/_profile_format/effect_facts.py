@@ -251,6 +251,11 @@ BUILT_IN: dict[str, EffectFacts] = {
         {"shift_std": Setting(float, 0.0, Bound(0.0, 64.0)), "angle_std": Setting(float, 0.0, Bound(0.0, 45.0))},
         {**_scalars(Bound(-4096.0, 4096.0), "dx", "dy"), "angle": Buffer(bound=Bound(-360.0, 360.0))},
     ),
+    "frequency_response": EffectFacts(
+        "isp",
+        {"knots": Setting(int, 11, Bound(2, 64, integer=True))},  # FrequencyResponse: DEFAULT_KNOTS, MAX_KNOTS
+        {"gains": Buffer(("knots", "knots"), bound=Bound(0.0, 8.0))},  # FrequencyResponse.MAX_GAIN
+    ),
     "noise": EffectFacts(
         "sensor",
         {

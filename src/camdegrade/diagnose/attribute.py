@@ -99,7 +99,9 @@ MISFIT_KINDS = frozenset({"refit", "remove", "network"})
 
 
 def check_candidates(candidates: Iterable[str] | str | None) -> list[str]:
-    return list(EFFECTS) if candidates is None else check_effect_names(candidates, "candidates")
+    if candidates is None:
+        return [name for name, effect in EFFECTS.items() if effect.candidate]
+    return check_effect_names(candidates, "candidates")
 
 
 def _named_first(

@@ -20,6 +20,7 @@ from camdegrade.effects.color import Color, Tone
 from camdegrade.effects.denoise import Denoise
 from camdegrade.effects.geometry import ChromaticAberration, Distortion, Misalignment, Vignetting
 from camdegrade.effects.noise import Noise
+from camdegrade.effects.response import FrequencyResponse
 from camdegrade.effects.sharpen import Sharpen
 
 __all__ = [
@@ -32,6 +33,7 @@ __all__ = [
     "Denoise",
     "Distortion",
     "Effect",
+    "FrequencyResponse",
     "Misalignment",
     "Noise",
     "Pairs",

@@ -43,9 +43,10 @@ class Effect(nn.Module):
     name elsewhere: :meth:`neutral` (the identity), :meth:`without_randomness` (its deterministic centre, or
     ``None`` for pure noise), :meth:`scaled` (its strength), :attr:`fit_budget` and :meth:`fit_options` (what its
     fitter affords), :meth:`fit_in_chain` (how it is fitted at its place in a profile), :attr:`explains` (the gap
-    signatures it can cause), :attr:`position_dependent`, :attr:`moves_pixels` with :meth:`source_points` and
-    :meth:`moved_points` (how it moves positions, so targets move with the image) and :meth:`check_values` (the
-    valid ranges of its values, checked when a profile is loaded or saved). The registry-wide tests in
+    signatures it can cause), :attr:`candidate` (whether the diagnosis tries it unasked), :attr:`position_dependent`,
+    :attr:`moves_pixels` with :meth:`source_points` and :meth:`moved_points` (how it moves positions, so targets
+    move with the image) and :meth:`check_values` (the valid ranges of its values, checked when a profile is loaded
+    or saved). The registry-wide tests in
     ``tests/test_effects.py`` and ``tests/test_architecture.py`` hold every registered effect to this contract.
     """
 
@@ -62,6 +63,9 @@ class Effect(nn.Module):
     #: Whether it moves image content (a warp): such an effect says how it moves positions with
     #: :meth:`source_points` and :meth:`moved_points`, and targets (masks, boxes, keypoints) are moved with it.
     moves_pixels: ClassVar[bool] = False
+    #: Whether the diagnosis tries adding it when its caller names no candidates: false for a stage so free that it
+    #: would stand in for the effect the camera has instead of naming it.
+    candidate: ClassVar[bool] = True
 
     @classmethod
     def neutral(cls) -> Effect:

@@ -61,7 +61,7 @@ def detail_amplitudes(images: Sequence[Tensor], seed: int = 0) -> Tensor:
     generator = derived_generator(seed, "detail-amplitudes")
     per_scale: list[list[Tensor]] = [[] for _ in MEASURE_SIGMAS]
     for image in images:
-        gray = luma(_eight_bit(image))[None]
+        gray = luma(eight_bit(image))[None]
         where = torch.randint(0, gray.numel(), (SAMPLES_PER_FRAME,), generator=generator)
         for column, sigma in zip(per_scale, MEASURE_SIGMAS, strict=True):
             column.append((gray - blur_planes(gray, sigma)).abs().flatten()[where] * 255.0)
@@ -73,7 +73,7 @@ def amplitude_distance(sim: Tensor, real: Tensor) -> float:
     return float((sim - real).abs().mean(-1).sum())
 
 
-def _eight_bit(image: Tensor) -> Tensor:
+def eight_bit(image: Tensor) -> Tensor:
     return (image.clamp(0, 1) * 255).round() / 255
 
 
@@ -144,7 +144,7 @@ def judge_denoise(profile: CameraProfile, stage: Denoise, pairs: Sequence[tuple[
         sampled = simulate(candidate, cleans, seed=seed, stream="denoise-check")
         means = simulate(candidate, cleans, seed=seed, deterministic=True)
         evidence[f"val_distance_{when}"] = amplitude_distance(detail_amplitudes(sampled, seed), real_amplitudes)
-        errors = band_errors(radial_powers([_eight_bit(s) for s in sampled]), real_bands)
+        errors = band_errors(radial_powers([eight_bit(s) for s in sampled]), real_bands)
         evidence[f"val_band_error_{when}"] = float(errors.pow(2).mean().sqrt())
         evidence[f"val_psnr_{when}"] = sum(psnr(m, c) for m, c in zip(means, captures, strict=True)) / len(pairs)
     kept = (

@@ -34,6 +34,7 @@ from camdegrade.fitting.evidence import as_stored
 from camdegrade.fitting.faint_detail import fit_denoise
 from camdegrade.fitting.pairs import MISSING, UNREADABLE
 from camdegrade.fitting.pairset import PairSet, PairsSource, simulate
+from camdegrade.fitting.response import fit_response
 from camdegrade.fitting.stages import fit_effects
 from camdegrade.fitting.texture import fit_texture
 from camdegrade.fitting.training import (
@@ -166,13 +167,15 @@ def fit_profile(
         train_pairs, val_pairs = train.unit_pairs(), val.unit_pairs()
         profile, effect_notes = fit_effects(profile, train_pairs, val_pairs, config.effects, say, eight_bit=eight_bit)
         texture_note = {"kept": False, "reason": f"texture={config.texture!r}" if keep_network else "no network"}
-        denoise_note = dict(texture_note)
+        denoise_note, response_note = dict(texture_note), dict(texture_note)
         if config.texture == "match" and keep_network:
             profile, texture_note = fit_texture(profile, train_pairs, val_pairs, say, seed=config.seed)
             profile, denoise_note = fit_denoise(profile, train_pairs, val_pairs, say, seed=config.seed)
+            profile, response_note = fit_response(profile, train_pairs, val_pairs, say, seed=config.seed)
         profile.fitted = _record(pair_set, train, val, config, history, minutes, effect_notes)
         profile.fitted["texture"] = texture_note
         profile.fitted["denoise"] = denoise_note
+        profile.fitted["response"] = response_note
         profile.fitted["init_from"] = init_label
         profile.fitted["network"] = _network_note(keep_network, network_gain)
         profile.fitted["trained_in"] = str(training_dtype(config.precision, torch.device(device))).split(".")[-1]

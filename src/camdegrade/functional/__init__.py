@@ -30,6 +30,7 @@ from camdegrade.functional.geometry import (
     vignetting_image,
 )
 from camdegrade.functional.noise import poisson_gaussian_noise_image
+from camdegrade.functional.response import frequency_response_image
 from camdegrade.functional.sharpen import denoise_image, unsharp_mask_image
 from camdegrade.functional.tone import tone_curve, tone_curve_image
 
@@ -42,6 +43,7 @@ __all__ = [
     "convolve_separable",
     "denoise_image",
     "distortion_image",
+    "frequency_response_image",
     "jpeg_image",
     "linear_to_srgb",
     "linear_to_srgb_",

@@ -76,8 +76,9 @@ class Family:
     paired: ClassVar[bool] = True
 
     def suspects(self) -> list[str]:
-        """The registered effects that name this family in ``Effect.explains`` (a hint; the ranking decides)."""
-        return [name for name, effect in EFFECTS.items() if self.name in effect.explains]
+        """The registered effects that name this family in ``Effect.explains`` and that the diagnosis tries unasked
+        (``Effect.candidate``): a hint; the ranking decides."""
+        return [name for name, effect in EFFECTS.items() if self.name in effect.explains and effect.candidate]
 
 
 class PairedFamily(Family):

@@ -1,0 +1,158 @@
+"""ISP stage: the camera's luma frequency response, a gain per spatial frequency (its detail processing as a whole)."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from typing import Any, ClassVar
+
+import torch
+from torch import Tensor
+
+from camdegrade.effects._fitting import as_pairs
+from camdegrade.effects.base import Effect, Pairs, check_range, register_effect
+from camdegrade.functional.analysis import hann2d, luma
+from camdegrade.functional.response import frequency_response_image, knot_coordinates
+
+#: Knots per axis of a new response: cells of 0.05 cycles/pixel. On City100 the captures' excess over the built-in's
+#: texture peaks at a radius of 0.25 on the diagonals (gains 3–4) and at 0.2–0.25 on the axes (gains about 2), so
+#: the response is a grid over (|f_y|, |f_x|), not a function of the radius.
+DEFAULT_KNOTS = 11
+#: Below this radius (cycles/pixel) the response is 1: tone and shading are the network's, not detail.
+DETAIL_FROM = 0.03
+#: The 4-pixel lattice: a fitted gain at a knot on a multiple of this frequency (cycles/pixel) along both axes is at
+#: most 1 (``lattice=True``). A network's or a codec's fixed pattern lives there (City100's clean frames carry 9.2×
+#: the capture's 4×4 pattern), and amplifying it prints a grid: on the held-out City100 scenes the grid ratio is
+#: well above 1.5 with the fitted gains there and below it with them capped (``examples/response_city100.py``).
+LATTICE = 0.25
+
+
+@register_effect
+class FrequencyResponse(Effect):
+    """The luma's frequency response: ``y = clip(x + (R ⊛ Y − Y), 0, 1)`` on the sRGB values ``x``, ``R`` a gain per
+    spatial frequency on a ``K × K`` grid of knots over ``(|f_y|, |f_x|)`` from 0 to 0.5 cycles/pixel
+    (:func:`~camdegrade.functional.response.frequency_response_image`). A phone's demosaicking, sharpening and
+    noise reduction together leave a texture whose spectrum no single unsharp mask reproduces; this stage takes it
+    as a whole.
+
+    Args:
+        gains: ``(K, K)`` amplitude gains (default: ones, the identity), ``K`` from 2 to :attr:`MAX_KNOTS`.
+        knots: ``K`` when ``gains`` is not given.
+
+    Valid values (:meth:`check_values`): every gain from 0 to :attr:`MAX_GAIN`.
+
+    Not a default diagnosis candidate (:attr:`Effect.candidate`): a free response can mimic any linear effect, so it
+    would stand in for the blur or the sharpening the camera has rather than name it.
+
+    References:
+        R. C. Gonzalez, R. E. Woods, "Digital Image Processing", 4th ed., 2018, ch. 4 (frequency-domain filtering);
+        Y. Blau, T. Michaeli, "The Perception-Distortion Tradeoff", CVPR 2018 (why it is fitted to the captures'
+        power, not by least squares).
+    """
+
+    name = "frequency_response"
+    stage = "isp"
+    explains = ("frequency",)
+    fit_budget = 16
+    candidate = False
+    MAX_GAIN: ClassVar[float] = 8.0
+    MAX_KNOTS: ClassVar[int] = 64
+    gains: Tensor
+
+    def __init__(self, gains: Tensor | Sequence[Sequence[float]] | None = None, *, knots: int = DEFAULT_KNOTS) -> None:
+        super().__init__()
+        if gains is None:
+            if isinstance(knots, bool) or not float(knots).is_integer():
+                raise ValueError(f"knots must be an integer from 2 to {self.MAX_KNOTS}, got knots={knots!r}")
+            check_range("knots", int(knots), 2, self.MAX_KNOTS)
+            values = torch.ones(int(knots), int(knots))
+        else:
+            values = torch.as_tensor(gains, dtype=torch.float32).clone()
+            square = values.ndim == 2 and values.shape[0] == values.shape[1]
+            if not square or not 2 <= values.shape[0] <= self.MAX_KNOTS:
+                raise ValueError(
+                    f"gains must be a square (K, K) grid with K from 2 to {self.MAX_KNOTS}, "
+                    f"got shape {tuple(values.shape)}"
+                )
+        check_range("gains", values, 0.0, self.MAX_GAIN)
+        self.register_buffer("gains", values)
+
+    @property
+    def knots(self) -> int:
+        return int(self.gains.shape[-1])
+
+    def config(self) -> dict[str, Any]:
+        return {"knots": self.knots}
+
+    def check_values(self) -> None:
+        super().check_values()
+        check_range("gains", self.gains, 0.0, self.MAX_GAIN)
+
+    def scaled(self, strength: float) -> FrequencyResponse:
+        """A copy whose gains are these raised to ``strength`` (0: the identity; 2: every change in log gain
+        doubled), up to :attr:`MAX_GAIN`."""
+        gains = self.gains.double().clamp_min(1e-6).pow(max(float(strength), 0.0)).clamp(max=self.MAX_GAIN)
+        return type(self)(gains.float())
+
+    def magnitude(self) -> float:
+        """How far from the identity: the RMS over knots of ``|log2 gain|`` (1: detail doubled or halved)."""
+        return float(self.gains.double().clamp_min(1e-6).log2().pow(2).mean().sqrt())
+
+    def forward(self, image: Tensor, params: Mapping[str, Tensor] | None = None) -> Tensor:
+        return frequency_response_image(image, self.gains.to(image.device))
+
+    @classmethod
+    def fit(
+        cls, source: Pairs, target: Pairs, *, knots: int = DEFAULT_KNOTS, lattice: bool = True
+    ) -> FrequencyResponse:
+        """The response that gives ``source`` the luma power spectrum of ``target``, knot by knot: the gain is
+        ``2 ** (mean over frames of log2(power target / power source)) / 2)``, each frame's power summed over the
+        frequencies nearest the knot (Hann window, mean removed), 1 below :data:`DETAIL_FROM` and, with ``lattice``,
+        at most 1 on the 4-pixel lattice (:data:`LATTICE`).
+
+        Distribution, not least squares: the pairs need not be aligned, and detail whose position the source does
+        not predict (City100's captures are coherent with the clean image at 0.06 at 0.23–0.25 cycles/pixel) keeps
+        its power instead of being shrunk away. The mean over frames of the log ratio is what the fidelity bands
+        average (:func:`~camdegrade.measures.fidelity.band_log2_ratios`). Recovery on synthetic pairs
+        (``tests/test_frequency_response.py``): gains within 10 % of a known smooth response, a target that is
+        the source gives gains within 3 % of 1.
+        """
+        pairs = as_pairs(source, target)
+        check_range("knots", knots, 2, cls.MAX_KNOTS)
+        ratios = [_knot_log_ratios(src, tgt, knots) for src, tgt in pairs]
+        log_gain = 0.5 * torch.nanmean(torch.stack(ratios), 0).nan_to_num(0.0)
+        gains = log_gain.exp2().clamp(1 / cls.MAX_GAIN, cls.MAX_GAIN)
+        step = 0.5 / (knots - 1)
+        index = torch.arange(knots, dtype=torch.float64) * step
+        radius = (index[:, None] ** 2 + index[None, :] ** 2).sqrt()
+        gains[radius < DETAIL_FROM] = 1.0
+        if lattice:
+            on_lattice = _on_lattice(index, step)
+            capped = on_lattice[:, None] & on_lattice[None, :] & (radius > 0)
+            gains[capped] = gains[capped].clamp(max=1.0)
+        return cls(gains.float())
+
+
+def _on_lattice(frequencies: Tensor, step: float) -> Tensor:
+    """Which knots are the ones nearest a multiple of :data:`LATTICE` cycles/pixel."""
+    nearest = (frequencies / LATTICE).round() * LATTICE
+    return (frequencies - nearest).abs() < step / 2
+
+
+def _knot_log_ratios(source: Tensor, target: Tensor, knots: int) -> Tensor:
+    """``(K, K)``: ``log2`` of the target's luma power over the source's per knot (NaN where either has none)."""
+    ratio = _knot_powers(target, knots) / _knot_powers(source, knots)
+    return torch.where(torch.isfinite(ratio) & (ratio > 0), ratio.log2(), math.nan)
+
+
+def _knot_powers(image: Tensor, knots: int) -> Tensor:
+    """``(K, K)`` luma power of the ``(3, H, W)`` frame (Hann window, mean removed) summed over the frequencies
+    nearest each knot."""
+    gray = luma(image.double())
+    gray = gray - gray.mean()
+    height, width = gray.shape
+    power = torch.fft.rfft2(gray * hann2d(height, width, dtype=torch.float64)).abs().pow(2)
+    rows = knot_coordinates(height, knots, half=False).round().long()
+    cols = knot_coordinates(width, knots, half=True).round().long()
+    cell = (rows[:, None] * knots + cols[None, :]).flatten()
+    return torch.bincount(cell, weights=power.flatten(), minlength=knots * knots).view(knots, knots)
