@@ -62,10 +62,8 @@ class FrequencyResponse(Effect):
     def __init__(self, gains: Tensor | Sequence[Sequence[float]] | None = None, *, knots: int = DEFAULT_KNOTS) -> None:
         super().__init__()
         if gains is None:
-            if isinstance(knots, bool) or not float(knots).is_integer():
-                raise ValueError(f"knots must be an integer from 2 to {self.MAX_KNOTS}, got knots={knots!r}")
-            check_range("knots", int(knots), 2, self.MAX_KNOTS)
-            values = torch.ones(int(knots), int(knots))
+            knots = _checked_knots(knots)
+            values = torch.ones(knots, knots)
         else:
             values = torch.as_tensor(gains, dtype=torch.float32).clone()
             square = values.ndim == 2 and values.shape[0] == values.shape[1]
@@ -106,9 +104,9 @@ class FrequencyResponse(Effect):
         cls, source: Pairs, target: Pairs, *, knots: int = DEFAULT_KNOTS, lattice: bool = True
     ) -> FrequencyResponse:
         """The response that gives ``source`` the luma power spectrum of ``target``, knot by knot: the gain is
-        ``2 ** (mean over frames of log2(power target / power source)) / 2)``, each frame's power summed over the
-        frequencies nearest the knot (Hann window, mean removed), 1 below :data:`DETAIL_FROM` and, with ``lattice``,
-        at most 1 on the 4-pixel lattice (:data:`LATTICE`).
+        ``2 ** (m / 2)``, ``m`` the mean over frames of ``log2(power target / power source)``, each frame's power
+        summed over the frequencies nearest the knot (Hann window, mean removed); 1 below :data:`DETAIL_FROM` and,
+        with ``lattice``, at most 1 on the 4-pixel lattice (:data:`LATTICE`).
 
         Distribution, not least squares: the pairs need not be aligned, and detail whose position the source does
         not predict (City100's captures are coherent with the clean image at 0.06 at 0.23–0.25 cycles/pixel) keeps
@@ -118,7 +116,7 @@ class FrequencyResponse(Effect):
         the source gives gains within 3 % of 1.
         """
         pairs = as_pairs(source, target)
-        check_range("knots", knots, 2, cls.MAX_KNOTS)
+        knots = _checked_knots(knots)
         ratios = [_knot_log_ratios(src, tgt, knots) for src, tgt in pairs]
         log_gain = 0.5 * torch.nanmean(torch.stack(ratios), 0).nan_to_num(0.0)
         gains = log_gain.exp2().clamp(1 / cls.MAX_GAIN, cls.MAX_GAIN)
@@ -131,6 +129,14 @@ class FrequencyResponse(Effect):
             capped = on_lattice[:, None] & on_lattice[None, :] & (radius > 0)
             gains[capped] = gains[capped].clamp(max=1.0)
         return cls(gains.float())
+
+
+def _checked_knots(knots: Any) -> int:
+    """``knots`` as an int, or ``ValueError`` naming it unless it is a whole number from 2 to ``MAX_KNOTS``."""
+    whole = not isinstance(knots, bool) and isinstance(knots, (int, float)) and float(knots).is_integer()
+    if not whole or not 2 <= knots <= FrequencyResponse.MAX_KNOTS:
+        raise ValueError(f"knots must be an integer from 2 to {FrequencyResponse.MAX_KNOTS}, got knots={knots!r}")
+    return int(knots)
 
 
 def _on_lattice(frequencies: Tensor, step: float) -> Tensor:
