@@ -43,7 +43,6 @@ def refit_response(
     without = fast.with_chain([effect for effect in fast.effects if not isinstance(effect, FrequencyResponse)])
     refitted, note = fit_response(without, train, val, print, seed=seed)
     refitted.fitted = {**fast.fitted, "response": note}
-    refitted.quality = dict(fast.quality)
     return refitted
 
 

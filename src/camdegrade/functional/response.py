@@ -39,8 +39,9 @@ def response_map(gains: Tensor, height: int, width: int) -> Tensor:
     cols = knot_coordinates(width, knots, half=True, device=gains.device)
     top, left = rows.floor().long().clamp(max=knots - 2), cols.floor().long().clamp(max=knots - 2)
     down, right = (rows - top)[:, None], (cols - left)[None, :]
-    upper = gains[top][:, left] * (1 - right) + gains[top][:, left + 1] * right
-    lower = gains[top + 1][:, left] * (1 - right) + gains[top + 1][:, left + 1] * right
+    above, below = gains[top], gains[top + 1]
+    upper = above[:, left] * (1 - right) + above[:, left + 1] * right
+    lower = below[:, left] * (1 - right) + below[:, left + 1] * right
     return upper * (1 - down) + lower * down
 
 
