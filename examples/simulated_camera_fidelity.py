@@ -19,7 +19,7 @@ textured crop at 2×, nearest). Run from the repo root::
 
     OMP_NUM_THREADS=2 .venv/bin/python examples/simulated_camera_fidelity.py [--pairs 240] [--held-out 64] \
         [--cameras soft dark] [--diagnose] [--png out/simulated_cameras.png] [--upsample smooth] [--curves none] \
-        [--texture none]
+        [--texture none] [--sensor-scale 0.5]
 """
 
 from __future__ import annotations
@@ -88,7 +88,9 @@ def evaluate(name: str, args: argparse.Namespace) -> tuple[dict, list[torch.Tens
     train, held = pairs(name, args.pairs, seed=3), pairs(name, args.held_out, seed=11)
     started = time.perf_counter()
     lines: list[str] = []
-    recipe = FitConfig.recipe("fast", upsample=args.upsample, curves=args.curves, texture=args.texture)
+    recipe = FitConfig.recipe(
+        "fast", upsample=args.upsample, curves=args.curves, texture=args.texture, sensor_scale=args.sensor_scale
+    )
     profile = fit_profile(train, recipe, log=lines.append)
     fit_seconds = time.perf_counter() - started
     if args.save:
@@ -109,6 +111,7 @@ def evaluate(name: str, args: argparse.Namespace) -> tuple[dict, list[torch.Tens
         "texture": profile.fitted.get("texture"),
         "denoise": profile.fitted.get("denoise"),
         "response": profile.fitted.get("response"),
+        "resolution": profile.fitted.get("resolution"),
         "best_epoch": profile.fitted["best_epoch"],
         "warnings": profile.fitted.get("warnings", []),
         "psnr_network": round(sum(psnr(m, r) for m, r in zip(means, reals)) / len(means), 2),
@@ -153,6 +156,7 @@ def main() -> None:
     parser.add_argument("--upsample", default=None, choices=UPSAMPLINGS, help="default: the fast recipe's")
     parser.add_argument("--curves", default=None, choices=CURVES, help="default: the fast recipe's")
     parser.add_argument("--texture", default=None, choices=TEXTURES, help="default: the fast recipe's")
+    parser.add_argument("--sensor-scale", type=float, default=None, help="the recipe's sensor_scale (soft: 0.5)")
     parser.add_argument("--png", default=None)
     parser.add_argument("--json", default=None)
     parser.add_argument("--save", default=None, help="write each fitted profile to SAVE-CAMERA.safetensors")

@@ -14,7 +14,7 @@ from camdegrade.diagnose.attribute import check_candidates
 from camdegrade.effects import EFFECTS, FrequencyResponse
 from camdegrade.fitting.response import fit_response
 from camdegrade.functional import frequency_response_image
-from camdegrade.functional.response import response_map
+from camdegrade.functional.response import MAPS_PER_GAINS, response_map
 from effects_images import photo
 
 KNOTS = 11
@@ -86,6 +86,24 @@ def test_the_map_interpolates_between_knots() -> None:
     assert float(mapped[0, 2]) == pytest.approx(2.0)  # 0.125: halfway to it
     assert float(mapped[0, 8]) == pytest.approx(1.0)  # 0.5
     assert float(mapped[4, 4]) == pytest.approx(1.0)  # (0.5, 0.25): the knot row beyond
+
+
+def test_the_cached_map_follows_the_gains_and_the_size() -> None:
+    """The map is built once per gains tensor and size; changing the gains in place, or another size, is seen."""
+    image = photo(long_side=64)
+    gains = camera_response()
+    first = frequency_response_image(image, gains)
+    assert torch.equal(frequency_response_image(image, gains), first)
+    assert torch.allclose(frequency_response_image(image, gains.clone()), first, atol=1e-6)
+    gains.fill_(1.0)  # in place: the cached map must not survive it
+    assert torch.allclose(frequency_response_image(image, gains), image, atol=1e-5)
+    gains.copy_(camera_response())
+    for size in range(40, 40 + 2 * MAPS_PER_GAINS + 1, 2):  # more sizes than the cache keeps, then the first again
+        smaller = image[..., :size, :size]
+        assert torch.allclose(
+            frequency_response_image(smaller, gains), frequency_response_image(smaller, gains.clone())
+        )
+    assert torch.equal(frequency_response_image(image, gains), first)
 
 
 def test_fit_recovers_a_smooth_response() -> None:

@@ -118,8 +118,8 @@ CASES: list[tuple[str, str | Path, Corruption, str]] = [
     (
         "infinite-effect-value",
         "lowcost-robot-sim",
-        lambda p: p.set_values("effects.2.levels", math.inf),
-        "effect 2 (noise): levels must be finite, got levels=[inf, ",
+        lambda p: p.set_values("effects.1.levels", math.inf),
+        "effect 1 (noise): levels must be finite, got levels=[inf, ",
     ),
     (
         "infinite-network-weight",
@@ -262,8 +262,8 @@ CASES: list[tuple[str, str | Path, Corruption, str]] = [
     (
         "string-false-for-noise-columns",
         "lowcost-robot-sim",
-        lambda p: _effects(p)[2]["config"].update(columns="false"),
-        "effect 2 (noise): config 'columns' must be true or false, got a string 'false'",
+        lambda p: _effects(p)[1]["config"].update(columns="false"),
+        "effect 1 (noise): config 'columns' must be true or false, got a string 'false'",
     ),
 ]
 

@@ -101,7 +101,9 @@ def test_callback_sees_every_epoch():
 
 def test_the_paper_recipe_halves_the_learning_rate_every_30_epochs():
     paper = {"epochs": 100, "crop": 128, "batch_size": 32, "lr": 0.01, "lr_halving_epochs": 30, "crops_per_pair": 8}
-    expected = FitConfig(**paper, schedule="step", patience=0, arch="paper", curves="none", texture="none")
+    expected = FitConfig(
+        **paper, schedule="step", patience=0, arch="paper", curves="none", texture="none", sensor_scale=1.0
+    )
     assert FitConfig.recipe("paper") == expected
     seen = []
     config = FitConfig.recipe("paper", epochs=31, crop=16, batch_size=8, crops_per_pair=1)
@@ -123,7 +125,7 @@ def test_early_stopping_keeps_the_best_epoch(monkeypatch):
     import camdegrade.fitting.training as training
 
     scores = iter([20.0, 21.0, 21.005, 20.5, 20.9, 30.0, 30.0])
-    monkeypatch.setattr(training, "evaluate_psnr", lambda network, pairs, device="cpu": next(scores))
+    monkeypatch.setattr(training, "evaluate_psnr", lambda network, pairs, device="cpu", after=None: next(scores))
     seen = []
     pairs = synthetic_pairs()
     config = FitConfig(**{**TINY.as_dict(), "epochs": 7, "patience": 3})

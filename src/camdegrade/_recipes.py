@@ -32,6 +32,7 @@ FAST: dict[str, Any] = {
     "val_fraction": 0.15,
     "effects": ("noise", "vignetting"),
     "texture": "match",
+    "sensor_scale": "auto",
 }
 #: The paper's schedule (Hegde et al.): 100 epochs, Adam at lr 0.01 halved every 30 epochs, batch 32, no early stop;
 #: 8 windows of 128² per pair and epoch.
@@ -47,19 +48,23 @@ PAPER: dict[str, Any] = {
     "arch": "paper",
     "curves": "none",
     "texture": "none",
+    "sensor_scale": 1.0,
 }
 RECIPES: dict[str, dict[str, Any]] = {"fast": FAST, "paper": PAPER}
 
 #: The values of the network's training (recorded as a profile's ``fitted['recipe']`` and in a checkpoint); the
 #: other fields say how the pairs are split and which effect stages follow the network.
-TRAINING_FIELDS: tuple[str, ...] = tuple(name for name in FAST if name not in ("val_fraction", "effects", "texture"))
+TRAINING_FIELDS: tuple[str, ...] = tuple(
+    name for name in FAST if name not in ("val_fraction", "effects", "texture", "sensor_scale")
+)
 
 
 @dataclass(frozen=True)
 class RecipeField:
     """One recipe value as the command line offers it: ``kind`` names the rule its text must meet (``count``: an
     integer >= 1, ``count0``: >= 0, ``number``: > 0, ``fraction``: in [0, 1), ``seed``, ``choice``: one of
-    ``choices``, ``names``: any number of names, none for the empty tuple)."""
+    ``choices``, ``names``: any number of names, none for the empty tuple, ``sensor``: ``auto`` or a number from
+    :data:`MIN_SENSOR_SCALE` to 1)."""
 
     name: str
     kind: str
@@ -85,6 +90,8 @@ TRAIN_PRECISIONS: tuple[str, ...] = ("auto", "float32", "bfloat16")
 #: (:mod:`camdegrade.fitting.texture`), then a noise reduction that matches its faint detail to theirs
 #: (:mod:`camdegrade.fitting.faint_detail`), each where the validation pairs confirm it; ``none``: no such stages.
 TEXTURES: tuple[str, ...] = ("match", "none")
+#: The smallest sensor scale a recipe accepts (``camdegrade.effects.Resolution.MIN_SCALE``; a test keeps them equal).
+MIN_SENSOR_SCALE = 0.125
 
 FIELDS: tuple[RecipeField, ...] = (
     RecipeField("epochs", "count", "most epochs"),
@@ -134,6 +141,12 @@ FIELDS: tuple[RecipeField, ...] = (
         "match: add a blur, a sharpening and a noise reduction that match the captures' band power and faint "
         "detail, where validation confirms it",
         TEXTURES,
+    ),
+    RecipeField(
+        "sensor_scale",
+        "sensor",
+        "a camera that upscales: its sensor's resolution relative to its output (0.5: every other pixel "
+        "sampled), the network trained through it; auto: found from the captures (1/2, 1/3, 1/4); 1: none",
     ),
 )
 

@@ -256,6 +256,11 @@ BUILT_IN: dict[str, EffectFacts] = {
         {"knots": Setting(int, 11, Bound(2, 64, integer=True))},  # FrequencyResponse: DEFAULT_KNOTS, MAX_KNOTS
         {"gains": Buffer(("knots", "knots"), bound=Bound(0.0, 8.0))},  # FrequencyResponse.MAX_GAIN
     ),
+    "resolution": EffectFacts(
+        "isp",
+        {},
+        {"scale": Buffer(bound=Bound(0.125, 1.0))},  # Resolution.MIN_SCALE
+    ),
     "noise": EffectFacts(
         "sensor",
         {

@@ -8,8 +8,19 @@ import argparse
 from collections.abc import Callable, Mapping
 from typing import Any
 
-from camdegrade._recipes import FIELDS, RECIPES, recipe_default
-from camdegrade.cli._common import non_negative_int, positive_int, positive_number, seed, share
+from camdegrade._recipes import FIELDS, MIN_SENSOR_SCALE, RECIPES, recipe_default
+from camdegrade.cli._common import non_negative_int, number, positive_int, positive_number, seed, share
+
+
+def sensor_scale(text: str) -> str | float:
+    """``auto`` or a sensor scale from :data:`~camdegrade._recipes.MIN_SENSOR_SCALE` to 1."""
+    if text == "auto":
+        return text
+    value = number(text)
+    if not MIN_SENSOR_SCALE <= value <= 1.0:
+        raise argparse.ArgumentTypeError(f"must be auto or a number from {MIN_SENSOR_SCALE} to 1, got {text}")
+    return value
+
 
 _TYPES: dict[str, Callable[[str], Any]] = {
     "count": positive_int,
@@ -17,6 +28,7 @@ _TYPES: dict[str, Callable[[str], Any]] = {
     "number": positive_number,
     "fraction": share(True),
     "seed": seed,
+    "sensor": sensor_scale,
 }
 RECIPE_HELP = (
     "fast (default): a cosine schedule that stops once the validation PSNR stops rising; paper: the paper's 100 "

@@ -20,6 +20,7 @@ from camdegrade.effects.color import Color, Tone
 from camdegrade.effects.denoise import Denoise
 from camdegrade.effects.geometry import ChromaticAberration, Distortion, Misalignment, Vignetting
 from camdegrade.effects.noise import Noise
+from camdegrade.effects.resolution import Resolution
 from camdegrade.effects.response import FrequencyResponse
 from camdegrade.effects.sharpen import Sharpen
 
@@ -37,6 +38,7 @@ __all__ = [
     "Misalignment",
     "Noise",
     "Pairs",
+    "Resolution",
     "Sharpen",
     "Tone",
     "Vignetting",

@@ -11,7 +11,7 @@ Solved from the normal equations accumulated pair by pair over :data:`PIXELS_PER
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import torch
 import torch.nn.functional as F
@@ -86,13 +86,16 @@ def apply_linear_baseline(weight: Tensor, bias: Tensor, image: Tensor) -> Tensor
     return F.conv2d(padded, weight.to(image), bias.to(image)).clamp(0.0, 1.0)
 
 
-def baseline_psnr(weight: Tensor, bias: Tensor, pairs: Sequence[ImagePair]) -> float:
-    """Mean PSNR (dB) of the baseline's output against the captures over ``pairs``."""
+def baseline_psnr(
+    weight: Tensor, bias: Tensor, pairs: Sequence[ImagePair], after: Callable[[Tensor], Tensor] | None = None
+) -> float:
+    """Mean PSNR (dB) of the baseline's output (passed through ``after``, a fixed stage, when given: the form a
+    network started from the baseline and trained through that stage has) against the captures over ``pairs``."""
     if not pairs:
         raise ValueError("pairs must hold at least one (clean, captured) pair, got none")
+    scores = []
     with torch.no_grad():
-        scores = [
-            psnr(apply_linear_baseline(weight, bias, as_unit(clean)[None])[0], as_unit(captured))
-            for clean, captured in pairs
-        ]
+        for clean, captured in pairs:
+            output = apply_linear_baseline(weight, bias, as_unit(clean)[None])
+            scores.append(psnr((after(output) if after is not None else output)[0], as_unit(captured)))
     return sum(scores) / len(scores)

@@ -29,11 +29,13 @@ from camdegrade._profile_format.header import running_versions
 from camdegrade._recipes import FAST
 from camdegrade._threads import torch_threads
 from camdegrade._version import __version__
+from camdegrade.effects import Resolution
 from camdegrade.fitting.baseline import baseline_psnr, fit_linear_baseline
 from camdegrade.fitting.evidence import as_stored
 from camdegrade.fitting.faint_detail import fit_denoise
 from camdegrade.fitting.pairs import MISSING, UNREADABLE
 from camdegrade.fitting.pairset import PairSet, PairsSource, simulate
+from camdegrade.fitting.resolution import find_sensor
 from camdegrade.fitting.response import fit_response
 from camdegrade.fitting.stages import fit_effects
 from camdegrade.fitting.texture import fit_texture
@@ -67,6 +69,7 @@ __all__ = [
 DEFAULT_EFFECTS: tuple[str, ...] = FAST["effects"]
 
 Log = Callable[[str], None]
+ImagePair = tuple[torch.Tensor, torch.Tensor]
 
 
 def fit_profile(
@@ -137,7 +140,9 @@ def fit_profile(
         if config.patience and not len(val):
             say("no validation pairs: the fit runs every epoch (early stopping needs validation)")
         started = time.perf_counter()
-        baseline = fit_linear_baseline(train.images, seed=config.seed)
+        sensor, resolution_note = _sensor(config, train, initial, say)
+        baseline_pairs = train.images if sensor is None else _through(sensor, train.unit_pairs())
+        baseline = fit_linear_baseline(baseline_pairs, seed=config.seed)
         if initial is None and config.arch == LocalAffineNet.arch:
             initial = _from_baseline(config, baseline)
         network, history = fit_network(
@@ -151,9 +156,10 @@ def fit_profile(
             progress=progress,
             pair_names=[*train.names, *val.names],
             initial=initial,
+            after=sensor,
         )
         minutes = (time.perf_counter() - started) / 60
-        scores = validation_psnr(network, baseline, val)
+        scores = validation_psnr(network, baseline, val, sensor)
         network_gain = network_gain_db(scores)
         keep_network = network_gain is None or network_gain["best"] >= NETWORK_MIN_GAIN_DB
         if not keep_network:
@@ -163,6 +169,8 @@ def fit_profile(
                 f"{NETWORK_MIN_GAIN_DB} dB; the profile holds effect stages only"
             )
         profile = CameraProfile(network if keep_network else None, name=name, description=description)
+        if sensor is not None and keep_network:
+            profile = profile.with_effects(sensor)
         eight_bit = all(captured.dtype == torch.uint8 for _, captured in pair_set.images)
         train_pairs, val_pairs = train.unit_pairs(), val.unit_pairs()
         profile, effect_notes = fit_effects(profile, train_pairs, val_pairs, config.effects, say, eight_bit=eight_bit)
@@ -173,6 +181,7 @@ def fit_profile(
             profile, denoise_note = fit_denoise(profile, train_pairs, val_pairs, say, seed=config.seed)
             profile, response_note = fit_response(profile, train_pairs, val_pairs, say, seed=config.seed)
         profile.fitted = _record(pair_set, train, val, config, history, minutes, effect_notes)
+        profile.fitted["resolution"] = resolution_note
         profile.fitted["texture"] = texture_note
         profile.fitted["denoise"] = denoise_note
         profile.fitted["response"] = response_note
@@ -261,18 +270,58 @@ NETWORK_MIN_GAIN_DB = 0.2
 
 
 def validation_psnr(
-    network: ShiftNetwork, baseline: tuple[torch.Tensor, torch.Tensor], val: PairSet
+    network: ShiftNetwork,
+    baseline: tuple[torch.Tensor, torch.Tensor],
+    val: PairSet,
+    sensor: Resolution | None = None,
 ) -> dict[str, float] | None:
     """Mean validation PSNR (dB) against the captures of the clean images unchanged (``identity``), the linear
-    baseline and the trained network; ``None`` without validation pairs."""
+    baseline and the trained network (both through ``sensor`` when the fit found one); ``None`` without validation
+    pairs."""
     if not len(val):
         return None
     pairs = val.unit_pairs()
     network.eval()
     with torch.no_grad():
         identity = sum(psnr(clean, captured) for clean, captured in pairs) / len(pairs)
-        predicted = sum(psnr(network(clean[None])[0], captured) for clean, captured in pairs) / len(pairs)
-    return {"identity": identity, "baseline": baseline_psnr(*baseline, pairs), "network": predicted}
+        outputs = [network(clean[None]) for clean, _ in pairs]
+        if sensor is not None:
+            outputs = [sensor(output) for output in outputs]
+        predicted = sum(psnr(output[0], captured) for output, (_, captured) in zip(outputs, pairs)) / len(pairs)
+    return {"identity": identity, "baseline": baseline_psnr(*baseline, pairs, sensor), "network": predicted}
+
+
+def _sensor(
+    config: FitConfig, train: PairSet, initial: ShiftNetwork | None, say: Log
+) -> tuple[Resolution | None, dict[str, Any]]:
+    """The sensor stage the network is trained through (``config.sensor_scale`` below 1, or found from the training
+    captures with ``"auto"``; only for a ``local_affine`` network trained from the baseline: a refit continues its
+    network as it was trained); and the note for ``fitted['resolution']``."""
+    if config.sensor_scale == "auto":
+        if config.arch != LocalAffineNet.arch or initial is not None:
+            return None, {"kept": False, "reason": "auto: only a local_affine network trained from its baseline"}
+        return find_sensor([clean for clean, _ in train.images], [captured for _, captured in train.images], say)
+    if config.sensor_scale >= 1:
+        return None, {"kept": False, "scale": 1.0}
+    if config.arch != LocalAffineNet.arch or initial is not None:
+        raise ValueError(
+            f"sensor_scale={config.sensor_scale} needs a local_affine network trained from its baseline, "
+            f"got arch={config.arch!r}" + (" and init_from" if initial is not None else "")
+        )
+    sensor = Resolution(config.sensor_scale)
+    say(
+        f"resolution: the network is trained through a sensor at {config.sensor_scale:.4g}x (windows every "
+        f"{sensor.period} px)"
+    )
+    return sensor, {"kept": True, "scale": round(float(config.sensor_scale), 4), "period": sensor.period}
+
+
+def _through(sensor: Resolution | None, pairs: Sequence[ImagePair]) -> list[ImagePair]:
+    """``pairs`` with each clean image passed through ``sensor`` (unchanged without one)."""
+    if sensor is None:
+        return list(pairs)
+    with torch.no_grad():
+        return [(sensor(clean[None])[0], captured) for clean, captured in pairs]
 
 
 def network_gain_db(scores: dict[str, float] | None) -> dict[str, float] | None:

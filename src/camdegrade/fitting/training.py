@@ -27,9 +27,9 @@ from camdegrade._checks import check_seed
 from camdegrade._distributed import is_distributed, rank_and_world_size
 from camdegrade._files import check_writable
 from camdegrade._pixels import as_unit
-from camdegrade._recipes import CURVES, FAST, RECIPES, TEXTURES, TRAINING_FIELDS, UPSAMPLINGS
+from camdegrade._recipes import CURVES, FAST, MIN_SENSOR_SCALE, RECIPES, TEXTURES, TRAINING_FIELDS, UPSAMPLINGS
 from camdegrade._seeds import derive_seed, derived_generator
-from camdegrade.effects import check_effect_names
+from camdegrade.effects import Resolution, check_effect_names
 from camdegrade.errors import CamdegradeError
 from camdegrade.fitting.checkpoint import TrainingState, capture_state, load_checkpoint, save_checkpoint
 from camdegrade.inference import native_bfloat16, run_network
@@ -83,6 +83,11 @@ class FitConfig:
         texture: one of :data:`~camdegrade._recipes.TEXTURES`: ``"match"`` (the fast recipe's) adds a blur and a
             sharpening after the effect stages where they bring the band power closer to the captures' on the
             validation pairs (:mod:`camdegrade.fitting.texture`); ``"none"`` (the paper recipe's) never does.
+        sensor_scale: a camera that upscales (its sensor, or the mode it is used in, has fewer pixels than its
+            output): the sensor's resolution relative to the output, from 0.125 to 1. Below 1, ``fit_profile``
+            trains a ``local_affine`` network through a :class:`~camdegrade.effects.Resolution` stage of that scale
+            and keeps the stage after it; ``"auto"`` (the fast recipe's): the scale found from the training
+            captures (:mod:`camdegrade.fitting.resolution`), or none; 1 (the paper recipe's): none.
     """
 
     epochs: int = FAST["epochs"]
@@ -102,6 +107,7 @@ class FitConfig:
     val_fraction: float = FAST["val_fraction"]
     effects: tuple[str, ...] = FAST["effects"]
     texture: str = FAST["texture"]
+    sensor_scale: str | float = FAST["sensor_scale"]
 
     def __post_init__(self) -> None:
         for name in ("epochs", "crop", "batch_size", "lr_halving_epochs", "crops_per_pair", "width"):
@@ -127,10 +133,21 @@ class FitConfig:
         for name, allowed in choices:
             if getattr(self, name) not in allowed:
                 raise ValueError(f"{name} must be one of {allowed}, got {name}={getattr(self, name)!r}")
+        scale = self.sensor_scale
+        number = not isinstance(scale, bool) and isinstance(scale, (int, float))
+        if scale != "auto" and not (number and MIN_SENSOR_SCALE <= scale <= 1):
+            raise ValueError(
+                f"sensor_scale must be 'auto' or a number from {MIN_SENSOR_SCALE} to 1, got sensor_scale={scale!r}"
+            )
         share = self.val_fraction
         if isinstance(share, bool) or not isinstance(share, (int, float)) or not 0.0 <= share < 1.0:
             raise ValueError(f"val_fraction must be in [0, 1), got val_fraction={share!r}")
         object.__setattr__(self, "effects", tuple(check_effect_names(self.effects)))
+        if Resolution.name in self.effects:
+            raise ValueError(
+                "effects: 'resolution' is not fitted after the network (it would blur twice); the network is trained "
+                "through it: use sensor_scale (--sensor-scale): 'auto' finds it in the captures, or a scale such as 0.5"
+            )
         check_seed(self.seed)
 
     @classmethod
@@ -180,22 +197,32 @@ class EpochResult:
     is_best: bool
 
 
-def random_crop_batch(pairs: Sequence[ImagePair], crop: int, count: int, generator: torch.Generator) -> ImagePair:
-    """``count`` random aligned windows, as float ``(count, 3, crop, crop)`` clean and captured batches in [0, 1]."""
+def random_crop_batch(
+    pairs: Sequence[ImagePair], crop: int, count: int, generator: torch.Generator, *, step: int = 1
+) -> ImagePair:
+    """``count`` random aligned windows, as float ``(count, 3, crop, crop)`` clean and captured batches in [0, 1],
+    their corners on multiples of ``step`` (a sensor grid's period, so each window sees it in the whole image's
+    phase)."""
     which = torch.randint(len(pairs), (count,), generator=generator).tolist()
     clean_crops, captured_crops = [], []
     for index in which:
         clean, captured = pairs[index]
         height, width = clean.shape[-2:]
-        top = int(torch.randint(height - crop + 1, (1,), generator=generator))
-        left = int(torch.randint(width - crop + 1, (1,), generator=generator))
+        top = step * int(torch.randint((height - crop) // step + 1, (1,), generator=generator))
+        left = step * int(torch.randint((width - crop) // step + 1, (1,), generator=generator))
         clean_crops.append(clean[:, top : top + crop, left : left + crop])
         captured_crops.append(captured[:, top : top + crop, left : left + crop])
     return as_unit(torch.stack(clean_crops)), as_unit(torch.stack(captured_crops))
 
 
-def evaluate_psnr(network: ShiftNetwork, pairs: Sequence[ImagePair], device: torch.device | str = "cpu") -> float:
-    """Mean PSNR (dB) of the network's output against the captures, over full-size pairs."""
+def evaluate_psnr(
+    network: ShiftNetwork,
+    pairs: Sequence[ImagePair],
+    device: torch.device | str = "cpu",
+    after: torch.nn.Module | None = None,
+) -> float:
+    """Mean PSNR (dB) of the network's output (through ``after``, a fixed stage, when given) against the captures,
+    over full-size pairs."""
     if not pairs:
         return float("nan")
     network.eval()
@@ -203,6 +230,8 @@ def evaluate_psnr(network: ShiftNetwork, pairs: Sequence[ImagePair], device: tor
     with torch.no_grad():
         for clean, captured in pairs:
             output = run_network(network, as_unit(clean.to(device)[None]), "float32")
+            if after is not None:
+                output = after(output)
             scores.append(psnr(output, captured.to(device)[None]))
     return sum(scores) / len(scores)
 
@@ -219,6 +248,7 @@ def fit_network(
     progress: bool = False,
     pair_names: Sequence[str] | None = None,
     initial: ShiftNetwork | None = None,
+    after: Resolution | None = None,
 ) -> tuple[ShiftNetwork, list[EpochResult]]:
     """Train a network of ``config.arch`` mapping clean → captured; return the best epoch's weights (by ``val``
     PSNR, or by training loss when ``val`` is empty) and the per-epoch history.
@@ -239,6 +269,10 @@ def fit_network(
     ``ValueError``. Its validation PSNR is the score every epoch must beat: a fit that never does returns it
     unchanged (best epoch 0), never worse than where it started. A resumed fit continues from its checkpoint's
     weights.
+
+    ``after``: a sensor-resolution stage the camera applies after what the network models: the network is trained
+    (and scored) through it, on windows cropped on its grid (:attr:`~camdegrade.effects.Resolution.period`), so
+    it learns the image before the sensor's sampling; the profile runs the stage after the network.
     """
     config = config or FitConfig()
     _check_pairs(train, config.crop)
@@ -250,14 +284,15 @@ def fit_network(
         check_writable(checkpoint)  # before training, not after its first epoch
     fingerprint = pairs_fingerprint(train, val, pair_names)
     network, optimizer, scheduler, generator = _new_training(config, device, initial)
-    start = _starting_score(network, val, device) if initial is not None else None
+    start = _starting_score(network, val, device, after) if initial is not None else None
     state = _initial_state(network, optimizer, scheduler, generator, config, checkpoint, resume, fingerprint, start)
-    step = _TrainStep(_distributed(network, device) if world > 1 else network, optimizer, config, device, world)
+    model = _distributed(network, device) if world > 1 else network
+    step = _TrainStep(model, optimizer, config, device, world, after)
     bar = _progress_bar(config, len(train), state.epoch, enabled=progress and rank == 0)
     try:
         while state.epoch < config.epochs and not (val and _patience_spent(state.history, config.patience)):
             loss = _train_one_epoch(step, train, generator, rank, bar)
-            state = _end_epoch(state, network, optimizer, scheduler, generator, val, loss, device)
+            state = _end_epoch(state, network, optimizer, scheduler, generator, val, loss, device, after)
             if checkpoint is not None and rank == 0:
                 save_checkpoint(state, checkpoint)
             result = EpochResult(**state.history[-1])
@@ -289,12 +324,14 @@ def _patience_spent(history: Sequence[dict[str, Any]], patience: int) -> bool:
     return len(history) - last_progress >= patience
 
 
-def _end_epoch(state, network, optimizer, scheduler, generator, val, loss: float, device) -> TrainingState:
+def _end_epoch(
+    state, network, optimizer, scheduler, generator, val, loss: float, device, after: Resolution | None = None
+) -> TrainingState:
     """The state after an epoch: the schedule's step, the validation score, the best weights so far."""
     lr = optimizer.param_groups[0]["lr"]
     scheduler.step()
     # Every rank takes rank 0's score, so that all agree on the best epoch and on when to stop.
-    score = _from_rank0(evaluate_psnr(network, val, device) if val else -loss, device)
+    score = _from_rank0(evaluate_psnr(network, val, device, after=after) if val else -loss, device)
     is_best = score > state.best_score
     result = EpochResult(state.epoch + 1, loss, score if val else float("nan"), lr, is_best)
     best = {k: v.detach().clone() for k, v in network.state_dict().items()} if is_best else state.best_network
@@ -329,12 +366,14 @@ def _check_initial(initial: ShiftNetwork | None) -> None:
         raise TypeError(f"initial must be a DomainShiftNet, a LocalAffineNet or None, got {type(initial).__name__}")
 
 
-def _starting_score(network: ShiftNetwork, val: Sequence[ImagePair], device) -> tuple[float, dict[str, Tensor]] | None:
+def _starting_score(
+    network: ShiftNetwork, val: Sequence[ImagePair], device, after: Resolution | None = None
+) -> tuple[float, dict[str, Tensor]] | None:
     """The validation PSNR of the network a fit starts from and its weights: the score to beat (``None`` without
     validation pairs)."""
     if not val:
         return None
-    score = _from_rank0(evaluate_psnr(network, val, device), device)
+    score = _from_rank0(evaluate_psnr(network, val, device, after=after), device)
     return score, {k: v.detach().clone() for k, v in network.state_dict().items()}
 
 
@@ -437,8 +476,12 @@ class _TrainStep:
     """One optimizer step on a batch of crops: channels-last input (oneDNN's fastest convolutions on the CPU),
     bfloat16 autocast where the recipe asks for it, loss and optimizer in float32."""
 
-    def __init__(self, model: torch.nn.Module, optimizer, config: FitConfig, device, world: int) -> None:
+    def __init__(
+        self, model: torch.nn.Module, optimizer, config: FitConfig, device, world: int, after: Resolution | None = None
+    ) -> None:
         self.model, self.optimizer, self.config, self.world = model, optimizer, config, world
+        self.after = after.to(device) if after is not None else None
+        self.crop_step = after.period if after is not None else 1
         self.device = torch.device(device)
         self.autocast = training_dtype(config.precision, self.device) == torch.bfloat16
 
@@ -448,6 +491,8 @@ class _TrainStep:
         self.optimizer.zero_grad(set_to_none=True)
         with torch.autocast(self.device.type, dtype=torch.bfloat16, enabled=self.autocast):
             output = self.model(clean)
+        if self.after is not None:
+            output = self.after(output.float())
         loss = F.mse_loss(output.float(), captured, reduction="sum") / (count * clean[0].numel() / self.world)
         loss.backward()
         self.optimizer.step()
@@ -470,7 +515,8 @@ def _train_one_epoch(step: _TrainStep, train, generator, rank: int, bar: tqdm) -
     loss_sum = 0.0
     for start in range(0, total_crops, config.batch_size):
         count = min(config.batch_size, total_crops - start)
-        clean, captured = random_crop_batch(train, config.crop, count, generator)  # same crops on every rank
+        # the same crops on every rank
+        clean, captured = random_crop_batch(train, config.crop, count, generator, step=step.crop_step)
         loss = step(clean[rank::world], captured[rank::world], count)
         loss_sum += _global_sum(loss * count / world)  # this rank's squared error per crop element
         bar.update()

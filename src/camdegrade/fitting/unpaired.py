@@ -45,6 +45,7 @@ from camdegrade.effects import (
     Effect,
     Misalignment,
     Noise,
+    Resolution,
     Sharpen,
     Tone,
     Vignetting,
@@ -67,6 +68,7 @@ from camdegrade.fitting._distribution_match import (
 )
 from camdegrade.fitting._unpaired_images import MIN_IMAGES, ImageSet, Source, check_count, load_images
 from camdegrade.fitting._unpaired_noise import fit_noise_unpaired, flat_sums
+from camdegrade.fitting.resolution import find_sensor
 from camdegrade.functional.blur import blur_image
 from camdegrade.measures.fidelity import BAND_EDGES, band_power
 from camdegrade.profile import CameraProfile
@@ -74,7 +76,9 @@ from camdegrade.profile import CameraProfile
 __all__ = ["MIN_IMAGES", "NOT_IDENTIFIABLE", "UNPAIRED_EFFECTS", "fit_unpaired", "unpaired_fidelity"]
 
 #: The stages :func:`fit_unpaired` fits by default, in the order they are fitted.
-UNPAIRED_EFFECTS: tuple[str, ...] = tuple(kind.name for kind in (JPEG, Color, Tone, Vignetting, Noise, Blur, Sharpen))
+UNPAIRED_EFFECTS: tuple[str, ...] = tuple(
+    kind.name for kind in (Resolution, JPEG, Color, Tone, Vignetting, Noise, Blur, Sharpen)
+)
 #: Stages that need to know where each clean pixel landed in the capture: an unpaired set cannot show them.
 NOT_IDENTIFIABLE: dict[str, str] = {
     Misalignment.name: "a shift between clean image and capture is invisible without the same scene on both sides",
@@ -82,8 +86,9 @@ NOT_IDENTIFIABLE: dict[str, str] = {
     ChromaticAberration.name: "a channel's scale is seen against the same scene's other channels at edges only "
     "with a reference; set statistics do not show it",
 }
-#: The stages' order in the fitted chain (physical: optics, sensor, ISP, codec).
-CHAIN_ORDER = tuple(kind.name for kind in (Blur, Vignetting, Noise, Color, Tone, Sharpen, JPEG))
+#: The stages' order in the fitted chain (physical: optics, sensor, ISP, codec; the ISP's upscale last before the
+#: codec, so the sensor's noise and the ISP's sharpening are upsampled with the image).
+CHAIN_ORDER = tuple(kind.name for kind in (Blur, Vignetting, Noise, Color, Tone, Sharpen, Resolution, JPEG))
 #: The noise is calibrated on at most ``NOISE_IMAGES`` clean images, whole (their flat pixels are selected as the
 #: captures' are: a window chosen for its flatness would hold less texture than the captures' flat pixels do);
 #: the spectrum compared on centre crops of at most ``SPECTRUM_IMAGES``.
@@ -211,6 +216,7 @@ class _UnpairedFit:
         self.clean_rings = ring_profiles(self.small_cleans) if cleans else torch.zeros(0, RINGS, dtype=torch.float64)
         self.real_spectrum = mean_spectrum(captures.images)
         self.steps: list[tuple[str, Callable[[], None]]] = [
+            ("resolution", self.fit_resolution),
             ("jpeg", self.fit_jpeg),
             ("vignetting", lambda: self.fit_vignetting(simulated=False)),
             ("colour and tone", lambda: self.fit_color_tone(test=False)),
@@ -260,6 +266,17 @@ class _UnpairedFit:
                 self.not_fitted[kind.name] = reason
 
     # -- steps -----------------------------------------------------------------------------------------------------
+
+    def fit_resolution(self) -> None:
+        """An upscale the captures show and the clean set does not (:func:`~camdegrade.fitting.resolution.
+        find_sensor`; without a clean set, the captures' trace alone): first, so every later stage is fitted
+        through it."""
+        if not self.wants(Resolution):
+            return
+        cleans = self.cleans.images if self.cleans else None
+        stage, self.notes[Resolution.name] = find_sensor(cleans, self.captures.images, self.say)
+        if stage is not None:
+            self.keep(stage)
 
     def fit_jpeg(self) -> None:
         if not self.wants(JPEG):

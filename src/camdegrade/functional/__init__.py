@@ -30,6 +30,7 @@ from camdegrade.functional.geometry import (
     vignetting_image,
 )
 from camdegrade.functional.noise import poisson_gaussian_noise_image
+from camdegrade.functional.resolution import resolution_image
 from camdegrade.functional.response import frequency_response_image
 from camdegrade.functional.sharpen import denoise_image, unsharp_mask_image
 from camdegrade.functional.tone import tone_curve, tone_curve_image
@@ -51,6 +52,7 @@ __all__ = [
     "poisson_gaussian_noise_image",
     "psf_kernel",
     "relative_radius",
+    "resolution_image",
     "separable_taps",
     "srgb_to_linear",
     "srgb_to_linear_",

@@ -1,0 +1,62 @@
+"""Kernel of a sensor with fewer pixels than the image it outputs: sampled at a fraction of the resolution, then
+upsampled back by the ISP.
+
+The sampling low-passes (an antialiased bilinear reduction) and the upsampling leaves the images of the sampled
+spectrum above its Nyquist frequency, a pattern locked to the sensor's grid (period ``1 / scale`` pixels) that no
+shift-invariant filter, and so no convolutional network by itself, reproduces.
+
+References:
+    R. Keys, "Cubic convolution interpolation for digital image processing", IEEE TASSP 29(6), 1981 (the bicubic
+    upsampler); R. C. Gonzalez, R. E. Woods, "Digital Image Processing", 4th ed., 2018, ch. 4 (sampling, aliasing
+    and the spectrum of an interpolated image).
+"""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+
+from camdegrade.functional._utils import apply_float, check_image
+
+#: How the ISP brings the sensor's samples back to the output size (``torch.nn.functional.interpolate`` modes).
+UPSAMPLERS: tuple[str, ...] = ("bicubic", "bilinear")
+
+
+def sensor_size(height: int, width: int, scale: float) -> tuple[int, int]:
+    """The sensor's ``(rows, columns)`` for an output of ``height × width`` at ``scale`` (at least one of each)."""
+    return max(1, round(height * scale)), max(1, round(width * scale))
+
+
+def resolution_image(image: torch.Tensor, scale: float, upsample: str = "bicubic") -> torch.Tensor:
+    """``up(down(x))``: ``image`` reduced to ``scale`` of its size (bilinear, antialiased) and upsampled back
+    (``upsample``: bicubic or bilinear), clipped to [0, 1]; ``scale`` 1 is the identity.
+
+    Args:
+        image: ``[..., 3, H, W]`` uint8 or float in [0, 1].
+        scale: the sensor's resolution relative to the output, in (0, 1].
+        upsample: one of :data:`UPSAMPLERS`.
+
+    Examples:
+        >>> image = torch.rand(1, 3, 16, 16, generator=torch.Generator().manual_seed(0))
+        >>> torch.equal(resolution_image(image, 1.0), image)
+        True
+        >>> resolution_image(image, 0.5).shape
+        torch.Size([1, 3, 16, 16])
+    """
+    check_image(image)
+    if not 0.0 < float(scale) <= 1.0:
+        raise ValueError(f"scale must be in (0, 1], got scale={scale!r}")
+    if upsample not in UPSAMPLERS:
+        raise ValueError(f"upsample must be one of {UPSAMPLERS}, got upsample={upsample!r}")
+    height, width = image.shape[-2:]
+    low = sensor_size(height, width, float(scale))
+    if low == (height, width):
+        return image.clone()
+
+    def kernel(x: torch.Tensor) -> torch.Tensor:
+        flat = x.reshape(-1, *x.shape[-3:])
+        sampled = F.interpolate(flat, size=low, mode="bilinear", antialias=True, align_corners=False)
+        restored = F.interpolate(sampled, size=(height, width), mode=upsample, align_corners=False)
+        return restored.clamp(0.0, 1.0).reshape(x.shape)
+
+    return apply_float(image, kernel)
