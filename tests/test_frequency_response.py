@@ -14,7 +14,7 @@ from camdegrade.diagnose.attribute import check_candidates
 from camdegrade.effects import EFFECTS, FrequencyResponse
 from camdegrade.fitting.response import fit_response
 from camdegrade.functional import frequency_response_image
-from camdegrade.functional.response import MAPS_PER_GAINS, response_map
+from camdegrade.functional.response import MAPS_KEPT, response_map
 from effects_images import photo
 
 KNOTS = 11
@@ -97,8 +97,13 @@ def test_the_cached_map_follows_the_gains_and_the_size() -> None:
     assert torch.allclose(frequency_response_image(image, gains.clone()), first, atol=1e-6)
     gains.fill_(1.0)  # in place: the cached map must not survive it
     assert torch.allclose(frequency_response_image(image, gains), image, atol=1e-5)
-    gains.copy_(camera_response())
-    for size in range(40, 40 + 2 * MAPS_PER_GAINS + 1, 2):  # more sizes than the cache keeps, then the first again
+    gains.data = camera_response() * 1.5  # nor a new .data, nor a write through NumPy
+    assert not torch.allclose(frequency_response_image(image, gains), first, atol=1e-3)
+    gains.numpy()[:] = camera_response().numpy()
+    assert torch.equal(frequency_response_image(image, gains), first)
+    with torch.inference_mode():  # inference tensors have no version counter: the key does not need one
+        assert torch.equal(frequency_response_image(image, gains.clone()), first)
+    for size in range(40, 40 + 2 * MAPS_KEPT + 1, 2):  # more sizes than the cache keeps, then the first again
         smaller = image[..., :size, :size]
         assert torch.allclose(
             frequency_response_image(smaller, gains), frequency_response_image(smaller, gains.clone())

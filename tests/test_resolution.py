@@ -3,16 +3,20 @@
 
 from __future__ import annotations
 
+import math
+
 import pytest
 import torch
+import torch.nn.functional as F
 from torch import Tensor
 
 from camdegrade import VirtualCamera
 from camdegrade._recipes import MIN_SENSOR_SCALE
-from camdegrade.effects import Blur, Noise, Resolution
+from camdegrade.effects import JPEG, Blur, Noise, Resolution
 from camdegrade.effects.resolution import SCALES
+from camdegrade.errors import CamdegradeError
 from camdegrade.fitting import FitConfig, fit_profile
-from camdegrade.fitting.training import random_crop_batch
+from camdegrade.fitting.training import _sensor_crop, fit_network, random_crop_batch
 from camdegrade.functional import resolution_image
 from camdegrade.measures.resampling import MIN_EXCESS, resampling_trace
 from camdegrade.metrics import psnr
@@ -58,7 +62,9 @@ def test_fit_of_a_target_that_is_the_source_is_the_full_resolution() -> None:
     assert float(Resolution.fit(sources, sources).scale) == 1.0
 
 
-@pytest.mark.parametrize(("scale", "period"), [(1.0, 1), (0.5, 2), (1 / 3, 3), (0.25, 4), (2 / 3, 3), (0.75, 4)])
+@pytest.mark.parametrize(
+    ("scale", "period"), [(1.0, 1), (0.5, 2), (1 / 3, 3), (0.25, 4), (2 / 3, 3), (0.75, 4), (0.3, 10), (0.9, 10)]
+)
 def test_period_is_the_sensor_grid_in_output_pixels(scale: float, period: int) -> None:
     assert Resolution(scale).period == period
 
@@ -81,9 +87,15 @@ def test_scaled_and_magnitude() -> None:
         (lambda: resampling_trace([]), "images must hold at least one image"),
         (lambda: resampling_trace([torch.rand(3, 8, 40)]), "images must be at least 16x16 pixels, got 8x40"),
         (lambda: resampling_trace(leaves(1), reference=[]), "reference must hold at least one image"),
+        (lambda: resampling_trace([torch.rand(1, 3, 32, 32)]), r"images must be \(3, H, W\) images, got shape"),
+        (lambda: resampling_trace([torch.full((3, 32, 32), math.nan)]), "images must be finite"),
         (lambda: FitConfig(sensor_scale=2.0), "sensor_scale must be 'auto' or a number from 0.125 to 1"),
         (lambda: FitConfig(sensor_scale="half"), "sensor_scale must be 'auto' or a number from 0.125 to 1"),
         (lambda: FitConfig(effects=("noise", "resolution")), "effects: 'resolution' is not fitted after the network"),
+        (lambda: FitConfig(arch="paper", sensor_scale=0.5), "sensor_scale=0.5 needs arch='local_affine'"),
+        (lambda: fit_profile("no-such-folder", sensor_scale_recipe(0.5), init_from="city100-iphonex"), "init_from"),
+        (lambda: random_crop_batch([], 8, 1, torch.Generator(), step=0), "step must be a positive integer, got step=0"),
+        (lambda: _sensor_crop(8, Resolution(1 / 3)), "crop must hold two sensor periods .* at least 24, got crop=8"),
     ],
 )
 def test_bad_values_are_refused_by_name(make, message: str) -> None:
@@ -118,6 +130,29 @@ def test_no_upscale_is_found_where_there_is_none(change: str) -> None:
     assert max(trace.coherence.values()) - trace.null < MIN_EXCESS - 0.1
 
 
+def test_jpeg_blocks_are_not_an_upscale_and_an_upscale_under_jpeg_is() -> None:
+    """JPEG's 8×8 grid repeats at 1/4 and 1/2 cycles/pixel too: hard-compressed smooth images read 0.47 at 1/2
+    (0.02 without the codec) and must not be taken for an upscale; a 2× upscale compressed at quality 75 is."""
+    images = leaves(24)
+    blocky = [JPEG(20)(Blur(2.0)(image[None]))[0] for image in images]
+    trace = resampling_trace(blocky, reference=images)
+    assert trace.period is None and trace.coherence[2] > 0.3 and trace.codec > 0.3, trace
+    compressed = [JPEG(75)(resolution_image(image, 0.5)[None])[0] for image in images]
+    assert resampling_trace(compressed, reference=images).period == 2
+
+
+def test_the_largest_period_wins_and_sizes_are_weighted_by_their_lines() -> None:
+    """A 4× nearest upscale repeats at 1/2 as strongly as at 1/4: it is 4. One large upscaled image does not outvote
+    24 small ones without an upscale, nor one large plain image 16 small upscaled ones (each length's bins weigh by
+    its number of lines)."""
+    nearest = [F.interpolate(image[None, :, ::4, ::4], scale_factor=4, mode="nearest")[0] for image in leaves()]
+    assert resampling_trace([eight_bit(image) for image in nearest]).period == 4
+    large_upscaled = eight_bit(resolution_image(leaves(1, 384, seed=9)[0], 0.5))
+    assert resampling_trace([*leaves(24), large_upscaled]).period is None
+    upscaled = [eight_bit(resolution_image(image, 0.5)) for image in leaves()]
+    assert resampling_trace([*upscaled, *leaves(1, 384, seed=9)]).period == 2
+
+
 def test_an_upscale_the_clean_images_already_carry_is_not_the_cameras() -> None:
     upscaled = [eight_bit(resolution_image(image, 0.5)) for image in leaves()]
     darker = [eight_bit(0.5 * image) for image in upscaled]  # a camera that only darkens what it was shown
@@ -125,6 +160,15 @@ def test_an_upscale_the_clean_images_already_carry_is_not_the_cameras() -> None:
     trace = resampling_trace(darker, reference=upscaled)
     assert trace.period is None and trace.reference is not None and trace.reference[2] > 0.8, trace
     assert resampling_trace(upscaled, reference=leaves()).period == 2
+
+
+def sensor_scale_recipe(scale: float) -> FitConfig:
+    return FitConfig.recipe("fast", sensor_scale=scale)
+
+
+@pytest.mark.parametrize(("scale", "crop"), [(0.5, 64), (1 / 3, 60), (0.25, 64), (2 / 3, 60), (0.3, 60)])
+def test_windows_hold_whole_sensor_periods(scale: float, crop: int) -> None:
+    assert _sensor_crop(64, Resolution(scale)) == crop
 
 
 def test_crops_start_on_the_sensor_grid() -> None:
@@ -161,6 +205,26 @@ def test_a_fit_trains_its_network_through_the_upscale_it_finds() -> None:
 
     gained, lost = held_psnr(found), held_psnr(plain)
     assert gained > lost + 0.5, (gained, lost)  # +0.98 dB at this size (AMD EPYC, bfloat16); +3.6 dB fully fitted
+
+
+def test_a_checkpoint_does_not_resume_through_another_sensor(tmp_path) -> None:
+    pairs = _camera_pairs(0.5, 6, seed=1)
+    config = FitConfig.recipe("fast", epochs=2, crops_per_pair=2, crop=32)
+    checkpoint = tmp_path / "fit.ckpt"
+    fit_network(pairs[:4], pairs[4:], config, checkpoint=checkpoint, after=Resolution(0.5))
+    with pytest.raises(CamdegradeError, match=r"other training pairs or sensor .* through a sensor at 0\.5x"):
+        fit_network(pairs[:4], pairs[4:], config, checkpoint=checkpoint, resume=True)
+    with pytest.raises(CamdegradeError, match=r"through a sensor at 0\.25x"):
+        fit_network(pairs[:4], pairs[4:], config, checkpoint=checkpoint, resume=True, after=Resolution(0.25))
+
+
+def test_the_note_says_no_stage_where_the_network_was_dropped() -> None:
+    """A camera the clean image already matches (captures = cleans): the network is dropped, and so is the sensor
+    the recipe named; the note says so."""
+    pairs = [(clean, clean) for clean, _ in _camera_pairs(1.0, 8, seed=3)]
+    profile = fit_profile(pairs, FitConfig.recipe("fast", **TINY, sensor_scale=0.5))
+    assert profile.network is None and not any(isinstance(effect, Resolution) for effect in profile.effects)
+    assert profile.fitted["resolution"]["kept"] is False, profile.fitted["resolution"]
 
 
 def test_a_camera_without_an_upscale_gets_no_stage() -> None:

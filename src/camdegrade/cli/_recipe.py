@@ -16,7 +16,10 @@ def sensor_scale(text: str) -> str | float:
     """``auto`` or a sensor scale from :data:`~camdegrade._recipes.MIN_SENSOR_SCALE` to 1."""
     if text == "auto":
         return text
-    value = number(text)
+    try:
+        value = number(text)
+    except argparse.ArgumentTypeError:
+        raise argparse.ArgumentTypeError(f"must be auto or a number from {MIN_SENSOR_SCALE} to 1, got {text}") from None
     if not MIN_SENSOR_SCALE <= value <= 1.0:
         raise argparse.ArgumentTypeError(f"must be auto or a number from {MIN_SENSOR_SCALE} to 1, got {text}")
     return value

@@ -63,9 +63,9 @@ class Resolution(Effect):
 
     @property
     def period(self) -> int:
-        """The sensor grid's period in output pixels (the denominator of ``scale`` as a fraction of at most 8):
-        windows cropped at multiples of it see the pattern in the phase the whole image has."""
-        return Fraction(float(self.scale)).limit_denominator(8).denominator
+        """The sensor grid's period in output pixels (the denominator of ``scale`` as a fraction, up to 64; 0.3 is
+        3/10: 10 px): windows cropped at multiples of it see the pattern in the phase the whole image has."""
+        return Fraction(float(self.scale)).limit_denominator(64).denominator
 
     def scaled(self, strength: float) -> Resolution:
         """A copy whose ``scale`` is this one's to the power ``strength`` (0: the full resolution), at least

@@ -127,6 +127,11 @@ def fit_profile(
     _check_arguments(pairs, name, description)
     check_device(device)
     initial, init_label = _initial_network(init_from, config)
+    if initial is not None and config.sensor_scale not in ("auto", 1, 1.0):
+        raise ValueError(
+            f"sensor_scale={config.sensor_scale} trains a new network through the sensor; init_from continues a "
+            "network as it was trained: pass one or the other"
+        )
     if initial is not None:  # a refit continues the network it starts from, whatever the recipe's default
         config = config.replace(
             arch=initial.arch,
@@ -171,6 +176,12 @@ def fit_profile(
         profile = CameraProfile(network if keep_network else None, name=name, description=description)
         if sensor is not None and keep_network:
             profile = profile.with_effects(sensor)
+        elif sensor is not None:
+            resolution_note = {
+                **resolution_note,
+                "kept": False,
+                "reason": "the network it was trained with was dropped",
+            }
         eight_bit = all(captured.dtype == torch.uint8 for _, captured in pair_set.images)
         train_pairs, val_pairs = train.unit_pairs(), val.unit_pairs()
         profile, effect_notes = fit_effects(profile, train_pairs, val_pairs, config.effects, say, eight_bit=eight_bit)
@@ -303,12 +314,7 @@ def _sensor(
         return find_sensor([clean for clean, _ in train.images], [captured for _, captured in train.images], say)
     if config.sensor_scale >= 1:
         return None, {"kept": False, "scale": 1.0}
-    if config.arch != LocalAffineNet.arch or initial is not None:
-        raise ValueError(
-            f"sensor_scale={config.sensor_scale} needs a local_affine network trained from its baseline, "
-            f"got arch={config.arch!r}" + (" and init_from" if initial is not None else "")
-        )
-    sensor = Resolution(config.sensor_scale)
+    sensor = Resolution(config.sensor_scale)  # FitConfig and fit_profile refused it with arch='paper' or init_from
     say(
         f"resolution: the network is trained through a sensor at {config.sensor_scale:.4g}x (windows every "
         f"{sensor.period} px)"

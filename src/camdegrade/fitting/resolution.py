@@ -39,12 +39,12 @@ def find_sensor(
     if trace.period is None:
         say(
             f"resolution: no upscale added by the camera in {trace.images} captures (coherence {shown}; "
-            f"null {trace.null:.2f})"
+            f"null {trace.null:.2f}, JPEG grid {trace.codec:.2f})"
         )
         return None, {"kept": False, **trace.to_dict()}
     sensor = Resolution(1.0 / trace.period)
     say(
         f"resolution: the captures are upscaled from 1/{trace.period} of their resolution (coherence {shown}; "
-        f"null {trace.null:.2f}): the network is trained through it"
+        f"null {trace.null:.2f}, JPEG grid {trace.codec:.2f}): the network is trained through it"
     )
     return sensor, {"kept": True, "scale": round(1.0 / trace.period, 4), **trace.to_dict()}

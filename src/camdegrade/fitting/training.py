@@ -139,6 +139,11 @@ class FitConfig:
             raise ValueError(
                 f"sensor_scale must be 'auto' or a number from {MIN_SENSOR_SCALE} to 1, got sensor_scale={scale!r}"
             )
+        if number and scale < 1 and self.arch != "local_affine":
+            raise ValueError(
+                f"sensor_scale={scale} needs arch='local_affine' (its network is trained through the sensor), "
+                f"got arch={self.arch!r}"
+            )
         share = self.val_fraction
         if isinstance(share, bool) or not isinstance(share, (int, float)) or not 0.0 <= share < 1.0:
             raise ValueError(f"val_fraction must be in [0, 1), got val_fraction={share!r}")
@@ -203,6 +208,8 @@ def random_crop_batch(
     """``count`` random aligned windows, as float ``(count, 3, crop, crop)`` clean and captured batches in [0, 1],
     their corners on multiples of ``step`` (a sensor grid's period, so each window sees it in the whole image's
     phase)."""
+    if isinstance(step, bool) or not isinstance(step, int) or step < 1:
+        raise ValueError(f"step must be a positive integer, got step={step!r}")
     which = torch.randint(len(pairs), (count,), generator=generator).tolist()
     clean_crops, captured_crops = [], []
     for index in which:
@@ -283,6 +290,8 @@ def fit_network(
     if checkpoint is not None and rank == 0:
         check_writable(checkpoint)  # before training, not after its first epoch
     fingerprint = pairs_fingerprint(train, val, pair_names)
+    if after is not None:  # a checkpoint trained through one sensor must not resume through another, or none
+        fingerprint += f" through a sensor at {float(after.scale):.4g}x"
     network, optimizer, scheduler, generator = _new_training(config, device, initial)
     start = _starting_score(network, val, device, after) if initial is not None else None
     state = _initial_state(network, optimizer, scheduler, generator, config, checkpoint, resume, fingerprint, start)
@@ -461,7 +470,7 @@ def _initial_state(
         raise ValueError(f"checkpoint {str(checkpoint)!r} was written with a different recipe: {saved}, now {recipe}")
     if state.data != fingerprint:
         raise CamdegradeError(
-            f"checkpoint {str(checkpoint)!r} was written for other training pairs (fingerprint "
+            f"checkpoint {str(checkpoint)!r} was written for other training pairs or sensor (fingerprint "
             f"{state.data or 'none recorded'}, these pairs give {fingerprint}); resume with the same pairs, or start "
             "a new fit without resume"
         )
@@ -482,6 +491,7 @@ class _TrainStep:
         self.model, self.optimizer, self.config, self.world = model, optimizer, config, world
         self.after = after.to(device) if after is not None else None
         self.crop_step = after.period if after is not None else 1
+        self.crop = _sensor_crop(config.crop, after) if after is not None else config.crop
         self.device = torch.device(device)
         self.autocast = training_dtype(config.precision, self.device) == torch.bfloat16
 
@@ -493,10 +503,23 @@ class _TrainStep:
             output = self.model(clean)
         if self.after is not None:
             output = self.after(output.float())
-        loss = F.mse_loss(output.float(), captured, reduction="sum") / (count * clean[0].numel() / self.world)
+        loss = F.mse_loss(output.float(), captured, reduction="sum") / (count * captured[0].numel() / self.world)
         loss.backward()
         self.optimizer.step()
         return loss.detach()
+
+
+def _sensor_crop(crop: int, sensor: Resolution) -> int:
+    """The training window for a network trained through ``sensor``: ``crop`` rounded down to a whole number of
+    sensor periods that is also a multiple of the network's :data:`~camdegrade.network.SIZE_MULTIPLE`, so the stage
+    samples each window on the whole image's grid (a 64-px window at scale 1/3 would hold 21.3 sensor pixels)."""
+    unit = math.lcm(SIZE_MULTIPLE, sensor.period)
+    if crop < 2 * unit:
+        raise ValueError(
+            f"crop must hold two sensor periods of a multiple of {SIZE_MULTIPLE} px at sensor_scale "
+            f"{float(sensor.scale):.4g} (period {sensor.period} px): at least {2 * unit}, got crop={crop}"
+        )
+    return crop // unit * unit
 
 
 def training_dtype(precision: str, device: torch.device) -> torch.dtype:
@@ -516,7 +539,7 @@ def _train_one_epoch(step: _TrainStep, train, generator, rank: int, bar: tqdm) -
     for start in range(0, total_crops, config.batch_size):
         count = min(config.batch_size, total_crops - start)
         # the same crops on every rank
-        clean, captured = random_crop_batch(train, config.crop, count, generator, step=step.crop_step)
+        clean, captured = random_crop_batch(train, step.crop, count, generator, step=step.crop_step)
         loss = step(clean[rank::world], captured[rank::world], count)
         loss_sum += _global_sum(loss * count / world)  # this rank's squared error per crop element
         bar.update()

@@ -12,7 +12,7 @@ References:
 
 from __future__ import annotations
 
-import weakref
+from collections import OrderedDict
 
 import torch
 import torch.nn.functional as F
@@ -24,13 +24,6 @@ from camdegrade.functional.analysis import luma as luma_of
 #: Rows and columns of mirrored border added on each side before the FFT, so that the filter's wrap-around reads a
 #: reflection of the image rather than its opposite edge (the fitted responses' kernels are a few pixels wide).
 PAD = 16
-#: Response maps kept per gains tensor (one per padded image size and dtype). Building a map is about a third of
-#: the stage's time on a 224² image (0.34 of 0.93 ms, AMD EPYC, 2 threads) and a transform sees few sizes.
-MAPS_PER_GAINS = 4
-
-#: id of a gains tensor → (a weak reference to it, its version when cached, its maps by (height, width, dtype)).
-#: Keyed by id because a tensor's ``==`` is elementwise; the weak reference's callback drops the entry.
-_maps: dict[int, tuple[weakref.ref, int, dict[tuple[int, int, torch.dtype], Tensor]]] = {}
 
 
 def knot_coordinates(size: int, knots: int, *, half: bool, device: torch.device | None = None) -> Tensor:
@@ -54,22 +47,29 @@ def response_map(gains: Tensor, height: int, width: int) -> Tensor:
     return upper * (1 - down) + lower * down
 
 
+#: Response maps kept, the most recently used last: building one is about a third of the stage's time on a 224²
+#: image (0.34 of 0.93 ms, AMD EPYC, 2 threads), and a transform sees few gains and sizes.
+MAPS_KEPT = 8
+
+_maps: OrderedDict[tuple, Tensor] = OrderedDict()
+
+
 def cached_response_map(gains: Tensor, height: int, width: int, dtype: torch.dtype) -> Tensor:
-    """:func:`response_map` of ``gains`` in ``dtype``, built once per gains tensor and size while the tensor lives
-    and is not modified in place (its version counter is checked); gains that need a gradient are never cached."""
+    """:func:`response_map` of ``gains`` in ``dtype``, kept for the :data:`MAPS_KEPT` most recent (gains, size,
+    dtype, device). Keyed by the gains' values, so a change to them made any way (in place, through ``.data``,
+    through NumPy) is seen; gains that need a gradient are never cached."""
     if gains.requires_grad:
         return response_map(gains.to(dtype), height, width)
-    held, version, maps = _maps.get(id(gains), (None, -1, {}))
-    if held is None or held() is not gains or version != gains._version:
-        maps = {}
-        key_id = id(gains)
-        _maps[key_id] = (weakref.ref(gains, lambda _: _maps.pop(key_id, None)), gains._version, maps)
-    key = (height, width, dtype)
-    if key not in maps:
-        if len(maps) >= MAPS_PER_GAINS:
-            maps.pop(next(iter(maps)))
-        maps[key] = response_map(gains.to(dtype), height, width)
-    return maps[key]
+    values = gains.detach().to("cpu", torch.float64).numpy().tobytes()
+    key = (values, tuple(gains.shape), height, width, dtype, str(gains.device))
+    if key in _maps:
+        _maps.move_to_end(key)
+        return _maps[key]
+    mapped = response_map(gains.to(dtype), height, width)
+    _maps[key] = mapped
+    if len(_maps) > MAPS_KEPT:
+        _maps.popitem(last=False)
+    return mapped
 
 
 def filter_planes(planes: Tensor, gains: Tensor) -> Tensor:

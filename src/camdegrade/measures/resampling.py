@@ -5,8 +5,9 @@ A row sampled at ``1/q`` of the output's resolution and interpolated back holds,
 columns of many such images the two are coherent (near 1), where in any other image they are unrelated (near the
 ``1/√n`` of chance over ``n`` rows). The coherence is read from the images alone, so a camera's upscale is found
 from its captures, paired or not. Measured (``examples/sensor_resolution.py``): 128² images upscaled 2×, 3× and 4×
-read 0.89, 0.77 and 0.71 at their own period against 0.2 elsewhere; the captures of City100's iPhone X and of the
-real-noise sets read the null (0.02–0.05).
+read 0.88, 0.77 and 0.71 at their own period against 0.02 elsewhere; the captures of City100's iPhone X read the
+null (0.03), those of the real-noise sets at most 0.1 at 1/2 (their demosaicking's period-2 trace). JPEG's 8×8 grid
+repeats at 1/4 and 1/2 as well (:data:`CODEC_SHIFTS`).
 
 References:
     A. C. Popescu, H. Farid, "Exposing digital forgeries by detecting traces of resampling", IEEE Trans. Signal
@@ -19,7 +20,7 @@ from __future__ import annotations
 
 import statistics
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import torch
 from torch import Tensor
@@ -32,10 +33,20 @@ from camdegrade.functional.analysis import luma
 PERIODS: tuple[int, ...] = (2, 3, 4)
 #: Cycle frequencies no period of :data:`PERIODS` repeats at: their median coherence is the images' null.
 CONTROL_SHIFTS: tuple[float, ...] = (0.29, 0.37, 0.43)
-#: A period is found when its coherence exceeds the null by this much: upscaled sets exceed it by 0.49–0.72
-#: (8-bit, 24 images of 128²), sets without an upscale by at most 0.09 (PolyU's clean means, whose demosaicking
-#: leaves a weak period-2 trace).
+#: JPEG's 8×8 blocks are periodic too, at every multiple of 1/8 cycles/pixel, 1/4 and 1/2 included: blurred photos
+#: compressed at quality 10–50 read up to 0.73 above the null at 1/2 from their blocks alone. Their coherence at
+#: 1/8 and 3/8, where no upscale of :data:`PERIODS` repeats, is what the periods on that grid (2 and 4) must also
+#: exceed, by :data:`CODEC_EXCESS`.
+CODEC_SHIFTS: tuple[float, ...] = (1 / 8, 3 / 8)
+#: A period is found when its coherence exceeds the null (and the reference's) by this much: upscaled sets exceed
+#: it by 0.49–0.72 (8-bit, 24 images of 128²), sets without an upscale by at most 0.09 (PolyU's clean means, whose
+#: demosaicking leaves a weak period-2 trace) unless they are JPEGs (above).
 MIN_EXCESS = 0.3
+#: ... and, on the JPEG grid, the coherence at 1/8 and 3/8 by this much: JPEG alone exceeds it by at most 0.11 at
+#: 1/2 (seven scikit-image photos, 24 crops of 128² each, blurred by 0, 1 or 2 px and compressed at quality 10, 20,
+#: 50); 2× and 4× upscales then JPEG at quality 90 by 0.26–0.48, at 75 by 0.14–0.28, at 50 by 0.00–0.20: an upscale
+#: compressed at quality 50 or below is mostly not found (``examples/sensor_resolution.py``).
+CODEC_EXCESS = 0.15
 #: Frequencies this close to 0 or to Nyquist are left out: the window's leakage and the DC dominate there.
 EDGE = 0.03
 
@@ -43,14 +54,23 @@ EDGE = 0.03
 @dataclass(frozen=True)
 class ResamplingTrace:
     """The coherence at each period of :data:`PERIODS` (``coherence[q]``, at ``1/q`` cycles/pixel), the images' null
-    (median over :data:`CONTROL_SHIFTS`), the reference images' coherence where there were any (``reference[q]``:
-    what the images held before the camera), and the period found (``None``: no upscale)."""
+    (median over :data:`CONTROL_SHIFTS`), their coherence on the JPEG grid (``codec``, the largest over
+    :data:`CODEC_SHIFTS`), the reference images' coherence where there were any (``reference[q]``: what the images
+    held before the camera), and the period found (``None``: no upscale)."""
 
     coherence: dict[int, float]
     null: float
+    codec: float
     reference: dict[int, float] | None
     period: int | None
     images: int
+
+    def required(self, period: int) -> float:
+        """The coherence at ``period`` that finds it: :data:`MIN_EXCESS` above the null and the reference's
+        coherence there, and :data:`CODEC_EXCESS` above the JPEG grid's where the period's cycle frequency lies on
+        that grid."""
+        required = max(self.null, self.reference[period] if self.reference is not None else 0.0) + MIN_EXCESS
+        return max(required, self.codec + CODEC_EXCESS) if 8 % period == 0 else required
 
     def to_dict(self) -> dict:
         def rounded(values: dict[int, float] | None) -> dict[str, float] | None:
@@ -59,18 +79,24 @@ class ResamplingTrace:
         return {
             "coherence": rounded(self.coherence),
             "null": round(self.null, 4),
+            "codec": round(self.codec, 4),
             "reference": rounded(self.reference),
             "period": self.period,
             "images": self.images,
             "min_excess": MIN_EXCESS,
+            "codec_excess": CODEC_EXCESS,
         }
 
 
 def cyclic_coherence(images: Sequence[Tensor], shift: float) -> float:
     """Mean over frequencies ``f`` of ``|Σ A·B̄| / √(Σ|A|² Σ|B|²)``, ``A`` the spectrum of a (Hann-windowed,
     mean-removed) row or column of the luma at ``f``, ``B`` at ``f − shift``, the sums over every row and column of
-    ``images`` (``(3, H, W)``, uint8 or float) of one length; both frequencies in (:data:`EDGE`, 0.5 − EDGE)."""
+    ``images`` (``(3, H, W)``, uint8 or float) of one length; both frequencies in (:data:`EDGE`, 0.5 − EDGE). Lines
+    of different lengths are pooled per length and the lengths weighted by their number of lines, so one large
+    image does not outweigh many small ones."""
+    _check_images(images, "images")
     sums: dict[int, list[Tensor]] = {}
+    lines_of: dict[int, int] = {}
     for image in images:
         plane = luma(as_unit(image).double())
         for lines in (plane, plane.transpose(-1, -2)):
@@ -81,9 +107,14 @@ def cyclic_coherence(images: Sequence[Tensor], shift: float) -> float:
             first, second = spectrum[..., here], spectrum[..., there]
             terms = [(first * second.conj()).sum(0), first.abs().pow(2).sum(0), second.abs().pow(2).sum(0)]
             sums[length] = [a + b for a, b in zip(sums[length], terms)] if length in sums else terms
-    per_bin = [cross.abs() / (power * partner).sqrt().clamp_min(1e-300) for cross, power, partner in sums.values()]
-    values = torch.cat(per_bin)
-    return float(values.mean()) if values.numel() else 0.0
+            lines_of[length] = lines_of.get(length, 0) + lines.shape[0]
+    means, weights = [], []
+    for length, (cross, power, partner) in sums.items():
+        per_bin = cross.abs() / (power * partner).sqrt().clamp_min(1e-300)
+        if per_bin.numel():
+            means.append(float(per_bin.mean()))
+            weights.append(lines_of[length])
+    return sum(m * w for m, w in zip(means, weights)) / sum(weights) if weights else 0.0
 
 
 def _frequency_pairs(length: int, shift: float) -> tuple[Tensor, Tensor]:
@@ -98,25 +129,32 @@ def _frequency_pairs(length: int, shift: float) -> tuple[Tensor, Tensor]:
 
 def resampling_trace(images: Sequence[Tensor], reference: Sequence[Tensor] | None = None) -> ResamplingTrace:
     """Whether ``images`` (a camera's captures, ``(3, H, W)`` each, at least 16 px a side) were upscaled from a
-    sensor of ``1/q`` their resolution, ``q`` in :data:`PERIODS`: the period whose coherence exceeds the null by
-    :data:`MIN_EXCESS` the most, or none. With ``reference`` (the clean images the camera saw, paired or not), the
-    coherence must also exceed theirs by as much: an upscale the clean images already carry is not the camera's."""
+    sensor of ``1/q`` their resolution, ``q`` in :data:`PERIODS`: the largest period whose coherence reaches
+    :meth:`ResamplingTrace.required` (above the null, and above the JPEG grid's coherence; a 4× upscale repeats at
+    1/2 as well as at 1/4), or none. With ``reference`` (the clean images the camera saw, paired or
+    not), the coherence must also exceed theirs by as much: an upscale the clean images already carry is not the
+    camera's."""
     _check_images(images, "images")
     coherence = {period: cyclic_coherence(images, 1.0 / period) for period in PERIODS}
     null = statistics.median(cyclic_coherence(images, shift) for shift in CONTROL_SHIFTS)
+    codec = max(cyclic_coherence(images, shift) for shift in CODEC_SHIFTS)
     before = None
     if reference is not None:
         _check_images(reference, "reference")
         before = {period: cyclic_coherence(reference, 1.0 / period) for period in PERIODS}
-    floor = {period: max(null, before[period]) if before else null for period in PERIODS}
-    best = max(PERIODS, key=lambda period: coherence[period] - floor[period])
-    found = best if coherence[best] - floor[best] >= MIN_EXCESS else None
-    return ResamplingTrace(coherence, null, before, found, len(images))
+    trace = ResamplingTrace(coherence, null, codec, before, None, len(images))
+    found = [period for period in PERIODS if coherence[period] >= trace.required(period)]
+    return replace(trace, period=max(found)) if found else trace
 
 
 def _check_images(images: Sequence[Tensor], name: str) -> None:
+    """``images`` must be a non-empty sequence of finite ``(3, H, W)`` images of at least 16 px a side."""
     if not images:
         raise ValueError(f"{name} must hold at least one image, got none")
-    small = [tuple(image.shape[-2:]) for image in images if min(image.shape[-2:]) < 16]
-    if small:
-        raise ValueError(f"{name} must be at least 16x16 pixels, got {small[0][0]}x{small[0][1]}")
+    for index, image in enumerate(images):
+        if image.ndim != 3 or image.shape[0] != 3:
+            raise ValueError(f"{name} must be (3, H, W) images, got shape {tuple(image.shape)} at index {index}")
+        if min(image.shape[-2:]) < 16:
+            raise ValueError(f"{name} must be at least 16x16 pixels, got {image.shape[-2]}x{image.shape[-1]}")
+        if image.is_floating_point() and not bool(torch.isfinite(image).all()):
+            raise ValueError(f"{name} must be finite, got a NaN or infinite value at index {index}")
