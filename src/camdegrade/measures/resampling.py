@@ -94,8 +94,13 @@ def cyclic_coherence(images: Sequence[Tensor], shift: float) -> float:
     ``images`` (``(3, H, W)``, uint8 or float) of one length; both frequencies in (:data:`EDGE`, 0.5 − EDGE). Lines
     of different lengths are pooled per length and the lengths weighted by their number of lines, so one large
     image does not outweigh many small ones."""
+    return cyclic_coherences(images, (shift,))[shift]
+
+
+def cyclic_coherences(images: Sequence[Tensor], shifts: Sequence[float]) -> dict[float, float]:
+    """:func:`cyclic_coherence` at each of ``shifts``, every line's spectrum computed once."""
     _check_images(images, "images")
-    sums: dict[int, list[Tensor]] = {}
+    sums: dict[tuple[float, int], list[Tensor]] = {}
     lines_of: dict[int, int] = {}
     for image in images:
         plane = luma(as_unit(image).double())
@@ -103,18 +108,24 @@ def cyclic_coherence(images: Sequence[Tensor], shift: float) -> float:
             length = lines.shape[-1]
             window = torch.hann_window(length, periodic=False, dtype=torch.float64)
             spectrum = torch.fft.fft((lines - lines.mean(-1, keepdim=True)) * window, dim=-1)
-            here, there = _frequency_pairs(length, shift)
-            first, second = spectrum[..., here], spectrum[..., there]
-            terms = [(first * second.conj()).sum(0), first.abs().pow(2).sum(0), second.abs().pow(2).sum(0)]
-            sums[length] = [a + b for a, b in zip(sums[length], terms)] if length in sums else terms
             lines_of[length] = lines_of.get(length, 0) + lines.shape[0]
-    means, weights = [], []
-    for length, (cross, power, partner) in sums.items():
-        per_bin = cross.abs() / (power * partner).sqrt().clamp_min(1e-300)
-        if per_bin.numel():
-            means.append(float(per_bin.mean()))
-            weights.append(lines_of[length])
-    return sum(m * w for m, w in zip(means, weights)) / sum(weights) if weights else 0.0
+            for shift in shifts:
+                here, there = _frequency_pairs(length, shift)
+                first, second = spectrum[..., here], spectrum[..., there]
+                terms = [(first * second.conj()).sum(0), first.abs().pow(2).sum(0), second.abs().pow(2).sum(0)]
+                key = (shift, length)
+                sums[key] = [a + b for a, b in zip(sums[key], terms)] if key in sums else terms
+    out = {}
+    for shift in shifts:
+        means, weights = [], []
+        for length, count in lines_of.items():
+            cross, power, partner = sums[(shift, length)]
+            per_bin = cross.abs() / (power * partner).sqrt().clamp_min(1e-300)
+            if per_bin.numel():
+                means.append(float(per_bin.mean()))
+                weights.append(count)
+        out[shift] = sum(m * w for m, w in zip(means, weights)) / sum(weights) if weights else 0.0
+    return out
 
 
 def _frequency_pairs(length: int, shift: float) -> tuple[Tensor, Tensor]:
@@ -135,13 +146,15 @@ def resampling_trace(images: Sequence[Tensor], reference: Sequence[Tensor] | Non
     not), the coherence must also exceed theirs by as much: an upscale the clean images already carry is not the
     camera's."""
     _check_images(images, "images")
-    coherence = {period: cyclic_coherence(images, 1.0 / period) for period in PERIODS}
-    null = statistics.median(cyclic_coherence(images, shift) for shift in CONTROL_SHIFTS)
-    codec = max(cyclic_coherence(images, shift) for shift in CODEC_SHIFTS)
+    at = cyclic_coherences(images, (*(1.0 / period for period in PERIODS), *CONTROL_SHIFTS, *CODEC_SHIFTS))
+    coherence = {period: at[1.0 / period] for period in PERIODS}
+    null = statistics.median(at[shift] for shift in CONTROL_SHIFTS)
+    codec = max(at[shift] for shift in CODEC_SHIFTS)
     before = None
     if reference is not None:
         _check_images(reference, "reference")
-        before = {period: cyclic_coherence(reference, 1.0 / period) for period in PERIODS}
+        clean = cyclic_coherences(reference, [1.0 / period for period in PERIODS])
+        before = {period: clean[1.0 / period] for period in PERIODS}
     trace = ResamplingTrace(coherence, null, codec, before, None, len(images))
     found = [period for period in PERIODS if coherence[period] >= trace.required(period)]
     return replace(trace, period=max(found)) if found else trace
