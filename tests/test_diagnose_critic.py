@@ -105,6 +105,21 @@ def test_the_json_carries_the_accuracy_by_group_and_the_surest_patches(toned: Di
 
 
 @pytest.mark.slow
+def test_a_second_critic_sees_the_image_alone(toned: DiagnosisReport) -> None:
+    """Beside the critic with the clean source, one that sees the image alone (what a model trained on the
+    simulation sees), on the same folds. It sees less: a tone curve (γ 1.3) on varied photos is plain beside the
+    clean source (above 0.9) and not from the image alone (0.52 here)."""
+    before, after = toned.critic["before (image only)"], toned.critic["after (image only)"]
+    assert before["folds"] == [
+        {**fold, "accuracy": entry["accuracy"]} for fold, entry in zip(toned.critic["before"]["folds"], before["folds"])
+    ]
+    assert before["accuracy"] < toned.critic["before"]["accuracy"] - 0.2, (before, toned.critic["before"])
+    assert before["patches"] == toned.critic["before"]["patches"] and after["pairs"] == 6
+    assert f"From the image alone: {before['accuracy']:.2f}" in toned.verdict
+    assert toned.critic_surest["after (image only)"]
+
+
+@pytest.mark.slow
 def test_the_html_shows_the_surest_patches_real_beside_simulated_and_the_table(toned: DiagnosisReport) -> None:
     page = toned.to_html()
     for label in ("before", "after"):

@@ -24,6 +24,8 @@ from camdegrade.profile import CameraProfile, as_profile
 MIN_PAIRS = 4
 #: The critic "tells them apart" when the lower end of its 95 % interval is above this.
 CRITIC_CHANCE = 0.55
+#: The suffix of the critics' labels that see the image alone, without its clean source.
+IMAGE_ONLY = " (image only)"
 NETWORK_COMMAND = "camdegrade fit PAIRS -o REFIT.safetensors --init-from {profile} --epochs 20 --lr 0.001"
 
 
@@ -139,12 +141,17 @@ def findings_of(result: Attribution, grid: GridComparison | None = None) -> list
 
 def _critics(result: Attribution, held: PairSet, held_pairs: list, seed: int, say: Callable[[str], None]) -> dict:
     """The critic on the profile as given and on the profile with the accepted changes (the same one when nothing
-    was accepted), each trained and scored on parts of the held-out pairs (:mod:`camdegrade.diagnose.critique`)."""
+    was accepted), each trained and scored on parts of the held-out pairs (:mod:`camdegrade.diagnose.critique`),
+    with the clean source beside the image (``before``, ``after``) and from the image alone (``… (image only)``):
+    the first also reads a capture's misregistration against its clean image, which no camera effect changes."""
     simulations = [("before", result.baseline.sims)]
     if result.accepted:
         simulations.append(("after", result.final_sims))
     out = critiques(simulations, held_pairs, held.names, held.scenes, seed, say)
     out.setdefault("after", out["before"])
+    seen = [(f"{label}{IMAGE_ONLY}", sims) for label, sims in simulations]
+    out.update(critiques(seen, held_pairs, held.names, held.scenes, seed, say, image_only=True))
+    out.setdefault(f"after{IMAGE_ONLY}", out[f"before{IMAGE_ONLY}"])
     return out
 
 
@@ -238,6 +245,12 @@ def _critic_clause(significant_gap: bool, critics: dict[str, Critique]) -> str:
     if after is not before:
         clause += f"; after the changes {after.accuracy:.2f} [{after.low:.2f}–{after.high:.2f}]"
     clause += "."
+    if f"before{IMAGE_ONLY}" in critics:
+        seen, seen_after = critics[f"before{IMAGE_ONLY}"].result, critics[f"after{IMAGE_ONLY}"].result
+        clause += f" From the image alone: {seen.accuracy:.2f} [{seen.low:.2f}–{seen.high:.2f}]"
+        if seen_after is not seen:
+            clause += f"; after the changes {seen_after.accuracy:.2f} [{seen_after.low:.2f}–{seen_after.high:.2f}]"
+        clause += "."
     if significant_gap and before.low <= 0.5:
         clause += " The critic cannot tell the captures from the simulations although the statistics see a gap."
     elif not significant_gap and before.low > CRITIC_CHANCE:

@@ -64,16 +64,18 @@ def critiques(
     scenes: Sequence[str],
     seed: int,
     say: Callable[[str], None],
+    image_only: bool = False,
 ) -> dict[str, Critique]:
     """For each ``(label, a profile's simulations of the held-out pairs)``, a two-fold critic on the held-out pairs
-    (see the module); ``names`` and ``scenes`` are the held-out pairs'."""
+    (see the module); ``names`` and ``scenes`` are the held-out pairs'. With ``image_only`` the critic sees the
+    image alone (what a model trained on the simulation sees), not the clean source beside it."""
     trains = alternate_scenes(scenes)
     sides = [[names[i] for i, t in enumerate(trains) if t is side] for side in (True, False)]
     cleans, reals = [c for c, _ in held], [r for _, r in held]
     out = {}
     for label, sims in simulations:
         result, explanation, accuracies = crossfit_critic_test(
-            (cleans, reals, sims), trains, seed, k=SUREST, per_pair=SUREST_PER_PAIR
+            (cleans, reals, sims), trains, seed, k=SUREST, per_pair=SUREST_PER_PAIR, image_only=image_only
         )
         folds = [
             {"trained_on": sides[0], "scored_on": sides[1], "accuracy": round(accuracies[0], 4)},

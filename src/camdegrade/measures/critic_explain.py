@@ -214,11 +214,13 @@ def crossfit_critic_test(
     steps: int = STEPS,
     k: int = 6,
     per_pair: int | None = None,
+    image_only: bool = False,
 ) -> tuple[CriticResult, CriticExplanation, tuple[float, float]]:
     """A two-fold critic on one set of ``pairs`` = (cleans, reals, sims): a critic trained on the pairs ``trains``
     marks scores the others, a second trained on those others scores the first, so every pair is scored by a critic
-    that never saw it. Returns the pooled score (its interval a bootstrap over all the pairs), the explanation of
-    the pooled logits, and each fold's accuracy (how much the critic depends on which pairs trained it).
+    that never saw it. With ``image_only`` the critics see the image alone, not the clean source beside it.
+    Returns the pooled score (its interval a bootstrap over all the pairs), the explanation of the pooled logits,
+    and each fold's accuracy (how much the critic depends on which pairs trained it).
 
     References:
         D. Lopez-Paz, M. Oquab, "Revisiting Classifier Two-Sample Tests", ICLR 2017.
@@ -233,8 +235,8 @@ def crossfit_critic_test(
     for side in (True, False):
         train = tuple([item for item, t in zip(column, trains, strict=True) if bool(t) is side] for column in pairs)
         held = tuple([item for item, t in zip(column, trains, strict=True) if bool(t) is not side] for column in pairs)
-        net = train_critic(Patches.sample(*train, seed, "critic-calibration"), seed, steps)
-        patches = Patches.sample(*held, seed, "critic-held-out")
+        net = train_critic(Patches.sample(*train, seed, "critic-calibration", image_only), seed, steps)
+        patches = Patches.sample(*held, seed, "critic-held-out", image_only)
         towards_real = logits(net, patches)
         folds.append(float(((towards_real > 0).float() == patches.labels).float().mean()))
         scored.append(patches)
