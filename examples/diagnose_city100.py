@@ -5,6 +5,9 @@ them by scene into 8 calibration and 8 held-out pairs, tries every change (add, 
 network) on top of the profile and reports what remains, with the learned critic. Whole frames by default (the noise
 is measured where the clean image is flat, and a city scene's flat regions are few); ``--crop`` takes centre crops.
 ``--profile`` diagnoses another profile, e.g. the one shipped before the flat-region noise fit (a test fixture).
+``--fresh-critics N`` checks the reported critics after the changes: 2N critics of each kind the diagnosis did not
+train (N seeds, each both ways of an alternate split of the held-out pairs, on a new draw of the changed profile's
+simulations), whose mean should fall in the report's interval.
 
     OMP_NUM_THREADS=2 .venv/bin/python examples/diagnose_city100.py --out out/diagnose/city100
     OMP_NUM_THREADS=2 .venv/bin/python examples/diagnose_city100.py \
@@ -18,8 +21,11 @@ from pathlib import Path
 
 import torch
 
+from camdegrade._pixels import as_unit
 from camdegrade.diagnose import diagnose
 from camdegrade.fitting import discover_pairs, filter_pairs, load_pair
+from camdegrade.fitting.pairset import simulate
+from camdegrade.measures.critic import repeated_critic_test
 
 DEFAULT_DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "real-pairs"
 HELD_OUT = {f"{n:03d}" for n in range(56, 71)} | {"098"}
@@ -49,6 +55,7 @@ def main() -> None:
     parser.add_argument("--crop", type=int, default=None, help="centre crops of this size (default: whole frames)")
     parser.add_argument("--profile", default="city100-iphonex", help="built-in name or .safetensors path")
     parser.add_argument("--out", type=Path, default=Path("out/diagnose/city100"))
+    parser.add_argument("--fresh-critics", type=int, default=0, help="confirm the critics after the changes")
     args = parser.parse_args()
     pairs = held_out_pairs(args.data, args.crop)
     print(f"{len(pairs)} held-out City100 iPhone X pairs, {f'centre {args.crop}px' if args.crop else 'whole frames'}")
@@ -64,6 +71,26 @@ def main() -> None:
         if "after_finding" in entry:
             print(f"{'':>10s} after the changes: {entry['after_finding']}")
     print(report.verdict)
+    if args.fresh_critics:
+        fresh_critics(report, pairs, args.fresh_critics)
+
+
+def fresh_critics(report, pairs: list[tuple[torch.Tensor, torch.Tensor]], count: int) -> None:
+    """Critics the diagnosis did not train, on the held-out pairs, against the profile with the changes: each kind's
+    mean and whether it lies in the interval the report gives."""
+    names = sorted(report.critic["after"]["scored_on"], key=int)  # the held-out pairs, named by their index
+    cleans = [as_unit(pairs[int(name)][0]) for name in names]
+    reals = [as_unit(pairs[int(name)][1]) for name in names]
+    sims = [(s.clamp(0, 1) * 255).round() / 255 for s in simulate(report.profile, cleans, seed=1, stream="fresh")]
+    for label, image_only in (("after", False), ("after (image only)", True)):
+        reported = report.critic[label]
+        spread = repeated_critic_test((cleans, reals, sims), names, count, image_only=image_only)
+        inside = reported["low"] <= spread.accuracy <= reported["high"]
+        print(
+            f"fresh critics, {label}: {spread.accuracy:.3f} ± {spread.std:.3f} over {len(spread.accuracies)} critics; "
+            f"the report: {reported['accuracy']:.3f} [{reported['low']:.3f}–{reported['high']:.3f}] -> "
+            + ("within its interval" if inside else "OUTSIDE its interval")
+        )
 
 
 if __name__ == "__main__":
