@@ -36,7 +36,8 @@ from noise_table import SUBSETS, _load, _residual_sums, _simulate, default_real_
 
 from camdegrade.effects import Noise
 from camdegrade.fitting._unpaired_noise import fit_noise_unpaired, flat_sums
-from camdegrade.fitting.unpaired import MIN_IMAGES, fit_unpaired
+from camdegrade.fitting.unpaired import MIN_IMAGES, STAND_IN_SIGMA, fit_unpaired
+from camdegrade.functional.blur import blur_image
 
 
 def _spread(ratio: torch.Tensor) -> tuple[float, float, int]:
@@ -75,12 +76,8 @@ def subset_rows(root: Path, only: Sequence[str] | None = None, calibrated: bool 
         cleans, reals = _load(paths[::2])
         held_cleans, held_reals = _load(paths[1::2])
         real = _residual_sums(held_reals, held_cleans)
-        if len(reals) < MIN_IMAGES:
-            print(f"{subset}: {len(reals)} captures in the fitting half, fewer than the unpaired fit's {MIN_IMAGES}")
-            continue
-        unpaired = fit_unpaired(reals, effects=("noise",)).effects
         stages = {
-            "unpaired (captures only)": unpaired[0] if len(unpaired) else None,
+            "unpaired (captures only)": _captures_only_noise(reals),
             "paired Noise.fit": Noise.fit(cleans, reals, estimator="residual", seed=0),
         }
         if calibrated:
@@ -93,6 +90,16 @@ def subset_rows(root: Path, only: Sequence[str] | None = None, calibrated: bool 
         row["oracle"] = _spread(_residual_sums(reals, cleans).std() / real.std())
         rows.append(row)
     return rows
+
+
+def _captures_only_noise(reals: list[torch.Tensor]) -> Noise | None:
+    """The noise stage ``fit_unpaired(reals, effects=("noise",))`` keeps; below its :data:`MIN_IMAGES` captures
+    (SIDD's halves hold 6), the same step it runs, on the same stand-ins, called directly."""
+    if len(reals) >= MIN_IMAGES:
+        unpaired = fit_unpaired(reals, effects=("noise",)).effects
+        return unpaired[0] if len(unpaired) else None
+    stand_ins = [blur_image(image, STAND_IN_SIGMA) for image in reals]
+    return fit_noise_unpaired(flat_sums(reals), partial(_simulate_or_clean, cleans=stand_ins), direct=True)[0]
 
 
 def _simulate_or_clean(noise: Noise | None, cleans: list[torch.Tensor]) -> list[torch.Tensor]:

@@ -3,15 +3,18 @@ fitter on synthetic cameras whose noise is known (recovery within the tolerances
 
 from __future__ import annotations
 
+import dataclasses
+
 import pytest
 import torch
 from torch import Tensor
 
 from camdegrade import CameraProfile, load_profile
 from camdegrade.effects import Noise
-from camdegrade.effects._noise_fit import _autocorrelation, _symmetric_taps
+from camdegrade.effects._noise_fit import LINE_KEPT, _autocorrelation, _set_banding, _symmetric_taps
+from camdegrade.fitting._unpaired_noise import flat_sums
 from camdegrade.functional import poisson_gaussian_noise_image
-from camdegrade.functional.analysis import flat_mask, flattest_window
+from camdegrade.functional.analysis import box_mean, flat_mask, flattest_window, noisy_flat_mask
 from camdegrade.functional.noise import correlated_field
 from camdegrade.functional.noise_stats import NoiseSums, measure_set
 from effects_images import patch_chart, photos_for_fitting
@@ -177,3 +180,72 @@ def test_flat_mask_is_absolute_and_the_flattest_window_finds_the_flat_area() -> 
     assert 40 <= rows.start <= 72 and 48 <= cols.start <= 80 and share > 0.5
     (rows, cols), _ = flattest_window(textured, 400)
     assert (rows, cols) == (slice(0, 160), slice(0, 160))
+
+
+def _half_striped(noise_levels: float, generator: torch.Generator) -> Tensor:
+    """A frame flat on its left half and striped on its right, with correlated noise of ``noise_levels`` std (a 3×3
+    box of white noise: lag-1 correlation 2/3, like a processed capture's)."""
+    scene = torch.full((3, 256, 256), 0.45)
+    scene[:, :, 128:] += 0.3 * torch.sin(torch.arange(128.0) / 3)
+    white = torch.randn(3, 1, 258, 258, generator=generator)
+    noise = torch.nn.functional.avg_pool2d(white, 3, stride=1)[:, 0]
+    return (scene + noise / noise.std() * noise_levels / 255).clamp(0, 1)
+
+
+def test_noisy_flat_mask_reads_strong_correlated_noise_that_flat_mask_loses() -> None:
+    """At 20 levels of correlated noise the absolute mask keeps no pixel of the flat half (the noise moves the
+    gradient past 1.5 levels); the noise-aware one keeps most of it, and the noise read there is the true level
+    (not the calm pixels' lower one), with the stripes still out. At 3 levels the two masks are the same."""
+    generator = torch.Generator().manual_seed(0)
+    strong = [_half_striped(20.0, generator) for _ in range(3)]
+    assert sum(int(flat_mask(image).sum()) for image in strong) < 500
+    masks = [noisy_flat_mask(image) for image in strong]
+    assert all(int(mask[:, 128:].sum()) == 0 and int(mask[:, :128].sum()) > 15_000 for mask in masks)
+    assert flat_sums(strong).pooled_std() == pytest.approx(20.0, rel=0.06)
+    weak = _half_striped(3.0, generator)
+    assert torch.equal(noisy_flat_mask(weak), flat_mask(weak))
+    own = NoiseSums.measure(weak, box_mean(weak, 17), flat_mask(weak))
+    assert own.pooled_std() == pytest.approx(3.0, rel=0.06)
+
+
+def _blotchy(sources: list[Tensor], levels: float, seed: int = 3) -> list[Tensor]:
+    """``sources`` plus noise correlated over 9 px both ways (a 9×9 box of white noise): further than the stage's
+    5-tap kernel reaches, and the same along rows and columns."""
+    generator = torch.Generator().manual_seed(seed)
+    out = []
+    for src in sources:
+        white = torch.randn(3, 1, src.shape[-2] + 8, src.shape[-1] + 8, generator=generator)
+        blotches = torch.nn.functional.avg_pool2d(white, 9, stride=1)[:, 0]
+        out.append((src + blotches / blotches.std() * levels / 255).clamp(0, 1))
+    return out
+
+
+def _line_sums(rows: float, columns: float, lines: int = 1000) -> NoiseSums:
+    """Noise sums whose row and column means have these mean squares (levels²) over ``lines`` lines each, with a
+    Gaussian line mean's spread."""
+    mean_square = torch.tensor([rows, columns], dtype=torch.float64)[:, None].expand(2, 3)
+    number = torch.full((2, 3), float(lines), dtype=torch.float64)
+    lines_sums = torch.stack([mean_square * number, 3 * mean_square.pow(2) * number, number], -1)
+    return dataclasses.replace(NoiseSums.zeros(), lines=lines_sums)
+
+
+def test_line_mean_excess_that_rows_and_columns_share_is_not_banding() -> None:
+    """Line means beyond the fitted stage's null in rows and columns alike are 2-D noise correlated further than the
+    kernel reaches (SIDD's phones: 9–12 levels both ways; drawn as banding, a plaid over the frame). Each direction
+    keeps what it has beyond the other: the same excess both ways gives none, rows alone keep theirs."""
+    null = _line_sums(1.0, 1.0)
+    noise = _camera(row_sigma=torch.zeros(3), column_sigma=torch.zeros(3))
+    _set_banding(noise, _line_sums(10.0, 10.0), null)
+    assert float(noise.row_sigma.abs().max()) == 0.0 and float(noise.column_sigma.abs().max()) == 0.0
+    _set_banding(noise, _line_sums(10.0, 4.0), null)
+    expected = ((10.0 - 4.0) / LINE_KEPT) ** 0.5 / 255
+    assert torch.allclose(noise.row_sigma, torch.full((3,), expected)), noise.row_sigma
+    assert float(noise.column_sigma.abs().max()) == 0.0
+
+
+def test_row_banding_is_found_under_noise_correlated_beyond_the_kernel() -> None:
+    sources = _sources()
+    banded = _camera(row_sigma=0.004, column_sigma=torch.zeros(3))
+    fitted = Noise.fit(sources, _blotchy(_capture(banded, sources), 4.0), estimator="residual")
+    assert ((fitted.row_sigma - 0.004).abs() / 0.004).max() < 0.2, fitted.row_sigma
+    assert float(fitted.column_sigma.max()) == 0.0, fitted.column_sigma

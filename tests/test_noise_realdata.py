@@ -41,8 +41,11 @@ def _within(row, tolerance: float = 0.15) -> tuple[int, int]:
 
 
 def test_polyu_noise_level_per_bin_within_15_percent(rows: dict) -> None:
+    """21 of 24 bins, as many as the oracle. 22 until 2026-11-28: the excess line variance that rows and columns
+    share is no longer drawn as banding, and the brightest blue bin went 0.88 → 0.83 (the oracle's: 0.75)."""
     within, total = _within(rows["polyu_real_noise"])
-    assert total == 24 and within >= 22, rows["polyu_real_noise"].std_ratio
+    oracle_within = sum(abs(r - 1) <= 0.15 for channel in rows["polyu_real_noise"].oracle_ratio for r in channel if r)
+    assert total == 24 and within >= max(21, oracle_within), rows["polyu_real_noise"].std_ratio
     assert rows["polyu_real_noise"].worst_std_error < 0.3
 
 

@@ -322,10 +322,17 @@ def _without_banding(noise: Noise) -> Noise:
 
 def _set_banding(noise: Noise, real: NoiseSums, null: NoiseSums) -> None:
     """Row and column σ from the line-mean variance the real images show beyond the simulated null (the fitted
-    noise without banding); zero where that excess is not significant."""
+    noise without banding); zero where that excess is not significant.
+
+    The excess rows and columns share is not banding but 2-D noise correlated further than the stage's kernel
+    reaches (the SIDD phones' chroma blotches: row and column means both 9–12 levels beyond the null), so each
+    direction keeps only what it has beyond the other. Banding drawn from it printed a plaid over the whole frame. A
+    camera with row and column banding of equal strength loses both; row banding alone (a sensor's usual) is kept.
+    """
     real_variance, real_se = real.line_variance()
     null_variance, null_se = null.line_variance()
     excess = real_variance - null_variance
+    excess = excess - excess.clamp_min(0).nan_to_num(0.0).min(0).values
     se = (real_se.pow(2) + null_se.pow(2)).sqrt()
     kept = (excess > SIGNIFICANCE * se) & (excess > NULL_SHARE * null_variance)
     sigma = torch.where(kept, (excess.clamp_min(0) / LINE_KEPT).sqrt() / 255.0, torch.zeros_like(excess))

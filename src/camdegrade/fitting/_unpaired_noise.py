@@ -1,7 +1,8 @@
 """Camera noise fitted from the captures alone: each capture's own flat regions, no clean reference.
 
-Where a capture is flat (:func:`~camdegrade.functional.analysis.flat_mask` of the capture itself: at a Gaussian
-derivative of 2 px the noise barely moves the gradient), its residual from the 17×17 local mean is its noise,
+Where a capture is flat (:func:`~camdegrade.functional.analysis.noisy_flat_mask` of the capture itself: its
+gradient at 2 px below 1.5 levels or, where its own noise moves the gradient more, below what that noise explains),
+its residual from the 17×17 local mean is its noise,
 binned by that local mean (:class:`~camdegrade.functional.noise_stats.NoiseSums`: level per channel and intensity
 bin, lag-1/2 and channel correlation, row and column line means). The same measurement of the clean set, run
 through the rest of the fitted chain, is the base (what the clean images carry already); the noise stage then
@@ -27,7 +28,7 @@ from torch import Tensor
 
 from camdegrade.effects import Noise
 from camdegrade.effects._noise_fit import calibrate, check_measurable, initial_noise
-from camdegrade.functional.analysis import box_mean, flat_mask
+from camdegrade.functional.analysis import box_mean, noisy_flat_mask
 from camdegrade.functional.noise_stats import HIGH_PASS, NoiseSums
 
 #: A noise stage is kept when its std at mid-grey is at least this many 8-bit levels (8-bit rounding alone leaves
@@ -39,10 +40,11 @@ NOISE_SHARE = 1.1
 
 
 def flat_sums(images: Sequence[Tensor]) -> NoiseSums:
-    """The noise sums of each image on its own flat pixels, binned by its own local mean."""
+    """The noise sums of each image on its own flat pixels (:func:`~camdegrade.functional.analysis.noisy_flat_mask`),
+    binned by its own local mean."""
     total = NoiseSums.zeros()
     for image in images:
-        total = total + NoiseSums.measure(image, box_mean(image, HIGH_PASS), flat_mask(image))
+        total = total + NoiseSums.measure(image, box_mean(image, HIGH_PASS), noisy_flat_mask(image))
     return total
 
 

@@ -97,8 +97,40 @@ def flat_mask(clean: Tensor, levels: float = FLAT_LEVELS, sigma: float = FLAT_SI
     measured here is noise, not the misfit of a model at edges.
     """
     gray = clean.mean(-3) * 255.0
-    mask = gaussian_gradient_magnitude(gray, sigma) < levels
-    for _ in range(erode):
+    return _eroded(gaussian_gradient_magnitude(gray, sigma) < levels, erode)
+
+
+#: The gradient magnitude of 2-D Gaussian noise is Rayleigh-distributed: its 99 % quantile is
+#: sqrt(2 ln 100) / sqrt(2 ln 2) = 2.58 times its median.
+RAYLEIGH_Q99_OVER_MEDIAN = 2.58
+#: Where an image is flat at this σ (px), its own noise barely moves the gradient even at 20 levels (SIDD).
+NOISE_ROBUST_SIGMA = 4.0
+#: The high pass whose gradient is read as the noise's (the noise statistics' local mean, 17×17).
+NOISE_HIGH_PASS = 17
+#: Fewer pixels flat at :data:`NOISE_ROBUST_SIGMA` than this and the noise's gradient is not read.
+NOISE_GRADIENT_PIXELS = 2000
+
+
+def noisy_flat_mask(image: Tensor) -> Tensor:
+    """:func:`flat_mask` of an image that carries its own noise (a capture, with no clean reference).
+
+    A strong noise moves the gradient itself: at :data:`FLAT_LEVELS` the mask then keeps only the pixels where the
+    noise happens to be calm, and the noise read there is too low (the SIDD phones' captures by 2.4×). Here the
+    threshold is at least the 99 % quantile of the gradient the image's own noise makes, read on its high pass where
+    the image is flat at :data:`NOISE_ROBUST_SIGMA`. Noise of a few levels leaves it at :data:`FLAT_LEVELS`.
+    """
+    gray = image.mean(-3) * 255.0
+    robust = flat_mask(image, sigma=NOISE_ROBUST_SIGMA)
+    threshold = FLAT_LEVELS
+    if int(robust.sum()) >= NOISE_GRADIENT_PIXELS:
+        noise_gradient = gaussian_gradient_magnitude(high_pass(gray, NOISE_HIGH_PASS), FLAT_SIGMA)[robust]
+        threshold = max(FLAT_LEVELS, RAYLEIGH_Q99_OVER_MEDIAN * float(noise_gradient.median()))
+    return _eroded(gaussian_gradient_magnitude(gray, FLAT_SIGMA) < threshold, FLAT_ERODE)
+
+
+def _eroded(mask: Tensor, steps: int) -> Tensor:
+    """``mask`` eroded ``steps`` times (4-connected; the frame's border counts as outside)."""
+    for _ in range(steps):
         inner = torch.zeros_like(mask)
         inner[1:-1, 1:-1] = mask[1:-1, 1:-1] & mask[:-2, 1:-1] & mask[2:, 1:-1] & mask[1:-1, :-2] & mask[1:-1, 2:]
         mask = inner
