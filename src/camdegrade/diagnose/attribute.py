@@ -179,27 +179,31 @@ def attribute(
     say("single changes:")
     singles = search.changes(profile, baseline.stats, baseline.gap, [], None, adds, say)
     accepted, combinations = _grow(search, singles, adds, max_changes, say)
-    chosen = accepted[-1] if accepted else None
-    final_profile = chosen.profile if chosen is not None and chosen.profile is not None else profile
-    if chosen is not None and chosen.stats is not None:  # measured with the same draws when it was evaluated
-        final_stats, final_sims = chosen.stats, simulate(final_profile, held.cleans, seed, stream=held.stream)
-    else:
-        final_stats, final_sims = baseline.stats, baseline.sims
-    final_null, _ = held.statistics(final_profile, null=True)
     identity = None
     if baseline.significant and not accepted:  # nothing closes the gap: does the camera degrade less than the profile?
         identity = Round(search, profile, baseline.stats, baseline.gap, [], say).measured(
             "remove", "every stage and the network", CameraProfile(None, []), None
         )
-    return Attribution(
-        baseline=baseline,
-        held=held,
-        singles=singles,
-        combinations=combinations,
-        accepted=accepted,
-        final_profile=final_profile,
-        final_stats=final_stats,
-        final_sims=final_sims,
-        noise_floor=held.gap_between(final_null, final_stats),
-        identity=identity,
-    )
+    return Attribution(baseline, held, singles, combinations, *_final(profile, baseline, held, accepted), identity)
+
+
+def keeping(result: Attribution, count: int, profile: CameraProfile) -> Attribution:
+    """``result`` with only its first ``count`` accepted changes (``profile``: the one diagnosed); the changes after
+    them are dropped from the accepted chain, the combinations tried stay."""
+    accepted = result.accepted[:count]
+    final = _final(profile, result.baseline, result.held, accepted)
+    return Attribution(result.baseline, result.held, result.singles, result.combinations, *final, result.identity)
+
+
+def _final(
+    profile: CameraProfile, baseline: Baseline, held: HeldOut, accepted: list[Change]
+) -> tuple[list[Change], CameraProfile, StatisticSet, list[Tensor], float]:
+    """``(accepted, final profile, its held-out statistics, its held-out simulations, noise floor)``."""
+    chosen = accepted[-1] if accepted else None
+    final_profile = chosen.profile if chosen is not None and chosen.profile is not None else profile
+    if chosen is not None and chosen.stats is not None:  # measured with the same draws when it was evaluated
+        final_stats, final_sims = chosen.stats, simulate(final_profile, held.cleans, held.seed, stream=held.stream)
+    else:
+        final_stats, final_sims = baseline.stats, baseline.sims
+    final_null, _ = held.statistics(final_profile, null=True)
+    return accepted, final_profile, final_stats, final_sims, held.gap_between(final_null, final_stats)

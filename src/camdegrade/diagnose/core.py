@@ -8,9 +8,10 @@ import os
 from collections.abc import Callable, Iterable
 
 from camdegrade._checks import check_seed
-from camdegrade.diagnose.attribute import Attribution, attribute, check_candidates
+from camdegrade.diagnose.attribute import Attribution, attribute, check_candidates, keeping
 from camdegrade.diagnose.changes import KINDS, Change, check_kinds, effect_params
-from camdegrade.diagnose.critique import Critique, critiques
+from camdegrade.diagnose.critic_check import CriticCheck, check_changes
+from camdegrade.diagnose.critique import CRITIC_CHANCE, Critique, critiques
 from camdegrade.diagnose.report import DiagnosisReport, example_crops, flat_crops
 from camdegrade.diagnose.where import findings, visible
 from camdegrade.errors import PairsError
@@ -22,8 +23,6 @@ from camdegrade.profile import CameraProfile, as_profile
 #: Fewest pairs on each side of the split: below this a held-out gap has no spread to judge it by, and the
 #: diagnosis refuses rather than state a verdict from one or two pairs.
 MIN_PAIRS = 4
-#: The critic "tells them apart" when the lower end of its 95 % interval is above this.
-CRITIC_CHANCE = 0.55
 #: The suffix of the critics' labels that see the image alone, without its clean source.
 IMAGE_ONLY = " (image only)"
 NETWORK_COMMAND = "camdegrade fit PAIRS -o REFIT.safetensors --init-from {profile} --epochs 20 --lr 0.001"
@@ -98,13 +97,17 @@ def diagnose(
         seed=seed,
         log=log,
     )
-    critics = _critics(result, held, held_pairs, seed, say) if critic else {}
+    check = check_changes(result, held, held_pairs, seed, say) if critic and result.accepted else None
+    if check is not None and check.held_back is not None:
+        result = keeping(result, check.kept, base)
+    critics = _critics(result, held, held_pairs, seed, say, check) if critic else {}
     grid = compare_grid(result.baseline.sims, result.held.reals)
     where = findings_of(result, grid)
-    seen = visible(result.held.reals, result.baseline.sims, result.final_sims, grid=grid)
-    verdict = _verdict(result, where, seen, critics, base.name)
+    seen = visible(result.held.reals, result.baseline.sims, result.final_sims if result.accepted else None, grid=grid)
+    verdict = _verdict(result, where, seen, critics, base.name, check)
     say(verdict)
     report = _report(base, result, (calibration, held, held_pairs, split), (where, seen, verdict), critics)
+    report.critic_check = check.to_dict() if check is not None else {}
     report.skipped = [
         {"path": str(path), "reason": reason}
         for loaded in (pair_set, given)
@@ -139,16 +142,27 @@ def findings_of(result: Attribution, grid: GridComparison | None = None) -> list
     return findings(result.held.real, baseline.stats, baseline.families, baseline.null_families, grid)
 
 
-def _critics(result: Attribution, held: PairSet, held_pairs: list, seed: int, say: Callable[[str], None]) -> dict:
+def _critics(
+    result: Attribution,
+    held: PairSet,
+    held_pairs: list,
+    seed: int,
+    say: Callable[[str], None],
+    check: CriticCheck | None = None,
+) -> dict:
     """The critic on the profile as given and on the profile with the accepted changes (the same one when nothing
     was accepted), each trained and scored on parts of the held-out pairs (:mod:`camdegrade.diagnose.critique`),
     with the clean source beside the image (``before``, ``after``) and from the image alone (``… (image only)``):
-    the first also reads a capture's misregistration against its clean image, which no camera effect changes."""
+    the first also reads a capture's misregistration against its clean image, which no camera effect changes.
+    The image-only ones come from ``check`` when it judged the changes (the same simulations and seed)."""
     simulations = [("before", result.baseline.sims)]
     if result.accepted:
         simulations.append(("after", result.final_sims))
     out = critiques(simulations, held_pairs, held.names, held.scenes, seed, say)
     out.setdefault("after", out["before"])
+    if check is not None:
+        out[f"before{IMAGE_ONLY}"], out[f"after{IMAGE_ONLY}"] = check.steps[0][1], check.steps[-1][1]
+        return out
     seen = [(f"{label}{IMAGE_ONLY}", sims) for label, sims in simulations]
     out.update(critiques(seen, held_pairs, held.names, held.scenes, seed, say, image_only=True))
     out.setdefault(f"after{IMAGE_ONLY}", out[f"before{IMAGE_ONLY}"])
@@ -184,10 +198,21 @@ def _finding_sentence(misfit: bool, changes: list[Change], profile_name: str) ->
 
 
 def _verdict(
-    result: Attribution, where: list[dict], seen: list[dict], critics: dict[str, Critique], profile_name: str
+    result: Attribution,
+    where: list[dict],
+    seen: list[dict],
+    critics: dict[str, Critique],
+    profile_name: str,
+    check: CriticCheck | None = None,
 ) -> str:
+    held_back = _held_back_clause(check, profile_name)
     baseline = result.baseline
-    if not baseline.significant:
+    if held_back and not result.accepted:
+        text = (
+            f"No change is accepted: the held-out gap is {baseline.gap:.2f} (noise floor {result.noise_floor:.2f})."
+            + held_back
+        )
+    elif not baseline.significant:
         text = (
             f"No significant gap: the held-out gap {baseline.gap:.2f} is within the noise of the measurement "
             f"(profile against itself {baseline.null:.2f}, bootstrap SE {baseline.gap_se:.2f})."
@@ -214,8 +239,24 @@ def _verdict(
             f" {'This closes' if len(result.accepted) == 1 else 'Together they close'} "
             f"{_fraction_closed(result):.0%} of the held-out gap ({baseline.gap:.2f} → {result.gap_after:.2f}; "
             f"noise floor {result.noise_floor:.2f})."
-        )
+        ) + held_back
     return text + _seen_clause(seen) + _critic_clause(baseline.significant, critics)
+
+
+def _held_back_clause(check: CriticCheck | None, profile_name: str) -> str:
+    """The change the image-only critic held back, in words, or nothing."""
+    if check is None or check.held_back is None:
+        return ""
+    change, critique = check.held_back
+    before, after = check.steps[-1][1].result, critique.result
+    _, fix = _finding(change, profile_name)
+    return (
+        f" Held back: {fix} closes the statistics' gap (−{change.reduction:.2f}), but from the image alone a critic "
+        f"tells the simulation from the camera more easily with it ({before.accuracy:.2f} [{before.low:.2f}–"
+        f"{before.high:.2f}] → {after.accuracy:.2f} [{after.low:.2f}–{after.high:.2f}]) and the texture moves away "
+        f"from the camera's ({check.texture[1].describe() if check.texture else 'band power'})"
+        + ("; so are the changes accepted after it." if check.later else ".")
+    )
 
 
 def _seen_clause(seen: list[dict]) -> str:

@@ -76,6 +76,9 @@ class DiagnosisReport:
     #: Every candidate effect the profile lacks, ranked by held-out gap once its misfit is fixed; ``accepted`` marks
     #: the ones the diagnosis added.
     missing: list[dict[str, Any]] = field(default_factory=list)
+    #: The accepted changes judged in order by an image-only critic: ``steps`` let through (the profile as given
+    #: first) and the one ``held_back`` (:mod:`camdegrade.diagnose.critic_check`); empty without the critic.
+    critic_check: dict[str, Any] = field(default_factory=dict)
 
     def to_dict(self) -> dict[str, Any]:
         """The JSON report: the required keys first, then the evidence."""
@@ -110,6 +113,7 @@ class DiagnosisReport:
             "changes": self.changes,
             "accepted": list(self.accepted),
             "critic": self.critic,
+            "critic_check": self.critic_check,
             "skipped": self.skipped,
             "fit_statistics": self.fit_statistics,
         }

@@ -1,0 +1,97 @@
+"""The statistics' accepted changes judged by an image-only critic (:mod:`camdegrade.diagnose.critic_check`): a change
+that makes the simulation easier to tell from the camera from the image alone is held back, with every change
+accepted after it; one that makes it harder is let through."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+
+import pytest
+import torch
+
+import camdegrade.diagnose.core as core
+from camdegrade.diagnose import diagnose
+from camdegrade.diagnose.attribute import attribute, keeping
+from camdegrade.diagnose.changes import Change, add_effect
+from camdegrade.diagnose.critic_check import check_changes
+from camdegrade.effects import Blur, Noise
+from camdegrade.profile import CameraProfile
+from camdegrade.sim import VirtualCamera
+from test_diagnose_critic import camera_pairs, named
+
+torch.set_num_threads(1)
+
+pytestmark = pytest.mark.slow  # each test trains two or three image-only critics: 10–25 s on one core
+
+NOISE = Noise(a=0.0005)
+
+
+def _with_change(camera: VirtualCamera, profile: CameraProfile, change_effect: Blur):
+    """The pairs of ``camera`` (6 calibration, 6 held-out), ``profile`` attributed on them with nothing tried, and
+    that result with one change accepted by hand: ``change_effect`` added."""
+    calibration = named("cal-", camera_pairs(camera, 6, 64, seed=0))
+    held = named("held-", camera_pairs(camera, 6, 64, seed=1))
+    result = attribute(profile, calibration.unit_pairs(), held.unit_pairs(), candidates=[], kinds=("add",))
+    changed = add_effect(profile, change_effect)
+    change = Change("add", change_effect.name, changed, change_effect, gap_after=0.0, reduction=1.0, significant=True)
+    return dataclasses.replace(result, accepted=[change]), held
+
+
+def test_a_change_that_blurs_a_matching_profile_is_held_back() -> None:
+    """The profile is the camera: the critic cannot tell them apart; a blur of σ 2 px it tells from the image alone
+    at once, so the check holds it back, and ``keeping`` returns the profile as given."""
+    camera = VirtualCamera([NOISE], scale=1.0)
+    profile = CameraProfile(None, [NOISE], name="matching")
+    result, held = _with_change(camera, profile, Blur(sigma_x=2.0))
+    check = check_changes(result, held, held.unit_pairs(), 0, lambda message: None)
+    assert check.kept == 0 and check.held_back is not None and check.later == 0
+    before, after = check.steps[0][1].result, check.held_back[1].result
+    assert before.accuracy < 0.7 and after.accuracy > max(before.high, 0.8), (before, after)
+    kept = keeping(result, check.kept, profile)
+    assert kept.accepted == [] and kept.final_profile is profile and kept.final_sims is result.baseline.sims
+    data = check.to_dict()
+    assert data["held_back"]["change"] == "add blur" and data["steps"][0]["change"] == "none"
+
+
+def test_a_change_that_brings_the_camera_s_blur_is_let_through() -> None:
+    """The camera blurs (σ 1.5 px), the profile does not: adding that blur makes the critic less sure, and the
+    check lets it through with its critic as the last step."""
+    camera = VirtualCamera([Blur(sigma_x=1.5), NOISE], scale=1.0)
+    profile = CameraProfile(None, [NOISE], name="sharp")
+    result, held = _with_change(camera, profile, Blur(sigma_x=1.5))
+    check = check_changes(result, held, held.unit_pairs(), 0, lambda message: None)
+    assert check.held_back is None and check.kept == 1
+    before, after = check.steps[0][1].result, check.steps[1][1].result
+    assert before.accuracy > 0.8 and after.accuracy < before.accuracy - 0.2, (before, after)
+
+
+def test_the_diagnosis_reports_a_held_back_change_and_returns_the_profile_without_it(monkeypatch, tmp_path) -> None:
+    """Through :func:`diagnose`: the statistics accept adding the camera's slight blur (σ 0.4 px, which the image-only
+    critic barely sees: 0.59 [0.51–0.68]); the change is replaced, before the check, by one that also draws 40× the
+    noise (what the statistics might accept and a model sees at once: 0.92). The diagnosis holds it back: nothing
+    accepted, the profile as given, and the verdict and the JSON say why."""
+    camera = VirtualCamera([Blur(sigma_x=0.4), NOISE], scale=1.0)
+    profile = CameraProfile(None, [NOISE], name="sharp")
+    real_check = core.check_changes
+
+    def overdone(result, *args):
+        (first, *rest) = result.accepted
+        worse = CameraProfile(None, [Blur(sigma_x=0.4), Noise(a=0.02)], name="grainy")
+        result.accepted[:] = [dataclasses.replace(first, profile=worse), *rest]
+        return real_check(result, *args)
+
+    monkeypatch.setattr(core, "check_changes", overdone)
+    report = diagnose(
+        profile,
+        named("cal-", camera_pairs(camera, 6, 64, seed=0)),
+        held_out=named("held-", camera_pairs(camera, 6, 64, seed=1)),
+        candidates=["blur"],
+        kinds=("add",),
+    )
+    assert report.accepted == [] and report.added == []
+    assert [stage.name for stage in report.profile.effects] == ["noise"]
+    assert report.verdict.startswith("No change is accepted") and "Held back: adding blur" in report.verdict
+    data = json.loads(report.write_json(tmp_path / "report.json").read_text())
+    assert data["critic_check"]["held_back"]["change"] == "add blur"
+    assert data["critic"]["after (image only)"] == data["critic"]["before (image only)"]
