@@ -14,8 +14,12 @@ import camdegrade.diagnose.core as core
 from camdegrade.diagnose import diagnose
 from camdegrade.diagnose.attribute import attribute, keeping
 from camdegrade.diagnose.changes import Change, add_effect
-from camdegrade.diagnose.critic_check import check_changes
+from camdegrade.diagnose.core import _held_back_clause
+from camdegrade.diagnose.critic_check import CriticCheck, check_changes
+from camdegrade.diagnose.critique import Critique
 from camdegrade.effects import Blur, Noise
+from camdegrade.measures.critic import CriticResult
+from camdegrade.measures.visible import TextureComparison
 from camdegrade.profile import CameraProfile
 from camdegrade.sim import VirtualCamera
 from test_diagnose_critic import camera_pairs, named
@@ -45,7 +49,7 @@ def test_a_change_that_blurs_a_matching_profile_is_held_back() -> None:
     profile = CameraProfile(None, [NOISE], name="matching")
     result, held = _with_change(camera, profile, Blur(sigma_x=2.0))
     check = check_changes(result, held, held.unit_pairs(), 0, lambda message: None)
-    assert check.kept == 0 and check.held_back is not None and check.later == 0
+    assert check.kept == 0 and check.held_back is not None and check.later == []
     before, after = check.steps[0][1].result, check.held_back[1].result
     assert before.accuracy < 0.7 and after.accuracy > max(before.high, 0.8), (before, after)
     kept = keeping(result, check.kept, profile)
@@ -95,3 +99,35 @@ def test_the_diagnosis_reports_a_held_back_change_and_returns_the_profile_withou
     data = json.loads(report.write_json(tmp_path / "report.json").read_text())
     assert data["critic_check"]["held_back"]["change"] == "add blur"
     assert data["critic"]["after (image only)"] == data["critic"]["before (image only)"]
+
+
+def test_max_added_below_one_is_refused_by_name() -> None:
+    with pytest.raises(ValueError, match="max_added must be an integer of at least 1, got max_added=0"):
+        diagnose(CameraProfile(None, []), [], max_added=0)
+
+
+def test_the_verdict_names_the_change_held_back_and_the_ones_accepted_on_top_of_it() -> None:
+    """Partial: the first change let through, the second held back with the third, accepted on top of it."""
+
+    def critique(accuracy: float, low: float, high: float) -> Critique:
+        return Critique(CriticResult(accuracy, low, high, 384, 8, 1.0), None, [])  # type: ignore[arg-type]
+
+    first = Change("add", "tone", None, None, 1.0, reduction=2.0, significant=True)
+    refit = Change("refit", "denoise", None, None, 1.0, reduction=1.3, significant=True, before=[first])
+    refit.description = "denoise stage is 10.0× too weak"
+    jpeg = Change("add", "jpeg", None, None, 1.0, reduction=1.1, significant=True, before=[first, refit])
+    smooth = TextureComparison([-0.9, -1.2], [0.05, 0.05], [True, True], 8)
+    within = TextureComparison([-0.1, -0.2], [0.05, 0.05], [False, False], 8)
+    check = CriticCheck(
+        [("none", critique(0.70, 0.66, 0.74)), ("add tone", critique(0.62, 0.58, 0.66))],
+        (refit, critique(0.79, 0.74, 0.85)),
+        later=[jpeg],
+        texture=(within, smooth),
+    )
+    clause = _held_back_clause(check, "phone")
+    assert clause.startswith(" Held back: refitting denoise closes the statistics' gap (−1.30)"), clause
+    assert "(0.62 [0.58–0.66] → 0.79 [0.74–0.85])" in clause and smooth.describe() in clause
+    assert clause.endswith(" Held back with it, as accepted on top of it: add jpeg."), clause
+    data = json.loads(json.dumps(check.to_dict(), allow_nan=False))
+    assert [step["change"] for step in data["steps"]] == ["none", "add tone"] and check.kept == 1
+    assert data["held_back"]["change"] == "refit denoise" and data["later_held_back"] == ["add jpeg"]

@@ -200,7 +200,7 @@ def test_noisy_flat_mask_reads_strong_correlated_noise_that_flat_mask_loses() ->
     strong = [_half_striped(20.0, generator) for _ in range(3)]
     assert sum(int(flat_mask(image).sum()) for image in strong) < 500
     masks = [noisy_flat_mask(image) for image in strong]
-    assert all(int(mask[:, 128:].sum()) == 0 and int(mask[:, :128].sum()) > 15_000 for mask in masks)
+    assert all(int(mask[:, 128:].sum()) == 0 and int(mask[:, :128].sum()) > 12_000 for mask in masks)
     assert flat_sums(strong).pooled_std() == pytest.approx(20.0, rel=0.06)
     weak = _half_striped(3.0, generator)
     assert torch.equal(noisy_flat_mask(weak), flat_mask(weak))
@@ -218,6 +218,21 @@ def _blotchy(sources: list[Tensor], levels: float, seed: int = 3) -> list[Tensor
         blotches = torch.nn.functional.avg_pool2d(white, 9, stride=1)[:, 0]
         out.append((src + blotches / blotches.std() * levels / 255).clamp(0, 1))
     return out
+
+
+def test_noisy_flat_mask_does_not_read_fine_texture_as_noise() -> None:
+    """Fine stripes (period 8–12 px, up to 20 levels) look flat at σ 4 px, as noise does. Where they fill 70 % of
+    the frame, the noise's gradient is still read on the tiles without them, and 2 levels of noise read as 2 (a
+    global median read 6–17)."""
+    generator = torch.Generator().manual_seed(1)
+    columns = torch.arange(180.0)
+    for period, amplitude in ((8, 10), (10, 20), (12, 20)):
+        images = []
+        for _ in range(2):
+            scene = torch.full((3, 256, 256), 0.45)
+            scene[:, :, :180] += amplitude / 255 * torch.sin(2 * torch.pi * columns / period)
+            images.append((scene + 2 * torch.randn(3, 256, 256, generator=generator) / 255).clamp(0, 1))
+        assert flat_sums(images).pooled_std() == pytest.approx(2.0, rel=0.1), (period, amplitude)
 
 
 def _line_sums(rows: float, columns: float, lines: int = 1000) -> NoiseSums:

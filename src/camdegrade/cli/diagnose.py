@@ -51,7 +51,12 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
     diagnose.add_argument(
         "--kinds", nargs="+", default=None, help="kinds of change to try: add remove refit network (default: all)"
     )
-    diagnose.add_argument("--no-critic", dest="critic", action="store_false", help="skip the learned critic (faster)")
+    diagnose.add_argument(
+        "--no-critic",
+        dest="critic",
+        action="store_false",
+        help="skip the learned critic and its check of the accepted changes (faster)",
+    )
     add_pair_options(diagnose, loading=False)
     add_threads(diagnose)
     diagnose.add_argument("--quiet", action="store_true", help="print only the verdict")

@@ -60,7 +60,9 @@ def diagnose(
         max_added: the most changes accepted in sequence.
         seed: seeds the split, the simulations, the bootstrap and the critic.
         max_pairs: use at most this many pairs (the first, in name order).
-        critic: train the learned critic before and after the accepted changes (``report.critic``).
+        critic: train the learned critic before and after the accepted changes (``report.critic``); the image-only
+            critic also checks each accepted change, and holds back one a model sees more easily that moves the
+            texture away from the camera's (``report.critic_check``, :mod:`camdegrade.diagnose.critic_check`).
         log: called with progress lines (the files skipped while loading the pairs among them).
 
     Returns:
@@ -71,6 +73,8 @@ def diagnose(
         PairsError: fewer than :data:`MIN_PAIRS` calibration or held-out pairs.
     """
     check_seed(seed)
+    if isinstance(max_added, bool) or not isinstance(max_added, int) or max_added < 1:
+        raise ValueError(f"max_added must be an integer of at least 1, got max_added={max_added!r}")
     kinds = check_kinds(tuple(KINDS) if kinds is None else kinds)
     candidates = check_candidates(candidates)  # before the pairs are loaded
     check_explains()
@@ -250,13 +254,17 @@ def _held_back_clause(check: CriticCheck | None, profile_name: str) -> str:
     change, critique = check.held_back
     before, after = check.steps[-1][1].result, critique.result
     _, fix = _finding(change, profile_name)
-    return (
+    texture = check.texture[1].describe() if check.texture else ""
+    clause = (
         f" Held back: {fix} closes the statistics' gap (−{change.reduction:.2f}), but from the image alone a critic "
         f"tells the simulation from the camera more easily with it ({before.accuracy:.2f} [{before.low:.2f}–"
-        f"{before.high:.2f}] → {after.accuracy:.2f} [{after.low:.2f}–{after.high:.2f}]) and the texture moves away "
-        f"from the camera's ({check.texture[1].describe() if check.texture else 'band power'})"
-        + ("; so are the changes accepted after it." if check.later else ".")
+        f"{before.high:.2f}] → {after.accuracy:.2f} [{after.low:.2f}–{after.high:.2f}]), and the texture moves away "
+        f"from the camera's: {texture}."
     )
+    if check.later:
+        labels = ", ".join(later.label for later in check.later)
+        clause += f" Held back with it, as accepted on top of it: {labels}."
+    return clause
 
 
 def _seen_clause(seen: list[dict]) -> str:

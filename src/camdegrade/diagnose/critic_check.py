@@ -8,7 +8,8 @@ held-out pairs and judged by a fresh image-only critic (:func:`~camdegrade.diagn
 of the held-out pairs, never a calibration pair) and by the texture a person sees (band power,
 :func:`~camdegrade.measures.visible.compare_texture`). The first change after which the critic is surer than the
 upper end of its interval before it, and sure at all, *and* the texture is further from the camera's (its largest
-significant band difference grows) is held back, with every change accepted after it.
+significant band difference grows by more than a band must differ to be seen, 0.25 log2) is held back, with every
+change accepted after it.
 
 The critic alone is not enough: a right change can make it surer by laying bare what is left. A camera with twice
 the profile's noise and a tone curve the profile lacks: adding the tone curve closes 96 % of the statistics' gap,
@@ -19,13 +20,13 @@ The texture does not move there; on City100 the denoise refit takes it from with
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from camdegrade.diagnose.attribute import Attribution
 from camdegrade.diagnose.changes import Change
 from camdegrade.diagnose.critique import CRITIC_CHANCE, Critique, critiques
 from camdegrade.fitting.pairset import PairSet, simulate
-from camdegrade.measures.visible import TextureComparison, compare_texture
+from camdegrade.measures.visible import TEXTURE_LOG2, TextureComparison, compare_texture
 
 
 @dataclass
@@ -35,8 +36,8 @@ class CriticCheck:
 
     steps: list[tuple[str, Critique]]
     held_back: tuple[Change, Critique] | None = None
-    #: How many changes the statistics accepted after the one held back (held back with it, unjudged).
-    later: int = 0
+    #: The changes the statistics accepted after the one held back (held back with it, unjudged).
+    later: list[Change] = field(default_factory=list)
     #: The texture before and after the change held back.
     texture: tuple[TextureComparison, TextureComparison] | None = None
 
@@ -54,7 +55,7 @@ class CriticCheck:
             if self.texture is not None:
                 held_back["texture_before"], held_back["texture_after"] = (t.describe() for t in self.texture)
         steps = [{"change": label, **_score(critique)} for label, critique in self.steps]
-        return {"steps": steps, "held_back": held_back, "later_held_back": self.later}
+        return {"steps": steps, "held_back": held_back, "later_held_back": [change.label for change in self.later]}
 
 
 def check_changes(
@@ -70,14 +71,16 @@ def check_changes(
     reals = result.held.reals
     check = CriticCheck([("none", critic("before (image only)", result.baseline.sims))])
     texture = compare_texture(result.baseline.sims, reals)
-    for change in result.accepted:
+    for index, change in enumerate(result.accepted):
+        if change.profile is None:
+            raise ValueError(f"accepted change {change.label!r} has no profile to simulate")
         sims = simulate(change.profile, result.held.cleans, result.held.seed, stream=result.held.stream)
         after = critic(f"with {' + '.join(c.label for c in change.chain)} (image only)", sims)
         previous = check.steps[-1][1].result
         surer = after.result.accuracy > previous.high and after.result.low > CRITIC_CHANCE
         texture_after = compare_texture(sims, reals)
-        if surer and texture_after.worst > texture.worst:
-            check.held_back, check.later = (change, after), len(result.accepted) - len(change.chain)
+        if surer and texture_after.worst > texture.worst + TEXTURE_LOG2:
+            check.held_back, check.later = (change, after), result.accepted[index + 1 :]
             check.texture = (texture, texture_after)
             return check
         check.steps.append((change.label, after))

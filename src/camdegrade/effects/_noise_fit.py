@@ -327,13 +327,17 @@ def _set_banding(noise: Noise, real: NoiseSums, null: NoiseSums) -> None:
     The excess rows and columns share is not banding but 2-D noise correlated further than the stage's kernel
     reaches (the SIDD phones' chroma blotches: row and column means both 9–12 levels beyond the null), so each
     direction keeps only what it has beyond the other. Banding drawn from it printed a plaid over the whole frame. A
-    camera with row and column banding of equal strength loses both; row banding alone (a sensor's usual) is kept.
+    camera with row and column banding loses the weaker, and the stronger its part beyond it; row banding alone (a
+    sensor's usual) is kept. Only an excess significant in both directions is shared.
     """
     real_variance, real_se = real.line_variance()
     null_variance, null_se = null.line_variance()
     excess = real_variance - null_variance
-    excess = excess - excess.clamp_min(0).nan_to_num(0.0).min(0).values
     se = (real_se.pow(2) + null_se.pow(2)).sqrt()
+    beyond = (excess > SIGNIFICANCE * se).all(0)  # both directions beyond their null: the shared part comes off
+    shared = torch.where(beyond, excess.min(0).values, torch.zeros_like(excess[0]))
+    excess = excess - shared
+    se = torch.where(beyond, (se.pow(2) + se.flip(0).pow(2)).sqrt(), se)  # the subtracted estimate's error too
     kept = (excess > SIGNIFICANCE * se) & (excess > NULL_SHARE * null_variance)
     sigma = torch.where(kept, (excess.clamp_min(0) / LINE_KEPT).sqrt() / 255.0, torch.zeros_like(excess))
     noise.row_sigma.copy_(sigma[0].nan_to_num(0.0).float())

@@ -101,14 +101,23 @@ def flat_mask(clean: Tensor, levels: float = FLAT_LEVELS, sigma: float = FLAT_SI
 
 
 #: The gradient magnitude of 2-D Gaussian noise is Rayleigh-distributed: its 99 % quantile is
-#: sqrt(2 ln 100) / sqrt(2 ln 2) = 2.58 times its median.
+#: sqrt(2 ln 100) / sqrt(2 ln 2) = 2.58 times its median, and its 90 % quantile 1.82 times.
 RAYLEIGH_Q99_OVER_MEDIAN = 2.58
-#: Where an image is flat at this σ (px), its own noise barely moves the gradient even at 20 levels (SIDD).
-NOISE_ROBUST_SIGMA = 4.0
-#: The high pass whose gradient is read as the noise's (the noise statistics' local mean, 17×17).
+#: Below this 90 %-to-median ratio the gradients are not noise's but a fine periodic texture's (a sine: about 1.3).
+MIN_NOISE_SPREAD = 1.6
+#: Where an image is flat at these σ (px, the first with enough pixels), its own noise barely moves the gradient
+#: even at 20 levels (SIDD); the second serves noise correlated over several pixels at 30 levels and more.
+NOISE_ROBUST_SIGMAS = (4.0, 8.0)
+#: The local mean removed before noise is read (17×17: real noise is correlated over a few pixels; a smaller window
+#: would remove part of it): the noise statistics' high pass (``noise_stats.HIGH_PASS``), whose gradient
+#: :func:`noisy_flat_mask` reads as the noise's.
 NOISE_HIGH_PASS = 17
-#: Fewer pixels flat at :data:`NOISE_ROBUST_SIGMA` than this and the noise's gradient is not read.
+#: Fewer pixels flat at a robust σ than this and the noise's gradient is not read there.
 NOISE_GRADIENT_PIXELS = 2000
+#: The noise's gradient is read per tile of this side, and the tiles' medians are ranked: fine texture that stays
+#: flat at σ 4 raises some tiles, and the lower quartile is the noise's.
+NOISE_TILE = 32
+NOISE_TILE_QUANTILE = 0.25
 
 
 def noisy_flat_mask(image: Tensor) -> Tensor:
@@ -116,16 +125,42 @@ def noisy_flat_mask(image: Tensor) -> Tensor:
 
     A strong noise moves the gradient itself: at :data:`FLAT_LEVELS` the mask then keeps only the pixels where the
     noise happens to be calm, and the noise read there is too low (the SIDD phones' captures by 2.4×). Here the
-    threshold is at least the 99 % quantile of the gradient the image's own noise makes, read on its high pass where
-    the image is flat at :data:`NOISE_ROBUST_SIGMA`. Noise of a few levels leaves it at :data:`FLAT_LEVELS`.
+    threshold is at least the 99 % quantile of the gradient the image's own noise makes: its high pass's gradient
+    where the image is flat at a robust σ (:data:`NOISE_ROBUST_SIGMAS`), the lower quartile of :data:`NOISE_TILE`
+    tiles' medians, and only when those gradients spread as noise's do (:data:`MIN_NOISE_SPREAD`). Noise of a few
+    levels leaves it at :data:`FLAT_LEVELS`.
     """
     gray = image.mean(-3) * 255.0
-    robust = flat_mask(image, sigma=NOISE_ROBUST_SIGMA)
-    threshold = FLAT_LEVELS
-    if int(robust.sum()) >= NOISE_GRADIENT_PIXELS:
-        noise_gradient = gaussian_gradient_magnitude(high_pass(gray, NOISE_HIGH_PASS), FLAT_SIGMA)[robust]
-        threshold = max(FLAT_LEVELS, RAYLEIGH_Q99_OVER_MEDIAN * float(noise_gradient.median()))
+    threshold = max(FLAT_LEVELS, RAYLEIGH_Q99_OVER_MEDIAN * _noise_gradient_median(image, gray))
     return _eroded(gaussian_gradient_magnitude(gray, FLAT_SIGMA) < threshold, FLAT_ERODE)
+
+
+def _noise_gradient_median(image: Tensor, gray: Tensor) -> float:
+    """The median gradient magnitude (at :data:`FLAT_SIGMA`) of the image's own noise, or 0 where not readable."""
+    for sigma in NOISE_ROBUST_SIGMAS:
+        robust = flat_mask(image, sigma=sigma)
+        if int(robust.sum()) >= NOISE_GRADIENT_PIXELS:
+            break
+    else:
+        return 0.0
+    gradient = gaussian_gradient_magnitude(high_pass(gray, NOISE_HIGH_PASS), FLAT_SIGMA)
+    medians = [
+        tile[kept].median()
+        for tile, kept in zip(_tiles(gradient), _tiles(robust), strict=True)
+        if int(kept.sum()) >= NOISE_TILE * NOISE_TILE // 4
+    ]
+    if not medians:
+        return 0.0
+    values = gradient[robust][:: max(1, int(robust.sum()) // 200_000)]
+    spread = float(torch.quantile(values, 0.9)) / max(float(values.median()), 1e-12)
+    return float(torch.quantile(torch.stack(medians), NOISE_TILE_QUANTILE)) if spread >= MIN_NOISE_SPREAD else 0.0
+
+
+def _tiles(values: Tensor) -> list[Tensor]:
+    """``(H, W)`` cut into whole :data:`NOISE_TILE` squares, each flattened."""
+    height, width = (side // NOISE_TILE * NOISE_TILE for side in values.shape[-2:])
+    cut = values[:height, :width].reshape(height // NOISE_TILE, NOISE_TILE, width // NOISE_TILE, NOISE_TILE)
+    return list(cut.permute(0, 2, 1, 3).reshape(-1, NOISE_TILE * NOISE_TILE))
 
 
 def _eroded(mask: Tensor, steps: int) -> Tensor:

@@ -18,11 +18,11 @@ from dataclasses import dataclass, fields
 import torch
 from torch import Tensor
 
-from camdegrade.functional.analysis import box_mean
+from camdegrade.functional.analysis import NOISE_HIGH_PASS, box_mean
 
 #: Side of the local mean removed from the image (17×17: real noise is correlated over a few pixels; a smaller
-#: window would remove part of it).
-HIGH_PASS = 17
+#: window would remove part of it). Defined beside the flat masks, which read the noise's gradient on it too.
+HIGH_PASS = NOISE_HIGH_PASS
 #: Lags (pixels) of the spatial correlation, horizontal and vertical.
 LAGS = (1, 2)
 #: A row or column takes part in banding with at least this many flat pixels.

@@ -112,7 +112,8 @@ class TextureComparison:
     @property
     def worst(self) -> float:
         """The largest ``|log2|`` of a band that differs by a size a person sees (0: none does)."""
-        return max((abs(v) for v, seen in zip(self.log2, self.bands_significant) if seen and v is not None), default=0)
+        seen = [abs(value) for value, shown in zip(self.log2, self.bands_significant) if shown and value is not None]
+        return max(seen, default=0.0)
 
     def runs(self) -> list[tuple[int, int, float]]:
         """``(first band, last band, mean log2)`` of every run of adjacent significant bands of one sign, the
