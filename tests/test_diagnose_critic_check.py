@@ -99,6 +99,8 @@ def test_the_diagnosis_reports_a_held_back_change_and_returns_the_profile_withou
     data = json.loads(report.write_json(tmp_path / "report.json").read_text())
     assert data["critic_check"]["held_back"]["change"] == "add blur"
     assert data["critic"]["after (image only)"] == data["critic"]["before (image only)"]
+    page = report.to_html()
+    assert "checked by the image-only critic" in page and "held back: texture too sharp" in page, page[:2000]
 
 
 def test_max_added_below_one_is_refused_by_name() -> None:

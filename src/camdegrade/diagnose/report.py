@@ -286,12 +286,29 @@ def render_html(report: DiagnosisReport) -> str:
         f"<body><h1>{title}</h1><p class='verdict'>{html.escape(report.verdict)}</p>{_numbers(report)}"
         f"<p class='muted'>{html.escape(report.split)}. Candidates are fitted on the calibration pairs; every gap "
         "is measured on the held-out pairs. Gap = Σ over statistic families of RMS((real − sim)/τ).</p>"
-        f"{critic_section(report.critic, report.critic_surest)}"
+        f"{critic_section(report.critic, report.critic_surest)}{_critic_check(report.critic_check)}"
         f"<h2>Where the gap lies (before)</h2>{_where(report)}{_visible(report)}"
         f"<h2>Which change: candidates ranked</h2>{_findings(report)}{_changes(report)}{_combinations(report)}"
         f"<h2>Evidence</h2>{_evidence(report)}{_flat_crops(report)}{_crops(report)}"
         "</body></html>\n"
     )
+
+
+def _critic_check(check: dict[str, Any]) -> str:
+    """The accepted changes as the image-only critic judged them, in order (nothing without the check)."""
+    if not check:
+        return ""
+    rows = [(step["change"], _interval(step), "let through") for step in check["steps"]]
+    held = check["held_back"]
+    if held is not None:
+        rows.append((held["change"], _interval(held), f"held back: {held.get('texture_after', '')}"))
+        rows.extend((label, "not judged", "held back with it") for label in check["later_held_back"])
+    header = ("change (in the order accepted)", "image-only critic after it", "")
+    return "<h3>The accepted changes, checked by the image-only critic and the texture</h3>" + table(rows, header)
+
+
+def _interval(score: dict[str, Any]) -> str:
+    return f"{score['accuracy']:.2f} [{score['low']:.2f}–{score['high']:.2f}]"
 
 
 def _numbers(report: DiagnosisReport) -> str:
