@@ -55,7 +55,7 @@ def test_a_change_that_blurs_a_matching_profile_is_held_back() -> None:
     kept = keeping(result, check.kept, profile)
     assert kept.accepted == [] and kept.final_profile is profile and kept.final_sims is result.baseline.sims
     data = check.to_dict()
-    assert data["held_back"]["change"] == "add blur" and data["steps"][0]["change"] == "none"
+    assert data["held_back"]["change"] == "add blur" and data["steps"][0]["change"] == "the profile as given"
 
 
 def test_a_change_that_brings_the_camera_s_blur_is_let_through() -> None:
@@ -121,7 +121,7 @@ def test_the_verdict_names_the_change_held_back_and_the_ones_accepted_on_top_of_
     smooth = TextureComparison([-0.9, -1.2], [0.05, 0.05], [True, True], 8)
     within = TextureComparison([-0.1, -0.2], [0.05, 0.05], [False, False], 8)
     check = CriticCheck(
-        [("none", critique(0.70, 0.66, 0.74)), ("add tone", critique(0.62, 0.58, 0.66))],
+        [("the profile as given", critique(0.70, 0.66, 0.74)), ("add tone", critique(0.62, 0.58, 0.66))],
         (refit, critique(0.79, 0.74, 0.85)),
         later=[jpeg],
         texture=(within, smooth),
@@ -131,5 +131,5 @@ def test_the_verdict_names_the_change_held_back_and_the_ones_accepted_on_top_of_
     assert "(0.62 [0.58–0.66] → 0.79 [0.74–0.85])" in clause and smooth.describe() in clause
     assert clause.endswith(" Held back with it, as accepted on top of it: add jpeg."), clause
     data = json.loads(json.dumps(check.to_dict(), allow_nan=False))
-    assert [step["change"] for step in data["steps"]] == ["none", "add tone"] and check.kept == 1
+    assert [step["change"] for step in data["steps"]] == ["the profile as given", "add tone"] and check.kept == 1
     assert data["held_back"]["change"] == "refit denoise" and data["later_held_back"] == ["add jpeg"]

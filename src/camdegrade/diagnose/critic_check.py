@@ -69,7 +69,7 @@ def check_changes(
         return out
 
     reals = result.held.reals
-    check = CriticCheck([("none", critic("before (image only)", result.baseline.sims))])
+    check = CriticCheck([("the profile as given", critic("before (image only)", result.baseline.sims))])
     texture = compare_texture(result.baseline.sims, reals)
     for index, change in enumerate(result.accepted):
         if change.profile is None:
