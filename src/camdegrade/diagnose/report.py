@@ -298,7 +298,9 @@ def _critic_check(check: dict[str, Any]) -> str:
     """The accepted changes as the image-only critic judged them, in order (nothing without the check)."""
     if not check:
         return ""
-    rows = [(step["change"], _interval(step), "let through") for step in check["steps"]]
+    given, *judged = check["steps"]
+    rows = [(given["change"], _interval(given), "")]
+    rows += [(step["change"], _interval(step), "let through") for step in judged]
     held = check["held_back"]
     if held is not None:
         rows.append((held["change"], _interval(held), f"held back: {held.get('texture_after', '')}"))
