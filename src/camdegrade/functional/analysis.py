@@ -144,23 +144,21 @@ def _noise_gradient_median(image: Tensor, gray: Tensor) -> float:
     else:
         return 0.0
     gradient = gaussian_gradient_magnitude(high_pass(gray, NOISE_HIGH_PASS), FLAT_SIGMA)
-    medians = [
-        tile[kept].median()
-        for tile, kept in zip(_tiles(gradient), _tiles(robust), strict=True)
-        if int(kept.sum()) >= NOISE_TILE * NOISE_TILE // 4
-    ]
-    if not medians:
+    tiles = _tiles(torch.where(robust, gradient, torch.nan))
+    tiles = tiles[(~tiles.isnan()).sum(1) >= NOISE_TILE * NOISE_TILE // 4]
+    if not len(tiles):
         return 0.0
     values = gradient[robust][:: max(1, int(robust.sum()) // 200_000)]
     spread = float(torch.quantile(values, 0.9)) / max(float(values.median()), 1e-12)
-    return float(torch.quantile(torch.stack(medians), NOISE_TILE_QUANTILE)) if spread >= MIN_NOISE_SPREAD else 0.0
+    medians = tiles.nanmedian(1).values
+    return float(torch.quantile(medians, NOISE_TILE_QUANTILE)) if spread >= MIN_NOISE_SPREAD else 0.0
 
 
-def _tiles(values: Tensor) -> list[Tensor]:
-    """``(H, W)`` cut into whole :data:`NOISE_TILE` squares, each flattened."""
+def _tiles(values: Tensor) -> Tensor:
+    """``(H, W)`` cut into whole :data:`NOISE_TILE` squares: ``(tiles, NOISE_TILE²)``."""
     height, width = (side // NOISE_TILE * NOISE_TILE for side in values.shape[-2:])
     cut = values[:height, :width].reshape(height // NOISE_TILE, NOISE_TILE, width // NOISE_TILE, NOISE_TILE)
-    return list(cut.permute(0, 2, 1, 3).reshape(-1, NOISE_TILE * NOISE_TILE))
+    return cut.permute(0, 2, 1, 3).reshape(-1, NOISE_TILE * NOISE_TILE)
 
 
 def _eroded(mask: Tensor, steps: int) -> Tensor:
