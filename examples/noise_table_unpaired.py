@@ -10,18 +10,25 @@ reproducing the fitting images' noise exactly would score). Printed: per subset,
 ``|log2 ratio|`` over the measurable bins of each. Run from the repo root::
 
     OMP_NUM_THREADS=1 .venv/bin/python examples/noise_table_unpaired.py [REAL_PAIRS_DIR] [--measurement] [--calibrated]
+        [--splits N]
 
-``--measurement`` prints instead what limits the captures-only column: on the checking half itself, the noise read
-from each capture's own flat pixels (binned by its own local mean, :func:`~camdegrade.fitting._unpaired_noise.
-flat_sums`, what the unpaired fit matches) against the real noise there (clean-referenced), with no fit between:
+``--measurement`` prints instead what limits the captures-only column (first the three captures of each subset
+whose own-flat reading is furthest above their clean-referenced noise, then the table): on the checking half
+itself, the noise read from each capture's own flat pixels (binned by its own local mean,
+:func:`~camdegrade.fitting._unpaired_noise.flat_sums`, what the unpaired fit matches) against the real noise there
+(clean-referenced), with no fit between:
 how much of the error is the single-image measurement (content texture, the capture's own mask and bins).
-``--calibrated`` adds a column: the captures' own-flat moments matched by simulated moments on the fitting half's
-clean images (what turning the measurement into a stage by calibration gives at best).
+``--splits N`` repeats the table over N halvings (the first as above, the others with each camera and ISO group
+shuffled first) and prints each column's mean and how often the captures-only stage is at least as close as the
+oracle. ``--calibrated`` adds a column: the captures' own-flat moments matched by simulated moments on the fitting
+half's clean images (what turning the measurement into a stage by calibration gives at best).
 """
 
 from __future__ import annotations
 
 import argparse
+import random
+import statistics
 import sys
 from collections import defaultdict
 from collections.abc import Sequence
@@ -47,11 +54,32 @@ def _spread(ratio: torch.Tensor) -> tuple[float, float, int]:
     return float(values.median()), float(values.max()), int(values.numel())
 
 
-def _subsets(root: Path) -> dict[str, list[tuple[Path, Path]]]:
+def _subsets(root: Path, split: int = 0) -> dict[str, list[tuple[Path, Path]]]:
+    """Subset → its pairs, camera and ISO groups one after the other, so that the even-indexed pairs (the fitting
+    half) and the odd-indexed ones (the checking half) alternate within each group. ``split`` 0 keeps the
+    manifest's order in each group; another value shuffles each group with that seed first (another halving)."""
     ordered: dict[str, list[tuple[Path, Path]]] = defaultdict(list)
     for (subset, _, _), paths in noise_groups(root, SUBSETS).items():
-        ordered[subset] += paths
+        group = list(paths)
+        if split:
+            random.Random(split).shuffle(group)
+        ordered[subset] += group
     return ordered
+
+
+def worst_images(root: Path, count: int = 3) -> list[dict]:
+    """Per subset, over both halves: the ``count`` captures whose own flat-pixel noise (pooled over channels and
+    bins) is furthest above their clean-referenced noise: where the single-image reading takes texture for noise."""
+    rows = []
+    for subset, paths in _subsets(root).items():
+        ratios = []
+        for clean_path, real_path in paths:
+            (clean,), (real,) = _load([(clean_path, real_path)])
+            truth = _residual_sums([real], [clean]).pooled_std()
+            ratios.append((flat_sums([real]).pooled_std() / truth, real_path.name))
+        for ratio, name in sorted(ratios, reverse=True)[:count]:
+            rows.append({"subset": subset, "capture": name, "own / clean-referenced": round(ratio, 2)})
+    return rows
 
 
 def measurement_rows(root: Path) -> list[dict]:
@@ -65,12 +93,13 @@ def measurement_rows(root: Path) -> list[dict]:
     return rows
 
 
-def subset_rows(root: Path, only: Sequence[str] | None = None, calibrated: bool = False) -> list[dict]:
+def subset_rows(root: Path, only: Sequence[str] | None = None, calibrated: bool = False, split: int = 0) -> list[dict]:
     """Per subset (``only`` these, default all): the captures-only and paired stages' and the oracle's spread;
     ``calibrated`` adds the captures' own-flat moments matched by simulation on the fitting half's *clean* images
-    (the calibration the captures-only fit used until 2026-11-27, given the best source it could have)."""
+    (the calibration the captures-only fit used until 2026-11-27, given the best source it could have); ``split``
+    picks the halving (:func:`_subsets`)."""
     rows = []
-    for subset, paths in _subsets(root).items():
+    for subset, paths in _subsets(root, split).items():
         if only is not None and subset not in only:
             continue
         cleans, reals = _load(paths[::2])
@@ -106,14 +135,46 @@ def _simulate_or_clean(noise: Noise | None, cleans: list[torch.Tensor]) -> list[
     return cleans if noise is None else _simulate(noise, cleans, 1)
 
 
+def print_splits(root: Path, splits: int) -> None:
+    """Per subset, over ``splits`` halvings: the mean median and worst |log2| of each column, and in how many the
+    captures-only stage is at least as close as the oracle (one halving is one draw of which captures fit and which
+    check; on SIDD the oracle's own median ranges 0.25–1.03 over eight)."""
+    columns = ("unpaired (captures only)", "paired Noise.fit", "oracle")
+    rows = [row for split in range(splits) for row in subset_rows(root, split=split)]
+    print(
+        "| subset | halvings | " + " | ".join(f"{c}: mean median / worst" for c in columns) + " | unpaired ≤ oracle |"
+    )
+    print("|---|---|" + "---|" * (len(columns) + 1))
+    for subset in dict.fromkeys(row["subset"] for row in rows):
+        mine = [row for row in rows if row["subset"] == subset]
+        cells = [
+            f"{statistics.mean(r[c][0] for r in mine):.3f} / {statistics.mean(r[c][1] for r in mine):.3f}"
+            for c in columns
+        ]
+        median_wins = sum(r[columns[0]][0] <= r["oracle"][0] for r in mine)
+        worst_wins = sum(r[columns[0]][1] <= r["oracle"][1] for r in mine)
+        wins = f"median {median_wins}/{len(mine)}, worst {worst_wins}/{len(mine)}"
+        print(f"| {subset} | {len(mine)} | " + " | ".join(cells) + f" | {wins} |")
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("root", nargs="?", type=Path, default=default_real_pairs_dir())
     parser.add_argument("--measurement", action="store_true", help="the single-image measurement's error only")
     parser.add_argument("--calibrated", action="store_true", help="add the calibration by simulated moments")
+    parser.add_argument(
+        "--splits", type=int, default=0, help="repeat over this many halvings (0 and N-1 shuffled ones) and summarise"
+    )
     args = parser.parse_args(argv)
     torch.set_num_threads(1)
+    if args.splits:
+        print_splits(args.root, args.splits)
+        return 0
     if args.measurement:
+        print("| subset | capture | own-flat noise / clean-referenced (pooled) |\n|---|---|---|")
+        for row in worst_images(args.root):
+            print(f"| {row['subset']} | {row['capture']} | {row['own / clean-referenced']:.2f} |")
+        print()
         print("| subset | check images | flat pixels: clean-referenced / captures' own | own-flat noise / real |")
         print("|---|---|---|---|")
         for row in measurement_rows(args.root):

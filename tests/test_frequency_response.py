@@ -139,6 +139,36 @@ def test_fit_never_amplifies_the_lattice_or_the_lowest_frequencies() -> None:
     assert bool((fitted.gains[knot_radius() < 0.03] == 1.0).all())
 
 
+def test_a_radial_response_interpolates_in_log_radius_and_keeps_the_low_frequencies_and_lattice() -> None:
+    stage = FrequencyResponse.from_radial([0.04, 0.1, 0.3], [1.0, 2.0, 0.5], knots=21)
+    gains = stage.gains.double()
+    assert float(gains[0, 4]) == pytest.approx(2.0, rel=1e-5)  # at 0.1 exactly
+    share = math.log(0.05 / 0.04) / math.log(0.1 / 0.04)
+    assert float(gains[0, 2]) == pytest.approx(2.0**share, rel=1e-5)  # 0.05: between the first two, in log radius
+    assert float(gains[20, 20]) == pytest.approx(0.5, rel=1e-5)  # beyond the last: constant
+    assert bool((gains[knot_radius(21) < 0.03] == 1.0).all())  # below DETAIL_FROM untouched
+    torch.testing.assert_close(gains, gains.T)  # radial: the same along both axes
+    raised = FrequencyResponse.from_radial([0.04, 0.2], [1.5, 1.5], knots=21).gains
+    assert float(raised[0, 10]) == 1.0 and float(raised[10, 10]) == 1.0 and float(raised[0, 9]) == 1.5  # lattice
+
+
+@pytest.mark.parametrize(
+    ("radii", "gains", "message"),
+    [
+        ([0.1, 0.05], [1.0, 1.0], "radii must be at least two increasing frequencies"),
+        ([0.1], [1.0], "radii must be at least two increasing frequencies"),
+        ([0.05, 0.1], [1.0], "radii must be at least two increasing frequencies"),
+        ([0.0, 0.1], [1.0, 1.0], "radii must be above 0 cycles/pixel"),
+        ([0.05, 0.1], [1.0, 0.0], "gains must be above 0 and at most 8"),
+        ([0.05, 0.1], [1.0, 9.0], "gains must be above 0 and at most 8"),
+        ([0.05, 0.1], [1.0, math.nan], "gains must be above 0 and at most 8"),
+    ],
+)
+def test_a_radial_response_refuses_bad_radii_by_name(radii, gains, message: str) -> None:
+    with pytest.raises(ValueError, match=message):
+        FrequencyResponse.from_radial(radii, gains)
+
+
 def test_scaled_moves_the_log_gains_and_magnitude_measures_them() -> None:
     gains = torch.full((5, 5), 2.0)
     stage = FrequencyResponse(gains)

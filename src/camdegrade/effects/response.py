@@ -120,15 +120,38 @@ class FrequencyResponse(Effect):
         ratios = [_knot_log_ratios(src, tgt, knots) for src, tgt in pairs]
         log_gain = 0.5 * torch.nanmean(torch.stack(ratios), 0).nan_to_num(0.0)
         gains = log_gain.exp2().clamp(1 / cls.MAX_GAIN, cls.MAX_GAIN)
-        step = 0.5 / (knots - 1)
-        index = torch.arange(knots, dtype=torch.float64) * step
-        radius = (index[:, None] ** 2 + index[None, :] ** 2).sqrt()
-        gains[radius < DETAIL_FROM] = 1.0
-        if lattice:
-            on_lattice = _on_lattice(index, step)
-            capped = on_lattice[:, None] & on_lattice[None, :] & (radius > 0)
-            gains[capped] = gains[capped].clamp(max=1.0)
-        return cls(gains.float())
+        return cls(_detail_only(gains, lattice).float())
+
+    @classmethod
+    def from_radial(
+        cls, radii: Sequence[float], gains: Sequence[float], *, knots: int = DEFAULT_KNOTS, lattice: bool = True
+    ) -> FrequencyResponse:
+        """A response that depends on the radius of the frequency alone: amplitude ``gains`` at ``radii``
+        (cycles/pixel, increasing), the log gain interpolated linearly in log radius between them and constant
+        beyond the first and the last; 1 below :data:`DETAIL_FROM` and, with ``lattice``, at most 1 on the 4-pixel
+        lattice (:data:`LATTICE`). What a set-level spectrum match can fit (:mod:`camdegrade.fitting.unpaired`):
+        a grid of knots over ``(|f_y|, |f_x|)`` needs pairs."""
+        knots = _checked_knots(knots)
+        at = torch.as_tensor(radii, dtype=torch.float64)
+        values = torch.as_tensor(gains, dtype=torch.float64)
+        if at.ndim != 1 or at.shape != values.shape or len(at) < 2 or not bool((at[1:] > at[:-1]).all()):
+            raise ValueError(
+                f"radii must be at least two increasing frequencies with one gain each, got radii={at.tolist()} "
+                f"and gains={values.tolist()}"
+            )
+        if not bool(at[0] > 0):
+            raise ValueError(f"radii must be above 0 cycles/pixel, got radii={at.tolist()}")
+        if not bool((values > 0).all() & (values <= cls.MAX_GAIN).all()):
+            raise ValueError(f"gains must be above 0 and at most {cls.MAX_GAIN:g}, got gains={values.tolist()}")
+        log_gains = values.log2()
+        index = torch.arange(knots, dtype=torch.float64) * (0.5 / (knots - 1))
+        radius = (index[:, None] ** 2 + index[None, :] ** 2).sqrt().clamp(float(at[0]), float(at[-1]))
+        position = torch.log(radius)
+        upper = torch.searchsorted(torch.log(at), position).clamp(1, len(at) - 1)
+        lower = upper - 1
+        share = (position - torch.log(at[lower])) / (torch.log(at[upper]) - torch.log(at[lower]))
+        log_gain = log_gains[lower] + share * (log_gains[upper] - log_gains[lower])
+        return cls(_detail_only(log_gain.exp2(), lattice).float())
 
 
 def _checked_knots(knots: Any) -> int:
@@ -137,6 +160,22 @@ def _checked_knots(knots: Any) -> int:
     if not whole or not 2 <= knots <= FrequencyResponse.MAX_KNOTS:
         raise ValueError(f"knots must be an integer from 2 to {FrequencyResponse.MAX_KNOTS}, got knots={knots!r}")
     return int(knots)
+
+
+def _detail_only(gains: Tensor, lattice: bool) -> Tensor:
+    """``(K, K)`` knot ``gains`` set to 1 below :data:`DETAIL_FROM` and, with ``lattice``, capped at 1 on the
+    4-pixel lattice (:data:`LATTICE`)."""
+    gains = gains.clone()
+    knots = gains.shape[-1]
+    step = 0.5 / (knots - 1)
+    index = torch.arange(knots, dtype=torch.float64) * step
+    radius = (index[:, None] ** 2 + index[None, :] ** 2).sqrt()
+    gains[radius < DETAIL_FROM] = 1.0
+    if lattice:
+        on_lattice = _on_lattice(index, step)
+        capped = on_lattice[:, None] & on_lattice[None, :] & (radius > 0)
+        gains[capped] = gains[capped].clamp(max=1.0)
+    return gains
 
 
 def _on_lattice(frequencies: Tensor, step: float) -> Tensor:
