@@ -138,13 +138,12 @@ def _simulate_or_clean(noise: Noise | None, cleans: list[torch.Tensor]) -> list[
 def print_splits(root: Path, splits: int) -> None:
     """Per subset, over ``splits`` halvings: the mean median and worst |log2| of each column, and in how many the
     captures-only stage is at least as close as the oracle (one halving is one draw of which captures fit and which
-    check; on SIDD the oracle's own median ranges 0.25–1.03 over eight)."""
+    check), and the range of the oracle's median over them."""
     columns = ("unpaired (captures only)", "paired Noise.fit", "oracle")
     rows = [row for split in range(splits) for row in subset_rows(root, split=split)]
-    print(
-        "| subset | halvings | " + " | ".join(f"{c}: mean median / worst" for c in columns) + " | unpaired ≤ oracle |"
-    )
-    print("|---|---|" + "---|" * (len(columns) + 1))
+    heads = " | ".join(f"{c}: mean median / worst" for c in columns)
+    print(f"| subset | halvings | {heads} | oracle median, lowest–highest | unpaired ≤ oracle |")
+    print("|---|---|" + "---|" * (len(columns) + 2))
     for subset in dict.fromkeys(row["subset"] for row in rows):
         mine = [row for row in rows if row["subset"] == subset]
         cells = [
@@ -153,8 +152,10 @@ def print_splits(root: Path, splits: int) -> None:
         ]
         median_wins = sum(r[columns[0]][0] <= r["oracle"][0] for r in mine)
         worst_wins = sum(r[columns[0]][1] <= r["oracle"][1] for r in mine)
-        wins = f"median {median_wins}/{len(mine)}, worst {worst_wins}/{len(mine)}"
-        print(f"| {subset} | {len(mine)} | " + " | ".join(cells) + f" | {wins} |")
+        wins = f"median {median_wins} of {len(mine)}, worst {worst_wins} of {len(mine)}"
+        oracle = [r["oracle"][0] for r in mine]
+        spread = f"{min(oracle):.2f}–{max(oracle):.2f}"
+        print(f"| {subset} | {len(mine)} | " + " | ".join(cells) + f" | {spread} | {wins} |")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -166,6 +167,8 @@ def main(argv: list[str] | None = None) -> int:
         "--splits", type=int, default=0, help="repeat over this many halvings (0 and N-1 shuffled ones) and summarise"
     )
     args = parser.parse_args(argv)
+    if args.splits < 0 or (args.splits and (args.measurement or args.calibrated)):
+        parser.error(f"--splits must be 0 or more and goes alone, got --splits {args.splits}")
     torch.set_num_threads(1)
     if args.splits:
         print_splits(args.root, args.splits)

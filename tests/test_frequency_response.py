@@ -161,11 +161,18 @@ def test_a_radial_response_interpolates_in_log_radius_and_keeps_the_low_frequenc
         ([0.0, 0.1], [1.0, 1.0], "radii must be above 0 cycles/pixel"),
         ([0.05, 0.1], [1.0, 0.0], "gains must be above 0 and at most 8"),
         ([0.05, 0.1], [1.0, 9.0], "gains must be above 0 and at most 8"),
-        ([0.05, 0.1], [1.0, math.nan], "gains must be above 0 and at most 8"),
+        ([0.05, 0.1], [1.0, math.nan], "gains must be finite"),
+        ([0.1, math.inf], [1.0, 1.0], "radii must be finite"),
     ],
 )
 def test_a_radial_response_refuses_bad_radii_by_name(radii, gains, message: str) -> None:
     with pytest.raises(ValueError, match=message):
+        FrequencyResponse.from_radial(radii, gains)
+
+
+@pytest.mark.parametrize(("radii", "gains", "name"), [(None, [1.0, 1.0], "radii"), ([0.1, 0.2], "abc", "gains")])
+def test_a_radial_response_refuses_what_is_not_numbers_by_name(radii, gains, name: str) -> None:
+    with pytest.raises(TypeError, match=f"{name} must be a sequence of numbers, got {name}="):
         FrequencyResponse.from_radial(radii, gains)
 
 

@@ -132,8 +132,7 @@ class FrequencyResponse(Effect):
         lattice (:data:`LATTICE`). What a set-level spectrum match can fit (:mod:`camdegrade.fitting.unpaired`):
         a grid of knots over ``(|f_y|, |f_x|)`` needs pairs."""
         knots = _checked_knots(knots)
-        at = torch.as_tensor(radii, dtype=torch.float64)
-        values = torch.as_tensor(gains, dtype=torch.float64)
+        at, values = _finite_numbers("radii", radii), _finite_numbers("gains", gains)
         if at.ndim != 1 or at.shape != values.shape or len(at) < 2 or not bool((at[1:] > at[:-1]).all()):
             raise ValueError(
                 f"radii must be at least two increasing frequencies with one gain each, got radii={at.tolist()} "
@@ -160,6 +159,18 @@ def _checked_knots(knots: Any) -> int:
     if not whole or not 2 <= knots <= FrequencyResponse.MAX_KNOTS:
         raise ValueError(f"knots must be an integer from 2 to {FrequencyResponse.MAX_KNOTS}, got knots={knots!r}")
     return int(knots)
+
+
+def _finite_numbers(name: str, values: Any) -> Tensor:
+    """``values`` as a float64 tensor; ``TypeError`` naming ``name`` unless they are numbers, ``ValueError`` unless
+    every one is finite."""
+    try:
+        out = torch.as_tensor(values, dtype=torch.float64)
+    except (TypeError, ValueError, RuntimeError):
+        raise TypeError(f"{name} must be a sequence of numbers, got {name}={values!r}") from None
+    if not bool(torch.isfinite(out).all()):
+        raise ValueError(f"{name} must be finite, got {name}={out.tolist()}")
+    return out
 
 
 def _detail_only(gains: Tensor, lattice: bool) -> Tensor:

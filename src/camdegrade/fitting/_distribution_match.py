@@ -19,7 +19,7 @@ import torch
 from torch import Tensor
 
 from camdegrade._seeds import derived_generator
-from camdegrade.effects import Color, Tone, Vignetting
+from camdegrade.effects import Color, FrequencyResponse, Tone, Vignetting
 from camdegrade.effects._fitting import downscale, minimize
 from camdegrade.functional import linear_to_srgb, relative_radius, srgb_to_linear
 from camdegrade.functional.analysis import hann2d, luma
@@ -54,11 +54,19 @@ REFINE = 0.125
 #: identity's mismatch is above :data:`SPECTRUM_FLOOR` (mean squared log2 power per band).
 SPECTRUM_GAIN = 0.5
 SPECTRUM_FLOOR = 0.01
-#: The detail response (:func:`fit_band_gains`): correction rounds (each takes the amplitude gain of every band by
-#: half its log2 power error; on City100's sets the mismatch goes 0.147 → 0.015 → 0.003 → 0.001), and the most one
-#: round moves a band's log2 gain.
+#: The detail response (:func:`fit_detail_response`): correction rounds (each moves every band's amplitude gain by
+#: half its log2 power error; on City100's sets the mismatch goes 0.147 → 0.017 → 0.003 → 0.001, recorded in the
+#: profile as ``rounds``); the most one round moves a band's log2 gain (a factor 2 in amplitude: City100's largest
+#: first step is 0.30) and the most any gain may reach (the stage's range, ``FrequencyResponse.MAX_GAIN``).
 RESPONSE_ROUNDS = 3
 RESPONSE_STEP = 1.0
+RESPONSE_LIMIT = math.log2(FrequencyResponse.MAX_GAIN)
+#: ... fitted only where blur and sharpening leave more mismatch than this. A systematic difference passes the
+#: halves' check as well as a camera's: an earlier stage's misfit the same in both halves, or texture the capture
+#: scenes have and the clean ones lack. On simulated cameras with no detail response such differences left 0.029–
+#: 0.032 and a response kept there made new scenes' bands 0.1 log2 worse; City100's iPhone leaves 0.147, the test
+#: suite's detail camera 0.24.
+RESPONSE_FLOOR = 0.06
 #: Gradient energy on the 8×8 block edges, relative to the mean, above which files without a quantisation table
 #: look like JPEGs saved again in a lossless format.
 BLOCK_EDGE_RATIO = 1.08
@@ -339,21 +347,64 @@ def band_centres() -> Tensor:
     return (edges[REFERENCE_BANDS - 1 : -1] * edges[REFERENCE_BANDS:]).sqrt()
 
 
-def fit_band_gains(real: Tensor, simulate: Callable[[Tensor], Tensor], rounds: int = RESPONSE_ROUNDS) -> Tensor:
-    """Log2 amplitude gains per band of :func:`log_spectrum` (the reference bands' at 0) whose response, applied by
-    ``simulate(gains)`` (the simulated set's mean spectrum), gives the captures' mean spectrum ``real``: each round
-    moves every band's gain by half its log2 power error (power is amplitude squared), at most
-    :data:`RESPONSE_STEP`.
+def fit_band_gains(
+    real: Tensor, simulate: Callable[[Tensor], Tensor], rounds: int = RESPONSE_ROUNDS
+) -> tuple[Tensor, list[float]]:
+    """Log2 amplitude gains per band of :func:`log_spectrum` whose response, applied by ``simulate(gains)`` (the
+    simulated set's mean spectrum), gives the captures' mean spectrum ``real``; and the mismatch before each round.
+    Each round moves every band's gain by half its log2 power error (power is amplitude squared), at most
+    :data:`RESPONSE_STEP`, within ±:data:`RESPONSE_LIMIT`.
 
     References:
         D. J. Heeger, J. R. Bergen, "Pyramid-based texture analysis/synthesis", SIGGRAPH 1995 (a texture's
         subband statistics matched by iterating on the synthesis).
     """
-    gains = torch.zeros_like(real)
+    gains, mismatches = torch.zeros_like(real), []
     for _ in range(rounds):
         error = simulate(gains) - real
-        gains = gains - (error / 2).clamp(-RESPONSE_STEP, RESPONSE_STEP)
-    return gains
+        mismatches.append(float(error.pow(2).mean()))
+        step = (error / 2).clamp(-RESPONSE_STEP, RESPONSE_STEP)
+        gains = (gains - step).clamp(-RESPONSE_LIMIT, RESPONSE_LIMIT)
+    return gains, mismatches
+
+
+SimulateParts = Callable[[Tensor | None, slice], Tensor]
+
+
+def fit_detail_response(real_spectra: Tensor, simulate: SimulateParts) -> tuple[Tensor | None, dict]:
+    """The log2 band gains (:func:`fit_band_gains`) of a detail response after the rest of the chain, or ``None``
+    where it is not kept; and notes for the metadata.
+
+    ``real_spectra`` is ``(N, bands)``, the captures' :func:`log_spectrum` each; ``simulate(gains, part)`` the mean
+    spectrum of the ``part`` slice of the simulated clean set (``gains`` ``None``: without a response). Kept where
+    the mismatch left is above :data:`RESPONSE_FLOOR` (and :data:`SPECTRUM_FLOOR`) and gains fitted on either half
+    of both sets take the *other* half's mismatch below :data:`SPECTRUM_GAIN` of what it was: a difference between
+    random halves of the scenes does not carry over. A difference the two sets have throughout does, hence the floor.
+    """
+    everything, halves = slice(None), (slice(0, None, 2), slice(1, None, 2))
+
+    def mismatch(gains: Tensor | None, part: slice) -> float:
+        return float((simulate(gains, part) - real_spectra[part].mean(0)).pow(2).mean())
+
+    left = mismatch(None, everything)
+    checks = []
+    if left > max(RESPONSE_FLOOR, SPECTRUM_FLOOR):
+        for fitted_on, checked_on in (halves, halves[::-1]):
+            gains, _ = fit_band_gains(real_spectra[fitted_on].mean(0), lambda g, part=fitted_on: simulate(g, part))
+            checks.append((mismatch(None, checked_on), mismatch(gains, checked_on)))
+    kept = bool(checks) and all(after < SPECTRUM_GAIN * before for before, after in checks)
+    notes: dict = {
+        "mismatch_left": round(left, 4),
+        "halves": [[round(before, 4), round(after, 4)] for before, after in checks],
+        "kept": kept,
+    }
+    if not kept:
+        return None, notes
+    gains, rounds = fit_band_gains(real_spectra.mean(0), lambda g: simulate(g, everything))
+    notes["band_gains"] = [round(float(value), 3) for value in gains.exp2()]
+    notes["rounds"] = [round(value, 4) for value in rounds]
+    notes["mismatch"] = round(mismatch(gains, everything), 4)
+    return gains, notes
 
 
 # -- codec ---------------------------------------------------------------------------------------------------------
