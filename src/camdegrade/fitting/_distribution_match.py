@@ -61,11 +61,11 @@ SPECTRUM_FLOOR = 0.01
 RESPONSE_ROUNDS = 3
 RESPONSE_STEP = 1.0
 RESPONSE_LIMIT = math.log2(FrequencyResponse.MAX_GAIN)
-#: ... fitted only where blur and sharpening leave more mismatch than this. A systematic difference passes the
+#: ... fitted only where every other stage leaves more mismatch than this. A systematic difference passes the
 #: halves' check as well as a camera's: an earlier stage's misfit the same in both halves, or texture the capture
 #: scenes have and the clean ones lack. On simulated cameras with no detail response such differences left 0.029–
-#: 0.032 and a response kept there made new scenes' bands 0.1 log2 worse; City100's iPhone leaves 0.147, the test
-#: suite's detail camera 0.24.
+#: 0.032 and a response kept there made new scenes' bands 0.1–0.2 log2 worse (``tests/test_unpaired_fit.py``);
+#: City100's iPhone leaves 0.147, the test suite's detail camera 0.21.
 RESPONSE_FLOOR = 0.06
 #: Gradient energy on the 8×8 block edges, relative to the mean, above which files without a quantisation table
 #: look like JPEGs saved again in a lossless format.

@@ -410,9 +410,8 @@ class _UnpairedFit:
         self.say(f"noise: {notes['std_mid_grey_levels']} levels at mid-grey{'' if noise else ' (not kept)'}")
 
     def refit_noise(self) -> None:
-        """The noise again once a detail response is kept: it shapes the noise before it, as the camera's does (a
-        simulated camera of blur, 4 levels of noise and a detail response: flat-noise ratio 1.12 without this
-        step, 1.06 with it; ``tests/test_unpaired_fit.py``)."""
+        """The noise again once a detail response is kept: the response shapes the noise before it, as the camera's
+        does, and the stage was calibrated without it."""
         if self.stages.get(FrequencyResponse.name) is not None:
             self.fit_noise()
 
