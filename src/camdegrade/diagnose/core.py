@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 import os
+import shlex
 from collections.abc import Callable, Iterable
 
 from camdegrade._checks import check_seed
@@ -15,6 +16,7 @@ from camdegrade.diagnose.critique import CRITIC_CHANCE, Critique, critiques
 from camdegrade.diagnose.report import DiagnosisReport, example_crops, flat_crops
 from camdegrade.diagnose.where import findings, visible
 from camdegrade.errors import PairsError
+from camdegrade.fitting.pairs import PairReport
 from camdegrade.fitting.pairset import PairSet, PairsSource
 from camdegrade.measures import check_explains
 from camdegrade.measures.visible import GridComparison, compare_grid
@@ -25,7 +27,8 @@ from camdegrade.profile import CameraProfile, as_profile
 MIN_PAIRS = 4
 #: The suffix of the critics' labels that see the image alone, without its clean source.
 IMAGE_ONLY = " (image only)"
-NETWORK_COMMAND = "camdegrade fit PAIRS -o REFIT.safetensors --init-from {profile} --epochs 20 --lr 0.001"
+#: What the suggested network refit adds after ``camdegrade fit PAIRS --init-from PROFILE``.
+REFIT_OPTIONS = ("-o", "REFIT.safetensors", "--epochs", "20", "--lr", "0.001")
 
 
 def diagnose(
@@ -108,7 +111,8 @@ def diagnose(
     grid = compare_grid(result.baseline.sims, result.held.reals)
     where = findings_of(result, grid)
     seen = visible(result.held.reals, result.baseline.sims, result.final_sims if result.accepted else None, grid=grid)
-    verdict = _verdict(result, where, seen, critics, base.name, check)
+    command = refit_command(_reference(profile, "PROFILE"), _reference(pairs, "PAIRS"))
+    verdict = _verdict(result, where, seen, critics, command, check)
     say(verdict)
     report = _report(base, result, (calibration, held, held_pairs, split), (where, seen, verdict), critics)
     report.critic_check = check.to_dict() if check is not None else {}
@@ -178,7 +182,28 @@ def _fraction_closed(result: Attribution) -> float:
     return (result.baseline.gap - result.gap_after) / excess if excess > 0 else 0.0
 
 
-def _finding(change: Change, profile_name: str) -> tuple[str, str]:
+def refit_command(profile: str, pairs: str) -> str:
+    """The shell command that refits ``profile``'s network on ``pairs``, every argument quoted for a POSIX shell
+    (:func:`shlex.join`): a name or path holding ``;``, ``$( )``, quotes or line breaks stays one argument when the
+    command is pasted, and one starting with ``-`` is not read as an option."""
+    arguments = ["camdegrade", "fit", _not_an_option(pairs), *REFIT_OPTIONS[:2]]
+    arguments += ["--init-from", _not_an_option(profile), *REFIT_OPTIONS[2:]]
+    return shlex.join(arguments)
+
+
+def _not_an_option(path: str) -> str:
+    return os.path.join(".", path) if path.startswith("-") else path
+
+
+def _reference(given: object, placeholder: str) -> str:
+    """How a suggested command names what the user passed: the path or name as given (a pair report: the folder or
+    manifest it was found in), else ``placeholder`` (a profile object or tensors have no name on the command line)."""
+    if isinstance(given, PairReport):
+        given = given.source
+    return os.fspath(given) if isinstance(given, (str, os.PathLike)) else placeholder
+
+
+def _finding(change: Change, refit: str) -> tuple[str, str]:
     """(what is wrong, what fixes it) for an accepted change, in words."""
     if change.kind == "add":
         return f"the profile is missing {change.name}", f"adding {change.name}"
@@ -186,14 +211,13 @@ def _finding(change: Change, profile_name: str) -> tuple[str, str]:
         return f"the profile's {change.description}", f"removing the {change.name} stage"
     if change.kind == "refit":
         return f"the profile's {change.description}", f"refitting {change.name}"
-    command = NETWORK_COMMAND.format(profile=profile_name or "PROFILE")
-    return "the network itself leaves a gap no effect explains", f"refitting the network ({command})"
+    return "the network itself leaves a gap no effect explains", f"refitting the network ({refit})"
 
 
-def _finding_sentence(misfit: bool, changes: list[Change], profile_name: str) -> str:
+def _finding_sentence(misfit: bool, changes: list[Change], refit: str) -> str:
     """One finding in words, the profile's own misfit or the effects it lacks: what is wrong and what fixes it, each
     fix with the gap it took off where it was accepted."""
-    parts = [_finding(change, profile_name) for change in changes]
+    parts = [_finding(change, refit) for change in changes]
     fixes = ", then ".join(f"{fix} (gap −{change.reduction:.2f})" for (_, fix), change in zip(parts, changes))
     if misfit:
         return f"The profile does not reproduce the camera: {'; '.join(p for p, _ in parts)}; fix: {fixes}."
@@ -206,10 +230,10 @@ def _verdict(
     where: list[dict],
     seen: list[dict],
     critics: dict[str, Critique],
-    profile_name: str,
+    refit: str,
     check: CriticCheck | None = None,
 ) -> str:
-    held_back = _held_back_clause(check, profile_name)
+    held_back = _held_back_clause(check, refit)
     baseline = result.baseline
     if held_back and not result.accepted:
         text = (
@@ -235,7 +259,7 @@ def _verdict(
         )
     else:
         text = " ".join(
-            _finding_sentence(misfit, changes, profile_name)
+            _finding_sentence(misfit, changes, refit)
             for misfit, changes in ((True, result.misfit), (False, result.missing))
             if changes
         )
@@ -247,13 +271,13 @@ def _verdict(
     return text + _seen_clause(seen) + _critic_clause(baseline.significant, critics)
 
 
-def _held_back_clause(check: CriticCheck | None, profile_name: str) -> str:
+def _held_back_clause(check: CriticCheck | None, refit: str) -> str:
     """The change the image-only critic held back, in words, or nothing."""
     if check is None or check.held_back is None:
         return ""
     change, critique = check.held_back
     before, after = check.steps[-1][1].result, critique.result
-    _, fix = _finding(change, profile_name)
+    _, fix = _finding(change, refit)
     texture = check.texture[1].describe() if check.texture else ""
     clause = (
         f" Held back: {fix} closes the statistics' gap (−{change.reduction:.2f}), but from the image alone a critic "
