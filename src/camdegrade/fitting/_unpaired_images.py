@@ -84,3 +84,14 @@ def check_count(images: ImageSet, argument: str) -> None:
             f"fewer are mostly content), got {len(images.images)}"
             + (f" ({len(images.skipped)} unreadable)" if images.skipped else "")
         )
+
+
+def check_all_read(images: ImageSet, argument: str) -> None:
+    """``strict``: every file of the side read; else a :class:`PairsError` whose first line says how many were not
+    (the CLI's one line) and whose next lines name each file and why."""
+    if images.skipped:
+        listed = "\n".join(f"  {entry['path']}: {entry['reason']}" for entry in images.skipped)
+        raise PairsError(
+            f"{argument}: {len(images.skipped)} file(s) could not be read (strict: fix or remove them, or run "
+            f"without strict to skip them)\n{listed}"
+        )

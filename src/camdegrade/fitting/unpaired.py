@@ -56,6 +56,7 @@ from camdegrade.effects import (
 )
 from camdegrade.effects._fitting import downscale
 from camdegrade.effects.base import evenly_spaced
+from camdegrade.errors import CamdegradeError
 from camdegrade.fitting._distribution_match import (
     BLOCK_EDGE_RATIO,
     RINGS,
@@ -73,7 +74,7 @@ from camdegrade.fitting._distribution_match import (
     quality_from_tables,
     ring_profiles,
 )
-from camdegrade.fitting._unpaired_images import MIN_IMAGES, ImageSet, Source, check_count, load_images
+from camdegrade.fitting._unpaired_images import MIN_IMAGES, ImageSet, Source, check_all_read, check_count, load_images
 from camdegrade.fitting._unpaired_noise import fit_noise_unpaired, flat_sums
 from camdegrade.fitting.resolution import find_sensor
 from camdegrade.functional.blur import blur_image
@@ -141,7 +142,9 @@ def fit_unpaired(
     *,
     effects: Sequence[str] = UNPAIRED_EFFECTS,
     seed: int = 0,
+    sensor_scale: float | str = "auto",
     max_images: int | None = None,
+    strict: bool = False,
     progress: bool = False,
     name: str = "",
     description: str = "",
@@ -154,27 +157,34 @@ def fit_unpaired(
         effects: the stages to fit (default :data:`UNPAIRED_EFFECTS`); each is kept only where the captures differ
             from the clean set by more than its floor (see :mod:`camdegrade.fitting._distribution_match`).
         seed: the simulations' seed (same seed, same profile).
+        sensor_scale: ``"auto"``: an upscale found from the captures (:func:`~camdegrade.fitting.resolution.
+            find_sensor`); a number from 0.125 to 1: the sensor's resolution relative to the output, given (1: none).
         max_images: read at most this many images of each side.
+        strict: refuse instead of warning: an unreadable file (before any fitting), or a result with a warning.
         progress: a progress bar over the steps.
 
     Raises:
-        PairsError: fewer than :data:`MIN_IMAGES` readable images on a side, or not a folder.
+        PairsError: fewer than :data:`MIN_IMAGES` readable images on a side, or not a folder; with ``strict``, an
+            unreadable file.
         ValueError: an effect that needs correspondence (:data:`NOT_IDENTIFIABLE`), or captures with too few flat
             pixels to measure their noise.
     """
     say = log or (lambda message: None)
     wanted = check_unpaired_effects(effects)
+    sensor = check_sensor_scale(sensor_scale)
     for label, text in (("name", name), ("description", description)):
         if not isinstance(text, str):
             raise TypeError(f"{label} must be a str, got {label}={text!r} ({type(text).__name__})")
     started = time.perf_counter()
     captures = load_images(captured, "captured", max_images)
-    check_count(captures, "captured")
     cleans = load_images(clean, "clean", max_images) if clean is not None else None
-    if cleans is not None:
-        check_count(cleans, "clean")
+    for images, side in ((captures, "captured"), (cleans, "clean")):
+        if images is not None:
+            check_count(images, side)
+            if strict:
+                check_all_read(images, side)
     say(f"unpaired fit: {len(captures.images)} captures, {len(cleans.images) if cleans else 'no'} clean images")
-    fit = _UnpairedFit(captures, cleans, wanted, seed, say)
+    fit = _UnpairedFit(captures, cleans, wanted, seed, say, sensor)
     with tqdm(total=len(fit.steps), desc="unpaired fit", unit="step", disable=not progress) as bar:
         for label, step in fit.steps:
             bar.set_postfix_str(label)
@@ -185,7 +195,21 @@ def fit_unpaired(
     profile.quality = {"unpaired_fidelity": fit.fidelity()}
     for warning in fit.warnings:
         say(f"warning: {warning}")
+    if strict and fit.warnings:
+        raise CamdegradeError(f"{fit.warnings[0]}; strict: no profile (fix the input, or run without strict)")
     return profile
+
+
+def check_sensor_scale(value: Any) -> float | None:
+    """``sensor_scale`` as a number, or ``None`` for ``"auto"``; a ``ValueError`` for anything else."""
+    number = not isinstance(value, bool) and isinstance(value, (int, float))
+    if value == "auto":
+        return None
+    if not (number and Resolution.MIN_SCALE <= value <= 1):
+        raise ValueError(
+            f"sensor_scale must be 'auto' or a number from {Resolution.MIN_SCALE} to 1, got sensor_scale={value!r}"
+        )
+    return float(value)
 
 
 #: Where a profile's simulation of the clean set agrees with the captures in the statistics the fit matches: the
@@ -204,7 +228,7 @@ def unpaired_fidelity(
     captures, cleans = load_images(captured, "captured", max_images), load_images(clean, "clean", max_images)
     check_count(captures, "captured")
     check_count(cleans, "clean")
-    fidelity = _UnpairedFit(captures, cleans, [], seed, lambda message: None).fidelity(profile)
+    fidelity = _UnpairedFit(captures, cleans, [], seed, lambda message: None, None).fidelity(profile)
     low, high = NOISE_RATIO_RANGE
     ratio = fidelity["noise_ratio"]
     fidelity["agrees"] = (ratio is None or low <= ratio <= high) and all(
@@ -216,8 +240,11 @@ def unpaired_fidelity(
 class _UnpairedFit:
     """The state of one unpaired fit: the stages so far, each step's notes, and the sets it simulates."""
 
-    def __init__(self, captures: ImageSet, cleans: ImageSet | None, wanted: list[str], seed: int, say: Log) -> None:
+    def __init__(
+        self, captures: ImageSet, cleans: ImageSet | None, wanted: list[str], seed: int, say: Log, sensor: float | None
+    ) -> None:
         self.captures, self.cleans, self.wanted, self.seed, self.say = captures, cleans, wanted, seed, say
+        self.sensor_scale = sensor
         self.stages: dict[str, Effect] = {}
         self.notes: dict[str, Any] = {}
         self.not_fitted: dict[str, str] = {}
@@ -292,6 +319,11 @@ class _UnpairedFit:
         find_sensor`; without a clean set, the captures' trace alone): first, so every later stage is fitted
         through it."""
         if not self.wants(Resolution):
+            return
+        if self.sensor_scale is not None:  # given: kept as it is, below 1
+            self.notes[Resolution.name] = {"kept": self.sensor_scale < 1, "scale": self.sensor_scale, "given": True}
+            if self.sensor_scale < 1:
+                self.keep(Resolution(self.sensor_scale))
             return
         cleans = self.cleans.images if self.cleans else None
         stage, self.notes[Resolution.name] = find_sensor(cleans, self.captures.images, self.say)
