@@ -185,5 +185,5 @@ def test_strict_refuses_an_unreadable_file_before_fitting_and_writes_nothing(
     output = tmp_path / "p.safetensors"
     code, out, err = run_cli(["fit", "--unpaired", captured, "-o", output, "--strict", "--quiet"], capsys)
     line = one_line_error(err)
-    assert code == 1 and "captured: 1 file(s) could not be read (strict" in line, line
+    assert code == 1 and "captured: 1 file(s) could not be used (strict" in line, line
     assert "broken.png" in out and not output.exists()

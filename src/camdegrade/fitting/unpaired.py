@@ -36,6 +36,7 @@ import torch
 from torch import Tensor
 from tqdm.auto import tqdm
 
+from camdegrade._checks import check_seed
 from camdegrade._profile_format.header import running_versions
 from camdegrade._seeds import derived_generator
 from camdegrade._version import __version__
@@ -74,7 +75,7 @@ from camdegrade.fitting._distribution_match import (
     quality_from_tables,
     ring_profiles,
 )
-from camdegrade.fitting._unpaired_images import MIN_IMAGES, ImageSet, Source, check_all_read, check_count, load_images
+from camdegrade.fitting._unpaired_images import MIN_IMAGES, ImageSet, Source, check_count, load_images, load_sides
 from camdegrade.fitting._unpaired_noise import fit_noise_unpaired, flat_sums
 from camdegrade.fitting.resolution import find_sensor
 from camdegrade.functional.blur import blur_image
@@ -151,7 +152,8 @@ def fit_unpaired(
     log: Log | None = None,
 ) -> CameraProfile:
     """Fit an effects-only camera profile from the camera's photos ``captured`` and an optional ``clean`` set of
-    other scenes of similar content (each a folder or a list of ``(3, H, W)`` tensors, images of any sizes).
+    other scenes of similar content (each a folder, or a list of ``(3, H, W)`` tensors, ``(H, W, 3)`` numpy arrays
+    or PIL images; images of any sizes from 16 px a side).
 
     Args:
         effects: the stages to fit (default :data:`UNPAIRED_EFFECTS`); each is kept only where the captures differ
@@ -164,8 +166,12 @@ def fit_unpaired(
         progress: a progress bar over the steps.
 
     Raises:
-        PairsError: fewer than :data:`MIN_IMAGES` readable images on a side, or not a folder; with ``strict``, an
-            unreadable file.
+        PairsError: fewer than :data:`MIN_IMAGES` usable images on a side (unreadable files and images under 16 px
+            a side are skipped), not a folder, a side without contrast, the same images on both sides; with
+            ``strict``, a skipped file.
+        CamdegradeError: with ``strict``, a result with a warning.
+        TypeError, ValueError: an image of a list that is not an RGB image in [0, 1] or uint8 (named by its
+            index), a seed that is not an int.
         ValueError: an effect that needs correspondence (:data:`NOT_IDENTIFIABLE`), or captures with too few flat
             pixels to measure their noise.
     """
@@ -175,16 +181,12 @@ def fit_unpaired(
     for label, text in (("name", name), ("description", description)):
         if not isinstance(text, str):
             raise TypeError(f"{label} must be a str, got {label}={text!r} ({type(text).__name__})")
+    check_seed(seed)
     started = time.perf_counter()
-    captures = load_images(captured, "captured", max_images)
-    cleans = load_images(clean, "clean", max_images) if clean is not None else None
-    for images, side in ((captures, "captured"), (cleans, "clean")):
-        if images is not None:
-            check_count(images, side)
-            if strict:
-                check_all_read(images, side)
+    captures, cleans, warnings = load_sides(captured, clean, max_images, strict)
     say(f"unpaired fit: {len(captures.images)} captures, {len(cleans.images) if cleans else 'no'} clean images")
     fit = _UnpairedFit(captures, cleans, wanted, seed, say, sensor)
+    fit.warnings += warnings
     with tqdm(total=len(fit.steps), desc="unpaired fit", unit="step", disable=not progress) as bar:
         for label, step in fit.steps:
             bar.set_postfix_str(label)
