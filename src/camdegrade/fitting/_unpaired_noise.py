@@ -7,7 +7,10 @@ binned by that local mean (:class:`~camdegrade.functional.noise_stats.NoiseSums`
 bin, lag-1/2 and channel correlation, row and column line means). The same measurement of the clean set, run
 through the rest of the fitted chain, is the base (what the clean images carry already); the noise stage then
 follows by simulated moments (:func:`~camdegrade.effects._noise_fit.calibrate`), so clipping, the tone curve,
-sharpening and the codec after the noise are absorbed.
+sharpening and the codec after the noise are absorbed. The simulations are measured on the pixels where the
+noiseless simulation is flat (:func:`on_noiseless_pixels`), and after each round the level table is a curve smooth
+in the signal level, at most :data:`RAISE_LIMIT` times the captures' own noise (:class:`LevelsRule`): a bin of
+texture in the captures no longer becomes speckle (docs/results.md, "Unpaired fit on real PolyU captures").
 
 **Captures only, nothing after the noise** (``direct=True``): the stage is the captures' own measured moments, per
 channel and intensity bin, with no base taken off and no simulated correction (banding is still fitted). There the
@@ -27,9 +30,10 @@ import torch
 from torch import Tensor
 
 from camdegrade.effects import Noise
-from camdegrade.effects._noise_fit import calibrate, check_measurable, initial_noise
+from camdegrade.effects._noise_fit import FIT_MIN_PIXELS, calibrate, check_measurable, initial_noise
+from camdegrade.fitting._noise_curve import smooth_levels
 from camdegrade.functional.analysis import box_mean, noisy_flat_mask
-from camdegrade.functional.noise_stats import HIGH_PASS, NoiseSums
+from camdegrade.functional.noise_stats import HIGH_PASS, NoiseSums, measure_set
 
 #: A noise stage is kept when its std at mid-grey is at least this many 8-bit levels (8-bit rounding alone leaves
 #: about 0.3).
@@ -37,6 +41,13 @@ NOISE_FLOOR = 0.5
 #: ... and when the captures' flat pixels vary at least this much more than the simulated clean set's without it
 #: (the rest is the two sets' content, not noise).
 NOISE_SHARE = 1.1
+#: A knot's level is at most this many times the captures' own noise there (their flat pixels, smoothed). The chain
+#: after the noise may take some of it away (a JPEG's dead zone: 2 levels come through quality 85 as 0.8), but
+#: where the simulated noise stays far below the captures' whatever the level (their flat pixels hold texture or
+#: codec blocks the clean set's do not, or the codec is heavier than the camera's), each calibration round raised
+#: the level 4× more: 64× in three rounds, past the stage's range (a level of 510 of 255 from 30 levels of white
+#: noise behind a simulated quality-10 JPEG), and the profile could not be saved.
+RAISE_LIMIT = 4.0
 
 
 def flat_sums(images: Sequence[Tensor]) -> NoiseSums:
@@ -46,6 +57,18 @@ def flat_sums(images: Sequence[Tensor]) -> NoiseSums:
     for image in images:
         total = total + NoiseSums.measure(image, box_mean(image, HIGH_PASS), noisy_flat_mask(image))
     return total
+
+
+def on_noiseless_pixels(noiseless: Sequence[Tensor]) -> Callable[[Sequence[Tensor]], NoiseSums]:
+    """A measure of the clean set simulated with noise (one image per ``noiseless`` image, in order): the noise sums
+    on the pixels where the simulation *without* noise is flat, binned by its local mean, the same pixels every
+    call. Measured on each simulation's own noise-adapted mask (:func:`flat_sums`), the pixels changed with the
+    noise added: more noise admitted more texture, and the excess over the noiseless base was not the stage's
+    noise (10 PolyU crops: 0.0–5.2 levels for stage levels of 0.5–7, falling while the levels rose), which the
+    calibration, a factor up to 4 per bin and round, then chased."""
+    means = [box_mean(image, HIGH_PASS) for image in noiseless]
+    masks = [noisy_flat_mask(image) for image in noiseless]
+    return lambda images: measure_set(list(images), means, masks)
 
 
 def fit_noise_unpaired(
@@ -69,10 +92,17 @@ def fit_noise_unpaired(
         from a single image's smooth regions).
     """
     check_measurable(real)
-    base = flat_sums(simulate(None))
+    noiseless = simulate(None)
+    measure = flat_sums if direct else on_noiseless_pixels(noiseless)
+    base = measure(noiseless)
     source = without_moments(real) if direct else base
     start = initial_noise(Noise, real, source, taps)
-    noise = calibrate(start, simulate, flat_sums, real, source, rounds=0 if direct else rounds, banding=banding)
+    rule = LevelsRule(real)
+    with torch.no_grad():
+        start.levels.copy_(rule(start.levels.double()).float())
+    noise = calibrate(
+        start, simulate, measure, real, source, rounds=0 if direct else rounds, banding=banding, levels_rule=rule
+    )
     level = noise.magnitude()
     notes = {
         "std_mid_grey_levels": round(level, 3),
@@ -80,9 +110,27 @@ def fit_noise_unpaired(
         "captures_std_levels": _rounded(real.pooled_std()),
         "clean_std_levels": _rounded(base.pooled_std()),
         "direct": direct,
+        "levels": [[round(float(v) * 255, 2) for v in row] for row in noise.levels],
     }
+    capped = (noise.levels.double() >= rule.limit * (1 - 1e-6)) & (noise.levels.double() > 0)
+    if bool(capped.any()):
+        notes["capped_knots"] = capped.nonzero().tolist()
     kept = level >= NOISE_FLOOR and real.pooled_std() >= NOISE_SHARE * base.pooled_std()
     return (noise if kept else None), notes
+
+
+class LevelsRule:
+    """What the level table of an unpaired noise stage keeps after each calibration round: smooth in the signal
+    level (:func:`~camdegrade.fitting._noise_curve.smooth_levels`, weighted by the captures' flat pixels per bin),
+    and at most :data:`RAISE_LIMIT` times the captures' own noise there (:attr:`limit`, ``(3, K)``)."""
+
+    def __init__(self, real: NoiseSums) -> None:
+        self.support = real.count
+        own = smooth_levels(real.std(FIT_MIN_PIXELS) / 255.0, real.count)
+        self.limit = (RAISE_LIMIT * own).clamp(max=Noise.MAX_LEVEL)
+
+    def __call__(self, levels: Tensor) -> Tensor:
+        return torch.minimum(smooth_levels(levels, self.support), self.limit.to(levels.dtype))
 
 
 def without_moments(sums: NoiseSums) -> NoiseSums:

@@ -75,6 +75,7 @@ from camdegrade.fitting._distribution_match import (
     quality_from_tables,
     ring_profiles,
 )
+from camdegrade.fitting._unpaired_check import self_check_warnings
 from camdegrade.fitting._unpaired_images import MIN_IMAGES, ImageSet, Source, check_count, load_images, load_sides
 from camdegrade.fitting._unpaired_noise import fit_noise_unpaired, flat_sums
 from camdegrade.fitting.resolution import find_sensor
@@ -193,8 +194,9 @@ def fit_unpaired(
             step()
             bar.update(1)
     profile = CameraProfile(None, fit.chain(), name=name, description=description)
-    profile.fitted = fit.record(time.perf_counter() - started)
     profile.quality = {"unpaired_fidelity": fit.fidelity()}
+    fit.warnings += self_check_warnings(profile.quality["unpaired_fidelity"], wanted, with_clean=cleans is not None)
+    profile.fitted = fit.record(time.perf_counter() - started)
     for warning in fit.warnings:
         say(f"warning: {warning}")
     if strict and fit.warnings:
@@ -307,6 +309,17 @@ class _UnpairedFit:
         return any(kind.name in self.wanted for kind in kinds)
 
     def keep(self, stage: Effect) -> None:
+        """``stage`` kept once its values are in the stage's range (:meth:`~camdegrade.effects.Effect.check_values`,
+        what saving the profile checks): a value out of range stops the fit at the step that made it, naming it,
+        not after every step when the profile is saved."""
+        try:
+            stage.check_values()
+        except ValueError as error:
+            raise ValueError(
+                f"unpaired fit: the {stage.name} stage fitted to these images is outside its range ({error}); the "
+                "captures are beyond what the stage models: check that they are the camera's photos of scenes like "
+                "the clean images', or leave the stage out (effects)"
+            ) from None
         self.stages[stage.name] = stage
 
     def _skip(self, kinds: Sequence[type[Effect]], reason: str) -> None:
