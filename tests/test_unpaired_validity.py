@@ -147,3 +147,20 @@ def test_every_unpaired_fit_of_a_generated_camera_saves_and_loads(kind: str, tmp
     profile.save(tmp_path / "p.safetensors")
     loaded = load_profile(tmp_path / "p.safetensors")
     assert loaded.effect_names == profile.effect_names
+
+
+def test_a_monochrome_camera_is_a_grey_colour_matrix_not_a_colour_cast(tmp_path: Path) -> None:
+    """Greyscale JPEG captures beside colour clean images: white-balance gains 0.76/0.96/1.36 (a cast, no word of
+    the camera being monochrome) before; now a colour matrix of three equal rows (BT.601 luma), so a colour image
+    comes out grey."""
+    captured = tmp_path / "captured"
+    captured.mkdir()
+    for index, scene in enumerate(dead_leaves_images(8, 64, seed=11)):
+        Image.fromarray(scene.permute(1, 2, 0).numpy()).convert("L").save(captured / f"{index}.jpg", quality=90)
+    clean = [(image * 255).round().to(torch.uint8) for image in _scenes(12, 8, 64)]
+    profile = fit_unpaired(captured, clean, effects=("color", "tone"))
+    assert profile.fitted["effects"]["color_tone"]["monochrome"]["chroma_levels"] <= 1.0, profile.fitted
+    colour = _scenes(13, 1, 64)[0][None]
+    with torch.no_grad():
+        out = profile(colour, profile.make_params(colour.shape, torch.Generator().manual_seed(0)))[0]
+    assert float((out - out[1:2]).abs().max()) <= 1e-5 and float(colour[0].std(0).mean()) > 0.05

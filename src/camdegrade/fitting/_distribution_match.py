@@ -198,6 +198,36 @@ def fit_color_tone(
     return color, tone if tone_kept else None, notes
 
 
+#: Captures whose red and blue differ from green by at most this on average (8-bit levels: rounding, a JPEG's
+#: chroma of a grey image) while the clean images' differ by :data:`MONOCHROME_CONTRAST` times as much are a
+#: monochrome camera's ...
+MONOCHROME_LEVELS = 1.0
+MONOCHROME_CONTRAST = 4.0
+#: ... modelled exactly by a colour matrix whose three rows are the ITU-R BT.601 luma weights on the sRGB values:
+#: the grey a JPEG's Y channel and PIL's ``convert("L")`` hold.
+BT601_LUMA = (0.299, 0.587, 0.114)
+
+
+def chroma_levels(images: Sequence[Tensor]) -> float:
+    """The mean absolute difference of red and of blue from green over the images' pixels (8-bit levels)."""
+    values = [((image[0] - image[1]).abs().mean() + (image[2] - image[1]).abs().mean()) / 2 for image in images]
+    return float(torch.stack(values).mean()) * 255.0
+
+
+def monochrome_notes(captures: Sequence[Tensor], cleans: Sequence[Tensor]) -> dict | None:
+    """``{"chroma_levels", "clean_chroma_levels"}`` where the captures are a monochrome camera's and the clean
+    images are not (:data:`MONOCHROME_LEVELS`), else ``None``."""
+    real, clean = chroma_levels(captures), chroma_levels(cleans)
+    if real <= MONOCHROME_LEVELS and clean >= MONOCHROME_CONTRAST * max(real, 0.25):
+        return {"chroma_levels": round(real, 3), "clean_chroma_levels": round(clean, 3)}
+    return None
+
+
+def monochrome_color() -> Color:
+    """The colour stage of a monochrome camera: every channel the BT.601 luma of the sRGB values."""
+    return Color(torch.tensor([BT601_LUMA] * 3), linear=False)
+
+
 def _curve(tone: Tone, values: Tensor) -> Tensor:
     return tone_curve(values, *(getattr(tone, key).double() for key in ("gamma", "black", "white", "exposure")))
 

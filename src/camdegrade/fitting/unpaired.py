@@ -72,6 +72,8 @@ from camdegrade.fitting._distribution_match import (
     fit_vignetting,
     log_spectrum,
     mean_spectrum,
+    monochrome_color,
+    monochrome_notes,
     quality_from_tables,
     ring_profiles,
 )
@@ -112,6 +114,7 @@ SMALL_SIDE = 256
 JPEG_QUALITIES = (*range(30, 100, 5), 98)
 QUALITY_IMAGES = 12
 BLOCKS_WARNING = "the captures show 8×8 block edges"
+MONOCHROME_WARNING = "the captures are monochrome and the clean images are not"
 #: Knots per axis of the detail response: 0.025 cycles/pixel apart, finer than the narrowest band it is fitted on.
 RESPONSE_KNOTS = 21
 #: Without a clean set the noise is simulated on the captures smoothed by a Gaussian of this sigma (px).
@@ -408,8 +411,17 @@ class _UnpairedFit:
         if self.cleans is None:
             self._skip([Color, Tone], "needs a clean set (--clean)")
             return
-        sources = self.simulate(self.deterministic(optics_only=True), self.small_cleans, "unpaired-deterministic")
+        monochrome = monochrome_notes(self.small_captures, self.small_cleans)
+        optics = self.deterministic(optics_only=True)
+        if monochrome is not None and self.wants(Color):  # the tone is then fitted grey to grey
+            optics.append(monochrome_color())
+        sources = self.simulate(optics, self.small_cleans, "unpaired-deterministic")
         color, tone, notes = fit_color_tone(self.small_captures, sources, self.seed, test=test)
+        if monochrome is not None and self.wants(Color):
+            color, notes["monochrome"] = monochrome_color(), monochrome
+            self.say(f"colour: the captures are monochrome ({monochrome}): every channel the BT.601 luma")
+        elif monochrome is not None and not any(w.startswith(MONOCHROME_WARNING) for w in self.warnings):
+            self.warnings.append(f"{MONOCHROME_WARNING} ({monochrome}); fit 'color' to model it")
         self.notes["color_tone"] = notes
         for kind, stage in ((Color, color), (Tone, tone)):
             self.stages.pop(kind.name, None)
