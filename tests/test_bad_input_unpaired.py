@@ -117,3 +117,12 @@ def test_a_given_sensor_scale_is_the_resolution_stage() -> None:
     assert profile.effect_names == ["resolution"] and float(profile.effects[0].scale) == 0.5
     assert profile.fitted["effects"]["resolution"]["given"] is True
     assert fit_unpaired(_images(), effects=("resolution",), sensor_scale=1).effect_names == []
+
+
+def test_a_few_images_on_both_sides_are_a_warning() -> None:
+    captures, cleans = _images(), _images(seed=1)
+    cleans[:2] = captures[:2]  # 2 of 8: a few shared, not the same set
+    profile = fit_unpaired(captures, cleans, effects=("vignetting",))
+    assert profile.fitted["warnings"] == [
+        "2 captures are also clean images (the same pixels): the clean set is of other scenes"
+    ], profile.fitted

@@ -210,7 +210,10 @@ def load_sides(
                 check_all_read(images, side)
             check_contrast(images, side)
     shared = same_images(captures, cleans) if cleans is not None else 0
-    warnings = [
-        f"{shared} of the captures are also clean images (the same pixels): the clean set should hold other scenes"
-    ]
-    return captures, cleans, warnings if shared else []
+    if not shared:
+        return captures, cleans, []
+    return (
+        captures,
+        cleans,
+        [f"{shared} captures are also clean images (the same pixels): the clean set is of other scenes"],
+    )
