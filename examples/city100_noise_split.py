@@ -22,7 +22,6 @@ from camdegrade import load_profile
 from camdegrade._pixels import as_unit
 from camdegrade.fitting.evidence import as_stored
 from camdegrade.fitting.noise import CALIBRATION_PAIRS, fit_noise_stage
-from camdegrade.fitting.pairset import simulate
 from camdegrade.functional.analysis import flat_mask
 from camdegrade.functional.noise_stats import measure_set
 from camdegrade.measures.fidelity import noise_ratios
@@ -44,7 +43,7 @@ def main() -> None:
     cleans, reals = [c for c, _ in val], [r for _, r in val]
     masks = [flat_mask(clean) for clean in cleans]
     real = measure_set(reals, cleans, masks)
-    base = measure_set(as_stored(simulate(profile, cleans, 0, deterministic=True), True), cleans, masks)
+    base = measure_set(as_stored(profile.simulate(cleans, 0, deterministic=True), True), cleans, masks)
     print(
         f"validation: {real.pixels} flat pixels, capture noise {real.pooled_std():.3f} levels, profile without noise "
         f"{base.pooled_std():.3f} (ratio {noise_ratios(base, real)[0]:.3f}, banding {noise_ratios(base, real)[1]:.3f})"
@@ -55,7 +54,7 @@ def main() -> None:
             profile, [c for c, _ in fit_pairs], [r for _, r in fit_pairs], calibration_pairs=CALIBRATION_PAIRS
         )
         seconds = time.perf_counter() - started
-        sampled = as_stored(simulate(profile.with_effects(noise), cleans, 0, stream="quality"), True)
+        sampled = as_stored(profile.with_effects(noise).simulate(cleans, 0, stream="quality"), True)
         noise_ratio, banding_ratio = noise_ratios(measure_set(sampled, cleans, masks), real)
         rows = [round(value * 255, 3) for value in noise.row_sigma.tolist()]
         print(

@@ -24,7 +24,6 @@ from simulated_camera_fidelity import pairs
 
 from camdegrade import load_profile
 from camdegrade._pixels import as_unit
-from camdegrade.fitting.pairset import simulate
 from camdegrade.measures.critic import repeated_critic_test
 
 
@@ -48,7 +47,7 @@ def main() -> None:
     for entry in args.profile:
         label, _, path = entry.partition("=")
         profile = load_profile(path)
-        sims = [(s.clamp(0, 1) * 255).round() / 255 for s in simulate(profile, cleans, seed=0, stream="heldout")]
+        sims = [(s.clamp(0, 1) * 255).round() / 255 for s in profile.simulate(cleans, seed=0, stream="heldout")]
         row = {"profile": label}
         for name, image_only in (("image_only", True), ("paired", False)):
             values = accuracies(cleans, reals, sims, args.seeds, image_only)

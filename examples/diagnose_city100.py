@@ -24,7 +24,6 @@ import torch
 from camdegrade._pixels import as_unit
 from camdegrade.diagnose import diagnose
 from camdegrade.fitting import discover_pairs, filter_pairs, load_pair
-from camdegrade.fitting.pairset import simulate
 from camdegrade.measures.critic import repeated_critic_test
 
 DEFAULT_DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "real-pairs"
@@ -81,7 +80,7 @@ def fresh_critics(report, pairs: list[tuple[torch.Tensor, torch.Tensor]], count:
     names = sorted(report.critic["after"]["scored_on"], key=int)  # the held-out pairs, named by their index
     cleans = [as_unit(pairs[int(name)][0]) for name in names]
     reals = [as_unit(pairs[int(name)][1]) for name in names]
-    sims = [(s.clamp(0, 1) * 255).round() / 255 for s in simulate(report.profile, cleans, seed=1, stream="fresh")]
+    sims = [(s.clamp(0, 1) * 255).round() / 255 for s in report.profile.simulate(cleans, seed=1, stream="fresh")]
     for label, image_only in (("after", False), ("after (image only)", True)):
         reported = report.critic[label]
         spread = repeated_critic_test((cleans, reals, sims), names, count, image_only=image_only)

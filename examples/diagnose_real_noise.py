@@ -21,7 +21,6 @@ from torch import Tensor
 
 from camdegrade.diagnose import DiagnosisReport, diagnose
 from camdegrade.fitting import discover_pairs, filter_pairs, load_pair
-from camdegrade.fitting.pairset import simulate
 from camdegrade.functional.analysis import flat_mask, flattest_window
 from camdegrade.functional.noise_stats import measure_set
 from camdegrade.profile import CameraProfile
@@ -57,7 +56,7 @@ def flat_noise(profile: CameraProfile, pairs: list[tuple[Tensor, Tensor]], seed:
     cleans, reals = [clean for clean, _ in pairs], [real for _, real in pairs]
     masks = [flat_mask(clean) for clean in cleans]
     real = measure_set(reals, cleans, masks)
-    simulated = measure_set(simulate(profile, cleans, seed), cleans, masks)
+    simulated = measure_set(profile.simulate(cleans, seed), cleans, masks)
     return real.pooled_std(), simulated.pooled_std(), int(sum(int(mask.sum()) for mask in masks))
 
 

@@ -26,7 +26,6 @@ from PIL import Image
 from camdegrade._pixels import unit_to_bytes
 from camdegrade.effects import Blur, Noise, Tone
 from camdegrade.fitting import FitConfig, PairSet, fit_profile
-from camdegrade.fitting.pairset import simulate
 from camdegrade.sim import VirtualCamera
 from camdegrade.synthetic import dead_leaves_images
 
@@ -94,7 +93,7 @@ def crops(validation: PairSet, profile) -> Image.Image:
         if index is None:
             continue
         clean, captured = validation.unit_pairs()[index]
-        sim = simulate(profile, [clean], seed=0, stream="quality")[0]
+        sim = profile.simulate([clean], seed=0, stream="quality")[0]
         images = [unit_to_bytes(image[:, 32:96, 32:96]) for image in (clean, captured, sim)]
         if textured:
             images = [image.repeat_interleave(2, -1).repeat_interleave(2, -2) for image in images]

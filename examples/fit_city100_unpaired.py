@@ -31,7 +31,7 @@ from torch import Tensor
 
 from camdegrade import load_profile
 from camdegrade._pixels import as_unit, unit_to_bytes
-from camdegrade.fitting import discover_pairs, filter_pairs, load_pair, simulate
+from camdegrade.fitting import discover_pairs, filter_pairs, load_pair
 from camdegrade.fitting.unpaired import fit_unpaired
 from camdegrade.functional.analysis import flat_mask, gradient_energy
 from camdegrade.measures.critic import critic_test, repeated_critic_test
@@ -90,8 +90,8 @@ def rows(
     reals = [as_unit(scenes[scene][1]) for scene in held_out]
     candidates = {
         "clean image unchanged": cleans,
-        "paired fit (built-in city100-iphonex)": _stored(simulate(load_profile("city100-iphonex"), cleans, seed)),
-        "unpaired fit (effects only)": _stored(simulate(unpaired, cleans, seed)),
+        "paired fit (built-in city100-iphonex)": _stored(load_profile("city100-iphonex").simulate(cleans, seed)),
+        "unpaired fit (effects only)": _stored(unpaired.simulate(cleans, seed)),
     }
     fit_half, check_half = slice(0, None, 2), slice(1, None, 2)
     out = []
@@ -157,7 +157,7 @@ def side_by_side(scenes: dict[str, tuple[Tensor, Tensor]], unpaired, path: Path)
     rows = []
     for scene in SHOWN:
         clean, real = scenes[scene]
-        sim = unit_to_bytes(simulate(unpaired, [as_unit(clean)], HELD_OUT.index(scene))[0])
+        sim = unit_to_bytes(unpaired.simulate([as_unit(clean)], HELD_OUT.index(scene))[0])
         unit = as_unit(clean)
         for kind, score, side in (
             ("flat 1:1", flat_mask(unit), TILE),

@@ -15,8 +15,8 @@ import argparse
 
 from camdegrade import load_profile
 from camdegrade.fitting.evidence import as_stored
-from camdegrade.fitting.pairset import PairSet, simulate
 from camdegrade.measures.critic import repeated_critic_test
+from camdegrade.pairs.pairset import PairSet
 
 
 def main() -> None:
@@ -30,7 +30,7 @@ def main() -> None:
     pairs = PairSet.load(args.pairs)
     validation = pairs.subset([index for index, scene in enumerate(pairs.scenes) if scene in scenes])
     cleans, captures = validation.cleans(), validation.captured()
-    sampled = as_stored(simulate(profile, cleans, 0, stream="quality"), eight_bit=True)
+    sampled = as_stored(profile.simulate(cleans, 0, stream="quality"), eight_bit=True)
     for image_only in (False, True):
         result = repeated_critic_test((cleans, captures, sampled), validation.scenes, args.seeds, image_only=image_only)
         label = "image-only" if image_only else "paired"

@@ -36,7 +36,6 @@ from camdegrade._pixels import as_unit, unit_to_bytes
 from camdegrade.effects import Sharpen
 from camdegrade.effects.base import evenly_spaced
 from camdegrade.fitting import discover_pairs, filter_pairs, load_pair
-from camdegrade.fitting.pairset import simulate
 from camdegrade.functional.analysis import flattest_window, gradient_energy
 from camdegrade.measures import BAND_EDGES, measure_fidelity
 
@@ -61,7 +60,7 @@ def load(data: Path, scenes: list[str]) -> tuple[list[Tensor], list[Tensor]]:
 def fits(profile: CameraProfile, data: Path, all_pairs: bool) -> dict[str, Sharpen]:
     """The sharpen stages fitted on scenes 001–055 against the profile's deterministic output."""
     cleans, reals = load(data, FIT)
-    sources = simulate(profile, cleans, seed=0, deterministic=True)
+    sources = profile.simulate(cleans, seed=0, deterministic=True)
     chosen, targets = evenly_spaced(sources, Sharpen.fit_budget), evenly_spaced(reals, Sharpen.fit_budget)
     options = Sharpen.fit_options(chosen)
     variants = {
@@ -87,10 +86,10 @@ def held_out_rows(profile: CameraProfile, fitted: dict[str, Sharpen], data: Path
     stage applied to the built-in's output with the same draws (checked on one frame)."""
     cleans, reals = load(data, HELD_OUT)
     first = next(iter(fitted.values()))
-    check = simulate(profile.with_effects(first), cleans[:1], seed=0)[0]
+    check = profile.with_effects(first).simulate(cleans[:1], seed=0)[0]
     rows, shown = [], {scene: {"real": reals[HELD_OUT.index(scene)]} for scene in SHOWN}
     for mode, deterministic in (("deterministic", True), ("sampled", False)):
-        built_in = simulate(profile, cleans, seed=0, deterministic=deterministic)
+        built_in = profile.simulate(cleans, seed=0, deterministic=deterministic)
         if not deterministic:
             torch.testing.assert_close(first(built_in[0][None])[0], check, atol=1e-5, rtol=0)
         sims = {"built-in": built_in}

@@ -39,7 +39,6 @@ from camdegrade.diagnose import diagnose
 from camdegrade.effects import Blur, Color, Noise, Tone
 from camdegrade.fitting import FitConfig, fit_profile
 from camdegrade.fitting.baseline import apply_linear_baseline, fit_linear_baseline
-from camdegrade.fitting.pairset import simulate
 from camdegrade.measures.critic import repeated_critic_test
 from camdegrade.measures.fidelity import measure_fidelity
 from camdegrade.metrics import psnr
@@ -98,10 +97,10 @@ def evaluate(name: str, args: argparse.Namespace) -> tuple[dict, list[torch.Tens
     baseline = fit_linear_baseline(train, seed=0)
     cleans = [as_unit(clean) for clean, _ in held]
     reals = [as_unit(captured) for _, captured in held]
-    sims = [(s.clamp(0, 1) * 255).round() / 255 for s in simulate(profile, cleans, seed=0, stream="heldout")]
+    sims = [(s.clamp(0, 1) * 255).round() / 255 for s in profile.simulate(cleans, seed=0, stream="heldout")]
     with torch.no_grad():
         base = [(apply_linear_baseline(*baseline, c[None])[0].clamp(0, 1) * 255).round() / 255 for c in cleans]
-    means = simulate(profile, cleans, seed=0, deterministic=True)
+    means = profile.simulate(cleans, seed=0, deterministic=True)
     fidelity = measure_fidelity(sims, reals, cleans)
     row = {
         "camera": name,

@@ -18,9 +18,9 @@ from camdegrade.diagnose import diagnose
 from camdegrade.errors import CamdegradeError, PairsError
 from camdegrade.fitting.checkpoint import CHECKPOINT_KEY, load_checkpoint
 from camdegrade.fitting.fit import fit_profile
-from camdegrade.fitting.pairs import discover_pairs
 from camdegrade.fitting.training import FitConfig, fit_network
 from camdegrade.io import write_image
+from camdegrade.pairs.discovery import discover_pairs
 from camdegrade.sim import simulate_pairs
 from test_fit import QUICK as CLI_QUICK
 from test_fit import make_pairs_folder

@@ -16,8 +16,8 @@ from bad_inputs import good_image, one_line_error, profile_file, run_cli
 from camdegrade import CameraProfile, load_profile
 from camdegrade.effects import Vignetting
 from camdegrade.errors import PairsError, ProfileError
-from camdegrade.fitting.pairs import discover_pairs
 from camdegrade.io import read_image, write_image
+from camdegrade.pairs.discovery import discover_pairs
 from camdegrade.profile import METADATA_KEY, serialize_metadata
 from test_fit import QUICK, make_pairs_folder
 

@@ -457,7 +457,7 @@ def test_fit_lists_manifest_rows_naming_missing_files_and_exits_1(tmp_path: Path
 
 
 def test_manifest_rows_naming_one_file_twice_or_a_folder_are_reported(tmp_path: Path) -> None:
-    from camdegrade.fitting.pairs import discover_pairs
+    from camdegrade.pairs.discovery import discover_pairs
 
     pairs = _pairs(tmp_path)
     manifest = pairs / "m.csv"

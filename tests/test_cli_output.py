@@ -15,8 +15,8 @@ import torch
 
 from bad_inputs import run_cli
 from camdegrade._text import printable
-from camdegrade.fitting.pairs import discover_pairs
 from camdegrade.io import write_image
+from camdegrade.pairs.discovery import discover_pairs
 from profiles_for_tests import deterministic_profile
 
 SOURCE = Path(__file__).resolve().parents[1] / "src"

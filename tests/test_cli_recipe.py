@@ -14,8 +14,8 @@ from pathlib import Path
 import pytest
 
 import camdegrade
-import camdegrade.fitting.pairs as pairs_module
 import camdegrade.fitting.training as training_module
+import camdegrade.pairs.discovery as pairs_module
 from camdegrade._recipes import FAST, FIELDS, PAPER, TRAINING_FIELDS, recipe_default
 from camdegrade.cli import diagnose as diagnose_command
 from camdegrade.cli import distill as distill_command
@@ -149,7 +149,7 @@ def test_the_pairs_enter_no_room_more_than_twice_on_their_way_to_training(tmp_pa
     """Issue 22: followed as a value from the CLI's fit to the first training step (before: pairs.py and
     pairset.py three times each, the files discovered twice)."""
     rooms = _rooms_the_pairs_walk_through(tmp_path, monkeypatch)
-    assert rooms[0] == "fitting/pairs.py" and "fitting/fit.py" in rooms, rooms  # the walk was seen
+    assert rooms[0] == "pairs/discovery.py" and "fitting/fit.py" in rooms, rooms  # the walk was seen
     assert max(Counter(rooms).values()) <= 2, rooms
 
 

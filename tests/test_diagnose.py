@@ -17,11 +17,11 @@ from camdegrade.diagnose.heldout import HeldOut
 from camdegrade.diagnose.report import REQUIRED_KEYS
 from camdegrade.effects import EFFECTS, JPEG, Noise, Tone, Vignetting
 from camdegrade.fitting.noise import fit_noise_stage
-from camdegrade.fitting.pairset import PairSet, simulate
 from camdegrade.functional.analysis import box_mean, flat_mask
 from camdegrade.functional.noise_stats import measure_set
 from camdegrade.io import write_image
 from camdegrade.measures import FAMILIES, StatisticSet, bootstrap_indices, family_gaps, gap, measurement_scale
+from camdegrade.pairs.pairset import PairSet
 from camdegrade.profile import CameraProfile, load_profile
 from camdegrade.sim import VirtualCamera
 from conftest import PAPER_BUILT_IN
@@ -66,7 +66,7 @@ def test_gap_is_fair_to_noise() -> None:
     mse_without = sum(
         float((s - r).pow(2).mean())
         for s, r in zip(
-            simulate(CameraProfile(None, [Tone(gamma=1.1)]), held.cleans, 0, stream="held-out"), held.reals, strict=True
+            CameraProfile(None, [Tone(gamma=1.1)]).simulate(held.cleans, 0, stream="held-out"), held.reals, strict=True
         )
     )
     mse_correct = sum(float((s - r).pow(2).mean()) for s, r in zip(sims, held.reals, strict=True))
@@ -122,11 +122,11 @@ def test_noise_level_is_calibrated_through_the_later_stages() -> None:
     real = measure_set(reals, cleans, masks)
 
     def ratios(noise: Noise) -> torch.Tensor:  # simulated / real noise std per measurable bin
-        simulated = measure_set(simulate(add_effect(profile, noise), cleans, 9), cleans, masks)
+        simulated = measure_set(add_effect(profile, noise).simulate(cleans, 9), cleans, masks)
         ratio = simulated.std() / real.std()
         return ratio[torch.isfinite(ratio)]
 
-    closed_form = Noise.fit(simulate(profile, cleans, 0, deterministic=True), reals, rounds=0, banding=False)
+    closed_form = Noise.fit(profile.simulate(cleans, 0, deterministic=True), reals, rounds=0, banding=False)
     calibrated = fit_noise_stage(profile, cleans, reals)
     errors = (ratios(calibrated) - 1).abs()
     assert errors.numel() >= 12

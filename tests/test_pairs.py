@@ -9,7 +9,8 @@ import torch
 from PIL import Image
 
 from camdegrade.errors import PairsError
-from camdegrade.fitting.pairs import (
+from camdegrade.pairs.discovery import discover_pairs, filter_pairs
+from camdegrade.pairs.pair import (
     AMBIGUOUS,
     BAD_ROW,
     DUPLICATE,
@@ -21,10 +22,8 @@ from camdegrade.fitting.pairs import (
     TOO_SMALL,
     UNREADABLE,
     Pair,
-    discover_pairs,
-    filter_pairs,
 )
-from camdegrade.fitting.pairset import load_pair, split_by_scene
+from camdegrade.pairs.pairset import load_pair, split_by_scene
 
 
 def save(path: Path, size: tuple[int, int] = (32, 24), mode: str = "RGB", seed: int = 0, **options) -> Path:

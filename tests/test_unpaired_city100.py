@@ -14,7 +14,6 @@ import pytest
 import torch
 
 from camdegrade._pixels import as_unit
-from camdegrade.fitting import simulate
 from camdegrade.measures.fidelity import measure_fidelity
 from conftest import load_script
 
@@ -31,7 +30,7 @@ def result(real_pairs_dir: Path) -> tuple:
     held_out = example.HELD_OUT[::2]
     cleans = [as_unit(scenes[scene][0]) for scene in held_out]
     reals = [as_unit(scenes[scene][1]) for scene in held_out]
-    sims = [image.mul(255).round().div(255) for image in simulate(profile, cleans, 0)]
+    sims = [image.mul(255).round().div(255) for image in profile.simulate(cleans, 0)]
     rows = {
         label: measure_fidelity(s, reals, cleans).to_dict(digits=3)
         for label, s in (("clean", cleans), ("unpaired", sims))

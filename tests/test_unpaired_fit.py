@@ -18,7 +18,6 @@ from camdegrade._seeds import derived_generator
 from camdegrade.diagnose.unpaired import diagnose_unpaired
 from camdegrade.effects import JPEG, Blur, Color, FrequencyResponse, Noise, Sharpen, Tone, Vignetting
 from camdegrade.errors import PairsError
-from camdegrade.fitting import simulate
 from camdegrade.fitting._distribution_match import RESPONSE_FLOOR
 from camdegrade.fitting.unpaired import MIN_IMAGES, NOT_IDENTIFIABLE, UNPAIRED_EFFECTS, fit_unpaired
 from camdegrade.functional.resolution import resolution_image
@@ -50,7 +49,7 @@ def _scenes(seed: int, count: int = COUNT, size: int = SIZE) -> list[torch.Tenso
 def _captures(*effects, seed: int = 2, count: int = COUNT, size: int = SIZE) -> list[torch.Tensor]:
     """Scenes of seed ``seed`` (never the clean set's) photographed by a camera of ``effects``, as 8-bit images."""
     camera = CameraProfile(None, list(effects))
-    return [unit_to_bytes(image) for image in simulate(camera, _scenes(seed, count, size), seed=7)]
+    return [unit_to_bytes(image) for image in camera.simulate(_scenes(seed, count, size), seed=7)]
 
 
 @pytest.fixture(scope="module")
@@ -167,7 +166,7 @@ def test_no_detail_response_is_kept_for_a_difference_the_camera_does_not_make(te
         camera = (Blur(0.8),)
     else:
         camera = (Blur(0.8), Noise(levels=torch.full((3, 4), 3.0 / 255), linear=False))
-    captures = [unit_to_bytes(image) for image in simulate(CameraProfile(None, list(camera)), scenes, seed=7)]
+    captures = [unit_to_bytes(image) for image in CameraProfile(None, list(camera)).simulate(scenes, seed=7)]
     kinds = ("blur", "sharpen", "frequency_response") if texture else UNPAIRED_EFFECTS
     profile = fit_unpaired(captures, _scenes(1, COUNT, NO_DETAIL_SIZE), effects=kinds)
     notes = profile.fitted["effects"]["frequency_response"]

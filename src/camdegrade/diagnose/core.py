@@ -16,10 +16,10 @@ from camdegrade.diagnose.critique import CRITIC_CHANCE, Critique, critiques
 from camdegrade.diagnose.report import DiagnosisReport, example_crops, flat_crops
 from camdegrade.diagnose.where import findings, visible
 from camdegrade.errors import PairsError
-from camdegrade.fitting.pairs import PairReport
-from camdegrade.fitting.pairset import PairSet, PairsSource
 from camdegrade.measures import check_explains
 from camdegrade.measures.visible import GridComparison, compare_grid
+from camdegrade.pairs.pair import PairReport
+from camdegrade.pairs.pairset import PairSet, PairsSource
 from camdegrade.profile import CameraProfile, as_profile
 
 #: Fewest pairs on each side of the split: below this a held-out gap has no spread to judge it by, and the

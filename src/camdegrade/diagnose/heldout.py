@@ -8,7 +8,6 @@ from dataclasses import dataclass
 from torch import Tensor
 
 from camdegrade._seeds import derive_seed
-from camdegrade.fitting.pairset import simulate
 from camdegrade.functional.analysis import flat_mask
 from camdegrade.measures import StatisticSet, bootstrap_indices, family_gaps, gap, gap_spread
 from camdegrade.measures.gap import Scale, measurement_scale
@@ -64,7 +63,7 @@ class HeldOut:
         return gap(first, second, scale=self.scale)
 
     def statistics(self, profile: CameraProfile, *, null: bool = False) -> tuple[StatisticSet, list[Tensor]]:
-        sims = simulate(profile, self.cleans, self.seed, stream=self.stream + (".null" if null else ""))
+        sims = profile.simulate(self.cleans, self.seed, stream=self.stream + (".null" if null else ""))
         return StatisticSet.measure(sims, self.cleans, self.masks), sims
 
 

@@ -16,7 +16,6 @@ from camdegrade.effects import Effect
 from camdegrade.effects.base import evenly_spaced
 from camdegrade.errors import CamdegradeError
 from camdegrade.fitting.noise import fit_stage_in_chain
-from camdegrade.fitting.pairset import simulate
 from camdegrade.measures import StatisticSet, family_gaps, gap_spread
 from camdegrade.profile import CameraProfile
 
@@ -104,7 +103,7 @@ class Round:
     def sources(self, profile: CameraProfile | None = None) -> list[Tensor]:
         """The deterministic output of ``profile`` (default: the current one) on the calibration images."""
         if profile is not None:
-            return simulate(profile, self.search.cleans, self.search.seed, stream="sources", deterministic=True)
+            return profile.simulate(self.search.cleans, self.search.seed, stream="sources", deterministic=True)
         if self._sources is None:
             self._sources = self.sources(self.current)
         return self._sources

@@ -1,6 +1,6 @@
-"""The two image sets of an unpaired fit: a folder's readable images (one unreadable file is reported, never stops
-the batch) with the quantisation tables of those that are JPEG files, or a list of tensors; and the check that a
-side has enough of them."""
+"""The two image sets of an unpaired fit: a folder's readable images (:func:`~camdegrade.pairs.folder.read_folder`:
+one unreadable file is reported, never stops the batch) with the quantisation tables of those that are JPEG files, or
+a list of tensors; and the check that a side has enough of them."""
 
 from __future__ import annotations
 
@@ -12,9 +12,8 @@ from pathlib import Path
 from torch import Tensor
 
 from camdegrade._pixels import as_unit
-from camdegrade.errors import ImageError, PairsError
-from camdegrade.fitting.pairs import UNREADABLE
-from camdegrade.io import iter_images, read_image
+from camdegrade.errors import PairsError
+from camdegrade.pairs.folder import read_folder
 
 #: Fewest readable images on each side: set means of fewer images are mostly content.
 MIN_IMAGES = 8
@@ -52,19 +51,13 @@ def load_images(source: Source, argument: str, max_images: int | None = None) ->
 def _load_folder(folder: Path, argument: str, max_images: int | None) -> ImageSet:
     if not folder.is_dir():
         raise PairsError(f"{argument} must be a folder holding images, got {str(folder)!r}")
-    out = ImageSet([])
-    for path in sorted(iter_images(folder)):
-        if max_images is not None and len(out.images) >= max_images:
-            break
-        try:
-            out.images.append(as_unit(read_image(path)).float())
-        except ImageError as error:  # one bad file never stops the batch: it is reported
-            out.skipped.append({"path": str(path), "reason": f"{UNREADABLE}: {error}"})
-            continue
-        tables = _quantisation(path)
-        if tables is not None:
-            out.tables.append(tables)
-    return out
+    found = read_folder(folder, max_images)
+    tables = [_quantisation(path) for path in found.paths]
+    return ImageSet(
+        [as_unit(image).float() for image in found.images],
+        [table for table in tables if table is not None],
+        found.skipped_records(),
+    )
 
 
 def _quantisation(path: Path) -> dict[int, list[int]] | None:

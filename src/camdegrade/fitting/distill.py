@@ -31,13 +31,12 @@ from camdegrade._seeds import derived_generator
 from camdegrade._threads import torch_threads
 from camdegrade._version import __version__
 from camdegrade.effects.base import evenly_spaced
-from camdegrade.errors import ImageError
 from camdegrade.fitting.fit import record_quality
 from camdegrade.fitting.training import EpochResult, FitConfig, ImagePair, fit_network, resolve_recipe
 from camdegrade.functional.geometry import shrink_to_max_side
 from camdegrade.inference import run_network
-from camdegrade.io import iter_images, read_image
 from camdegrade.metrics import psnr
+from camdegrade.pairs.folder import read_folder
 from camdegrade.profile import CameraProfile, as_profile
 from camdegrade.synthetic import dead_leaves_images
 
@@ -158,13 +157,10 @@ def _clean_images(
 def _read_folder(folder: Path, say: Log) -> list[Tensor]:
     if not folder.is_dir():
         raise NotADirectoryError(f"images must be a folder of images, got {str(folder)!r}")
-    loaded = []
-    for path in iter_images(folder):
-        try:
-            loaded.append(read_image(path))
-        except ImageError as error:
-            say(f"skipped {path}: {error}")
-    return loaded
+    found = read_folder(folder)
+    for path, error in found.skipped:
+        say(f"skipped {path}: {error}")
+    return found.images
 
 
 def _split(images: Sequence[Tensor], val_fraction: float, seed: int) -> tuple[list[int], list[int]]:

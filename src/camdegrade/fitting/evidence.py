@@ -31,7 +31,6 @@ from camdegrade._pixels import bytes_to_unit, unit_to_bytes
 from camdegrade._seeds import derived_generator
 from camdegrade.effects import Effect
 from camdegrade.fitting.noise import replace_stage
-from camdegrade.fitting.pairset import simulate
 from camdegrade.functional.analysis import flat_mask
 from camdegrade.functional.noise_stats import NoiseSums
 from camdegrade.inference import run_network
@@ -127,7 +126,7 @@ def noise_evidence(
     masks = [flat_mask(clean) for clean in cleans]
     stages, outputs = _network_apart(profile, cleans)
     reals = _sums(captures, cleans, masks)
-    bases = _sums(as_stored(simulate(stages, outputs, seed, deterministic=True), eight_bit), cleans, masks)
+    bases = _sums(as_stored(stages.simulate(outputs, seed, deterministic=True), eight_bit), cleans, masks)
     real, base = _total(reals), _total(bases)
     capture, simulated = _finite(real.pooled_std()), _finite(base.pooled_std())
     evidence = NoiseEvidence(
@@ -156,7 +155,7 @@ def noise_evidence(
         return None, evidence
 
     def sampled(effect: Effect) -> NoiseSums:
-        images = simulate(replace_stage(stages, effect), outputs, seed, stream="noise-evidence")
+        images = replace_stage(stages, effect).simulate(outputs, seed, stream="noise-evidence")
         return _total(_sums(as_stored(images, eight_bit), cleans, masks))
 
     chosen, with_stage = _banding_choice(stage, real, sampled, evidence)
@@ -238,7 +237,7 @@ def _finite(value: float) -> float | None:
 def relative_gain(profile: CameraProfile, stage: Effect, cleans: Sequence[Tensor], captures: Sequence[Tensor]) -> float:
     """The share of the mean squared error against the captures that ``stage`` removes from the profile's
     deterministic output (0 where there is none to remove; negative where it adds error)."""
-    simulated = simulate(profile, cleans, 0, deterministic=True)
+    simulated = profile.simulate(cleans, 0, deterministic=True)
     before = _mean_squared_error(simulated, captures)
     with torch.no_grad():
         after = _mean_squared_error([stage(image[None])[0] for image in simulated], captures)

@@ -28,7 +28,6 @@ from torch import Tensor
 
 from camdegrade._seeds import derived_generator
 from camdegrade.effects import Denoise
-from camdegrade.fitting.pairset import simulate
 from camdegrade.fitting.texture import band_errors, radial_powers
 from camdegrade.functional import blur_planes, denoise_image
 from camdegrade.functional.analysis import luma
@@ -91,7 +90,7 @@ def fit_denoise(
         say("denoise: the profile already has a denoise stage; not fitted")
         return profile, {"kept": False, "reason": "the profile already has a denoise stage"}
     pairs = list(fit_pairs)[:DENOISE_PAIRS]
-    sampled = simulate(profile, [clean for clean, _ in pairs], seed=seed, stream="denoise")
+    sampled = profile.simulate([clean for clean, _ in pairs], seed=seed, stream="denoise")
     real = detail_amplitudes([captured for _, captured in pairs], seed)
     distance, sigma, level = _best_candidate(sampled, real, seed)
     stage = Denoise(sigma, level / 255)
@@ -141,8 +140,8 @@ def judge_denoise(profile: CameraProfile, stage: Denoise, pairs: Sequence[tuple[
     real_amplitudes, real_bands = detail_amplitudes(captures, seed), radial_powers(captures)
     evidence: dict[str, float] = {}
     for when, candidate in (("before", profile), ("after", profile.with_effects(stage))):
-        sampled = simulate(candidate, cleans, seed=seed, stream="denoise-check")
-        means = simulate(candidate, cleans, seed=seed, deterministic=True)
+        sampled = candidate.simulate(cleans, seed=seed, stream="denoise-check")
+        means = candidate.simulate(cleans, seed=seed, deterministic=True)
         evidence[f"val_distance_{when}"] = amplitude_distance(detail_amplitudes(sampled, seed), real_amplitudes)
         errors = band_errors(radial_powers([eight_bit(s) for s in sampled]), real_bands)
         evidence[f"val_band_error_{when}"] = float(errors.pow(2).mean().sqrt())

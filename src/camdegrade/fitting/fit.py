@@ -33,8 +33,6 @@ from camdegrade.effects import Resolution
 from camdegrade.fitting.baseline import baseline_psnr, fit_linear_baseline
 from camdegrade.fitting.evidence import as_stored
 from camdegrade.fitting.faint_detail import fit_denoise
-from camdegrade.fitting.pairs import MISSING, UNREADABLE
-from camdegrade.fitting.pairset import PairSet, PairsSource, simulate
 from camdegrade.fitting.resolution import find_sensor
 from camdegrade.fitting.response import fit_response
 from camdegrade.fitting.stages import fit_effects
@@ -51,6 +49,8 @@ from camdegrade.measures.critic import repeated_critic_test
 from camdegrade.measures.fidelity import measure_fidelity
 from camdegrade.metrics import psnr
 from camdegrade.network import LocalAffineNet, ShiftNetwork
+from camdegrade.pairs.pair import MISSING, UNREADABLE
+from camdegrade.pairs.pairset import PairSet, PairsSource
 from camdegrade.profile import CameraProfile, as_profile
 
 __all__ = [
@@ -451,7 +451,7 @@ def _quality(
     trained network's mean (``scores``, :func:`validation_psnr`; also when the profile dropped the network) and the
     full (stochastic, seeded) profile against the captures, and how close the sampled profile looks to the captures
     (``fidelity``, :func:`_fidelity`)."""
-    sampled = simulate(profile, val.cleans(), seed=0, stream="quality")
+    sampled = profile.simulate(val.cleans(), seed=0, stream="quality")
     full = [psnr(sim, captured) for (_, captured), sim in zip(val.unit_pairs(), sampled, strict=True)]
     return {
         "validation_pairs": len(val),

@@ -11,7 +11,6 @@ from torch import Tensor
 
 from camdegrade._pixels import as_unit
 from camdegrade.effects import Effect, Noise
-from camdegrade.fitting.pairset import simulate
 from camdegrade.inference import run_network
 from camdegrade.profile import CameraProfile
 
@@ -34,7 +33,7 @@ def fit_stage_in_chain(
     ``kind.fit_in_chain`` on ``(profile's deterministic output, capture)`` pairs. ``sources``: that output, when
     the caller already has it (it draws nothing, so any seed gives the same images)."""
     if sources is None:
-        sources = simulate(profile, cleans, seed, stream="noise-sources", deterministic=True)
+        sources = profile.simulate(cleans, seed, stream="noise-sources", deterministic=True)
     network_outputs: dict[int, Tensor] = {}
 
     def simulate_with(effect: Effect, indices: Sequence[int]) -> list[Tensor]:
@@ -43,7 +42,7 @@ def fit_stage_in_chain(
             if index not in network_outputs:
                 network_outputs[index] = _network_output(profile, cleans[index])
         stages = CameraProfile(None, replace_stage(profile, effect).effects)
-        return simulate(stages, [network_outputs[index] for index in indices], seed, stream="noise-calibration")
+        return stages.simulate([network_outputs[index] for index in indices], seed, stream="noise-calibration")
 
     return kind.fit_in_chain(
         list(cleans), list(sources), list(captures), simulate_with, seed=seed, calibration_pairs=calibration_pairs

@@ -21,7 +21,6 @@ from torch import Tensor
 
 from camdegrade.effects import FrequencyResponse
 from camdegrade.fitting.faint_detail import eight_bit
-from camdegrade.fitting.pairset import simulate
 from camdegrade.fitting.texture import MAX_PSNR_LOSS_DB, MIN_BAND_GAIN_LOG2, band_errors, radial_powers
 from camdegrade.measures.fidelity import grid_rms
 from camdegrade.metrics import psnr
@@ -53,7 +52,7 @@ def fit_response(
         say("response: the profile already has a frequency response; not fitted")
         return profile, {"kept": False, "reason": "the profile already has a frequency response"}
     pairs = list(fit_pairs)[:RESPONSE_PAIRS]
-    sampled = [eight_bit(image) for image in simulate(profile, [clean for clean, _ in pairs], seed, stream="response")]
+    sampled = [eight_bit(image) for image in profile.simulate([clean for clean, _ in pairs], seed, stream="response")]
     stage = FrequencyResponse.fit(sampled, [captured for _, captured in pairs])
     evidence = judge_response(profile, stage, list(held_out or pairs)[:RESPONSE_PAIRS], seed)
     note = {"knots": stage.knots, "magnitude": stage.magnitude(), **evidence}
@@ -82,8 +81,8 @@ def judge_response(
     real_grid = sum(grid_rms(captured) for captured in captures) / len(captures)
     evidence: dict[str, float] = {}
     for when, candidate in (("before", profile), ("after", profile.with_effects(stage))):
-        sampled = [eight_bit(image) for image in simulate(candidate, cleans, seed, stream="response-check")]
-        means = simulate(candidate, cleans, seed, deterministic=True)
+        sampled = [eight_bit(image) for image in candidate.simulate(cleans, seed, stream="response-check")]
+        means = candidate.simulate(cleans, seed, deterministic=True)
         evidence[f"val_band_error_{when}"] = float(band_errors(radial_powers(sampled), real_bands).pow(2).mean().sqrt())
         evidence[f"val_grid_{when}"] = sum(grid_rms(image) for image in sampled) / len(sampled) / max(real_grid, 1e-9)
         evidence[f"val_psnr_{when}"] = sum(psnr(m, c) for m, c in zip(means, captures, strict=True)) / len(pairs)

@@ -9,7 +9,6 @@ from typing import Any
 from camdegrade.effects import EFFECTS, STAGES, Effect
 from camdegrade.fitting.evidence import noise_evidence, relative_gain
 from camdegrade.fitting.noise import CALIBRATION_PAIRS, fit_stage_in_chain
-from camdegrade.fitting.pairset import simulate
 from camdegrade.fitting.training import ImagePair
 from camdegrade.profile import CameraProfile
 
@@ -38,7 +37,7 @@ def fit_effects(
     captured = [target for _, target in fit_pairs]
     for name in sorted(names, key=lambda n: STAGES.index(EFFECTS[n].stage)):
         kind = EFFECTS[name]
-        simulated = simulate(profile, cleans, seed=0, deterministic=True)
+        simulated = profile.simulate(cleans, seed=0, deterministic=True)
         try:
             effect = fit_stage_in_chain(
                 profile, kind, cleans, captured, calibration_pairs=CALIBRATION_PAIRS, sources=simulated

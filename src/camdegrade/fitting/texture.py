@@ -27,7 +27,6 @@ import torch
 from torch import Tensor
 
 from camdegrade.effects import Blur, Effect, Sharpen
-from camdegrade.fitting.pairset import simulate
 from camdegrade.functional.blur import TRUNCATE
 from camdegrade.measures.fidelity import BAND_EDGES, luma_spectrum
 from camdegrade.metrics import psnr
@@ -181,8 +180,8 @@ def fit_texture(
     stages = _stages_of(profile)
     outputs = _network_outputs(profile, [clean for clean, _ in pairs])
     real = radial_powers([captured for _, captured in pairs])
-    clean_part = radial_powers(simulate(stages, outputs, seed=seed, deterministic=True))
-    sampled = radial_powers(simulate(stages, outputs, seed=seed, stream="texture"))
+    clean_part = radial_powers(stages.simulate(outputs, seed=seed, deterministic=True))
+    sampled = radial_powers(stages.simulate(outputs, seed=seed, stream="texture"))
     noise_part = (sampled - clean_part).clamp_min(0.0)
     before = float(band_errors(sampled, real).pow(2).mean().sqrt())
     values, after = choose_texture(clean_part, noise_part, real)
@@ -200,7 +199,7 @@ def _stages_of(profile: CameraProfile) -> CameraProfile:
 
 def _network_outputs(profile: CameraProfile, cleans: Sequence[Tensor]) -> list[Tensor]:
     """The network's output for each clean image (the clean images where the profile has no network)."""
-    return simulate(profile.with_chain([]), cleans, seed=0, deterministic=True)
+    return profile.with_chain([]).simulate(cleans, seed=0, deterministic=True)
 
 
 def judge_texture(
@@ -217,9 +216,9 @@ def judge_texture(
     real = radial_powers(captures)
     errors, scores = [], []
     for stages in (_stages_of(profile), _stages_of(profile.with_effects(*fitted.stages()))):
-        sampled = radial_powers(simulate(stages, outputs, seed=seed, stream="texture-check"))
+        sampled = radial_powers(stages.simulate(outputs, seed=seed, stream="texture-check"))
         errors.append(float(band_errors(sampled, real).pow(2).mean().sqrt()))
-        means = simulate(stages, outputs, seed=seed, deterministic=True)
+        means = stages.simulate(outputs, seed=seed, deterministic=True)
         scores.append(sum(psnr(mean, captured) for mean, captured in zip(means, captures)) / len(captures))
     kept = errors[0] - errors[1] >= MIN_BAND_GAIN_LOG2 and scores[0] - scores[1] <= MAX_PSNR_LOSS_DB
     return replace(

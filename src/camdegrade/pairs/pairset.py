@@ -1,12 +1,12 @@
 """A pair set: the real (clean, captured) pairs that fitting and diagnosis both start from, and the value passed
 down between them.
 
-One flow for both workflows: discover the files (:func:`~camdegrade.fitting.pairs.discover_pairs`, the only step
+One flow for both workflows: discover the files (:func:`~camdegrade.pairs.discovery.discover_pairs`, the only step
 outside this module) → load each pair (:func:`load_pair`: EXIF applied; a file that cannot be decoded is reported
-and skipped, never the end of the run) → optionally register each pair (:func:`~camdegrade.fitting.align.align_pair`)
-→ split by scene (:meth:`PairSet.split`) → simulate the clean images with a profile, each image seeded from
-``(seed, stream, index)``. ``fit_profile`` trains on one part of a split and validates on the other; ``diagnose``
-calibrates on one part and measures every gap on the other.
+and skipped, never the end of the run) → optionally register each pair (:func:`~camdegrade.pairs.align.align_pair`)
+→ split by scene (:meth:`PairSet.split`); a profile then simulates the clean images
+(:meth:`~camdegrade.profile.CameraProfile.simulate`). ``fit_profile`` trains on one part of a split and validates on
+the other; ``diagnose`` calibrates on one part and measures every gap on the other.
 """
 
 from __future__ import annotations
@@ -18,16 +18,16 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
-import torch
 from torch import Tensor
 
 from camdegrade._pixels import as_unit
-from camdegrade._seeds import derived_generator
 from camdegrade.errors import PairsError
-from camdegrade.fitting.align import AlignmentResult, align_pair, format_shifts
-from camdegrade.fitting.pairs import UNREADABLE, Pair, PairReport, discover_pairs, size_text
 from camdegrade.io import read_image
-from camdegrade.profile import CameraProfile
+from camdegrade.pairs.align import AlignmentResult, align_pair, format_shifts
+from camdegrade.pairs.discovery import discover_pairs
+from camdegrade.pairs.pair import UNREADABLE, Pair, PairReport, size_text
+
+__all__ = ["PairSet", "PairsSource", "load_pair", "split_by_scene"]
 
 Log = Callable[[str], None]
 
@@ -38,7 +38,7 @@ class PairSet:
 
     ``images`` keeps what was loaded (uint8 from files; tensors as given); :meth:`unit_pairs` gives float32 in
     [0, 1]. ``report`` is the discovery report (files found and skipped, with reasons) when the set came from files.
-    ``shifts`` maps each pair's name to how it was registered (an :class:`~camdegrade.fitting.align.AlignmentResult`)
+    ``shifts`` maps each pair's name to how it was registered (an :class:`~camdegrade.pairs.align.AlignmentResult`)
     once :meth:`aligned`, else ``None``.
     """
 
@@ -65,7 +65,7 @@ class PairSet:
         cannot be used are listed in ``report.skipped`` (and in the log) and left out.
 
         The loading options (``clean_suffix``, ``captured_suffix``, ``strict``, ``size_mismatch``: see
-        :func:`~camdegrade.fitting.pairs.discover_pairs`) apply to a path, which is discovered here; a
+        :func:`~camdegrade.pairs.discovery.discover_pairs`) apply to a path, which is discovered here; a
         :class:`PairReport` was discovered already, and a pair set was loaded already (it is returned as it is, or
         its first ``max_pairs``). ``align`` registers every pair (:meth:`aligned`)."""
         if max_pairs is not None and (isinstance(max_pairs, bool) or not isinstance(max_pairs, int) or max_pairs < 1):
@@ -256,27 +256,3 @@ def _centre_crop(image: Tensor, size: tuple[int, int], path: Path) -> Tensor:
     top = (image.shape[-2] - height) // 2
     left = (image.shape[-1] - width) // 2
     return image[..., top : top + height, left : left + width]
-
-
-def simulate(
-    profile: CameraProfile,
-    cleans: Sequence[Tensor],
-    seed: int,
-    *,
-    stream: str = "simulate",
-    deterministic: bool = False,
-) -> list[Tensor]:
-    """The profile applied to each clean image ``(3, H, W)``; image ``i`` draws from ``(seed, stream, i)``.
-
-    ``deterministic`` runs the profile's deterministic part (:meth:`CameraProfile.without_randomness`): the
-    conditional mean that candidate effects are fitted against.
-    """
-    if deterministic:
-        profile = profile.without_randomness()
-    out = []
-    with torch.no_grad():
-        for index, clean in enumerate(cleans):
-            batch = clean[None]
-            params = profile.make_params(batch.shape, derived_generator(seed, stream, index))
-            out.append(profile(batch, params)[0])
-    return out
