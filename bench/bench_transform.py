@@ -119,7 +119,8 @@ def gemm_case(dtype: torch.dtype = torch.float32) -> tuple[Case, float]:
 
 def fit_step_cases() -> dict[str, Case]:
     """Training at 128², batch 32: the module in float32 on NCHW crops (before) and the fit's own step."""
-    from camdegrade.fitting.training import FitConfig, _TrainStep
+    from camdegrade.fitting.network.training import _TrainStep
+    from camdegrade.fitting.recipe import FitConfig
     from camdegrade.network import DomainShiftNet
 
     generator = torch.Generator().manual_seed(0)

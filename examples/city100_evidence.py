@@ -33,7 +33,7 @@ from torch import Tensor
 from camdegrade import CameraProfile, load_profile
 from camdegrade.effects import EFFECTS, Effect, Noise
 from camdegrade.fitting import discover_pairs, filter_pairs, load_pair
-from camdegrade.fitting.noise import fit_noise_stage
+from camdegrade.fitting.in_chain import fit_noise_stage
 from camdegrade.metrics import psnr, ssim
 
 DEFAULT_DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "real-pairs"
@@ -111,7 +111,7 @@ def fit_chain(names: Sequence[str], clean: Images, captured: Images, cache: dict
 
 def fit_noise(profile: CameraProfile, clean: Images, captured: Images) -> Noise:
     """The noise stage for ``profile``: fitted where the clean image is flat (the variance the deterministic
-    prediction lacks), then calibrated by simulating the profile with it (``camdegrade.fitting.noise``)."""
+    prediction lacks), then calibrated by simulating the profile with it (``camdegrade.fitting.in_chain``)."""
     return fit_noise_stage(profile, clean, captured, calibration_pairs=20)
 
 

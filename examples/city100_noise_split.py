@@ -1,5 +1,6 @@
 """Fit a profile's noise stage on the training scenes only, or on those and the validation scenes, and compare both
-on the validation scenes: does the held-out evidence of a fit (``camdegrade.fitting.evidence``) cost anything?
+on the validation scenes: does the held-out evidence of a fit (``camdegrade.fitting.steps.noise_evidence``) cost
+anything?
 
 The profile is the paper-network built-in ``city100-iphonex`` (as shipped until 2026-11-27) without its noise stage
 (its network, blur and tone curve); the noise is fitted by ``fit_noise_stage`` on City100 iPhone X scenes 001–047,
@@ -20,8 +21,8 @@ from fit_city100 import DEFAULT_DATA, city100_iphone_pairs, load
 
 from camdegrade import load_profile
 from camdegrade._pixels import as_unit
-from camdegrade.fitting.evidence import as_stored
-from camdegrade.fitting.noise import CALIBRATION_PAIRS, fit_noise_stage
+from camdegrade.fitting.in_chain import CALIBRATION_PAIRS, fit_noise_stage
+from camdegrade.fitting.steps.noise_evidence import as_stored
 from camdegrade.functional.analysis import flat_mask
 from camdegrade.functional.noise_stats import measure_set
 from camdegrade.measures.fidelity import noise_ratios

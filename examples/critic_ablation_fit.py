@@ -17,7 +17,7 @@ rounded to 8 bits, as the captures are. Rows:
 It prints per row the mean accuracy over the critics (image-only: what a model trained on the simulation sees;
 paired: it also sees the clean source) with their spread, :func:`~camdegrade.measures.measure_fidelity`'s grid
 ratio and log2 band power sim/real, and the detail-amplitude distance the fit's noise-reduction step minimises
-(:func:`~camdegrade.fitting.faint_detail.amplitude_distance`, levels; 0: the captures' own) and the fine detail on
+(:func:`~camdegrade.fitting.steps.denoise.amplitude_distance`, levels; 0: the captures' own) and the fine detail on
 flat pixels (:func:`flat_fine_detail`: the std of the 8-bit luma minus its 3×3 mean on the clean image's flat
 pixels, over the captures'). ``--no-critics``
 prints the measures alone, in a minute or two. The profile comes from ``examples/fit_city100_default.py``. Run
@@ -47,8 +47,8 @@ from camdegrade import CameraDegrade, CameraProfile, load_profile
 from camdegrade._pixels import as_unit
 from camdegrade.effects import Denoise
 from camdegrade.fitting import discover_pairs, filter_pairs, load_pair
-from camdegrade.fitting.baseline import apply_linear_baseline, fit_linear_baseline
-from camdegrade.fitting.faint_detail import amplitude_distance, detail_amplitudes
+from camdegrade.fitting.network.baseline import apply_linear_baseline, fit_linear_baseline
+from camdegrade.fitting.steps.denoise import amplitude_distance, detail_amplitudes
 from camdegrade.functional import blur_image, denoise_image, unsharp_mask_image
 from camdegrade.functional.analysis import flat_mask, luma
 from camdegrade.measures.critic import critic_test

@@ -5,7 +5,7 @@ held-out numbers beside the full profile's.
 The student learns from the full profile's network on clean images only (no captures): the clean City100 images
 of the scenes the full profile was fitted on (001–055), read in place from ``../shared/data/real-pairs``. Its last
 stage, the frequency response, matches a network's output to the captures' spectrum, so it is fitted again for the
-student (``camdegrade.fitting.response``, on the captures of the full profile's training scenes, judged on its
+student (``camdegrade.fitting.steps.response``, on the captures of the full profile's training scenes, judged on its
 validation scenes); ``--teacher-response`` keeps the copied one. The 16
 held-out scenes (056–070, 098) are used only for the numbers: mean PSNR/SSIM (noise stage skipped) and sampled
 PSNR against the REAL captures, for both profiles, as ``examples/city100_evidence.py`` reports them. Run from the
@@ -26,9 +26,10 @@ from city100_evidence import DEFAULT_DATA, HELD_OUT, TRAIN, evaluate, load_scene
 
 from camdegrade import CameraProfile, load_profile
 from camdegrade.effects import FrequencyResponse
-from camdegrade.fitting.distill import distill_profile
-from camdegrade.fitting.response import fit_response
-from camdegrade.fitting.training import FitConfig
+from camdegrade.fitting import FitConfig, distill_profile
+from camdegrade.fitting.steps import PairedFit
+from camdegrade.fitting.steps.response import ResponseMatch
+from camdegrade.pairs import PairSet
 
 
 def refit_response(
@@ -41,9 +42,10 @@ def refit_response(
     train = [(clean, captured) for scene, clean, captured in pairs if scene not in validation]
     val = [(clean, captured) for scene, clean, captured in pairs if scene in validation]
     without = fast.with_chain([effect for effect in fast.effects if not isinstance(effect, FrequencyResponse)])
-    refitted, note = fit_response(without, train, val, print, seed=seed)
-    refitted.fitted = {**fast.fitted, "response": note}
-    return refitted
+    fit = PairedFit(PairSet.load(train), PairSet.load(val), without, seed, print)
+    note = ResponseMatch().run(fit)
+    fit.profile.fitted = {**fast.fitted, "response": note}
+    return fit.profile
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -19,8 +19,8 @@ from pathlib import Path
 import torch
 
 from camdegrade import CameraProfile
-from camdegrade.fitting import Pair, discover_pairs, filter_pairs, load_pair
-from camdegrade.fitting.training import FitConfig, evaluate_psnr, fit_network
+from camdegrade.fitting import FitConfig, Pair, discover_pairs, filter_pairs, load_pair
+from camdegrade.fitting.network.training import evaluate_psnr, fit_network
 from camdegrade.metrics import psnr, ssim
 
 DEFAULT_DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "real-pairs"

@@ -14,7 +14,7 @@ from __future__ import annotations
 import argparse
 
 from camdegrade import load_profile
-from camdegrade.fitting.evidence import as_stored
+from camdegrade.fitting.steps.noise_evidence import as_stored
 from camdegrade.measures.critic import repeated_critic_test
 from camdegrade.pairs.pairset import PairSet
 

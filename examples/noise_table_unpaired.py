@@ -15,7 +15,7 @@ reproducing the fitting images' noise exactly would score). Printed: per subset,
 ``--measurement`` prints instead what limits the captures-only column (first the three captures of each subset
 whose own-flat reading is furthest above their clean-referenced noise, then the table): on the checking half
 itself, the noise read from each capture's own flat pixels (binned by its own local mean,
-:func:`~camdegrade.fitting._unpaired_noise.flat_sums`, what the unpaired fit matches) against the real noise there
+:func:`~camdegrade.fitting.unpaired.noise.flat_sums`, what the unpaired fit matches) against the real noise there
 (clean-referenced), with no fit between:
 how much of the error is the single-image measurement (content texture, the capture's own mask and bins).
 ``--splits N`` repeats the table over N halvings (the first as above, the others with each camera and ISO group
@@ -42,8 +42,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from noise_table import SUBSETS, _load, _residual_sums, _simulate, default_real_pairs_dir, noise_groups
 
 from camdegrade.effects import Noise
-from camdegrade.fitting._unpaired_noise import fit_noise_unpaired, flat_sums
-from camdegrade.fitting.unpaired import MIN_IMAGES, STAND_IN_SIGMA, fit_unpaired
+from camdegrade.fitting.unpaired import MIN_IMAGES, fit_unpaired
+from camdegrade.fitting.unpaired.fit import STAND_IN_SIGMA
+from camdegrade.fitting.unpaired.noise import fit_noise_unpaired, flat_sums
 from camdegrade.functional.blur import blur_image
 
 

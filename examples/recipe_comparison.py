@@ -29,8 +29,9 @@ from pathlib import Path
 
 import torch
 
-from camdegrade.fitting import discover_pairs, load_pair
-from camdegrade.fitting.training import EpochResult, FitConfig, ImagePair, fit_network, training_dtype
+from camdegrade.fitting import FitConfig, discover_pairs, load_pair
+from camdegrade.fitting.network.training import EpochResult, fit_network, training_dtype
+from camdegrade.pairs.pairset import ImagePair
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from fit_city100 import DEFAULT_DATA, HELD_OUT, VALIDATION, city100_iphone_pairs, load

@@ -8,8 +8,8 @@ Two virtual cameras, each with ``--pairs`` training pairs and ``--held-out`` new
 
 Clean images of 128²: dead-leaves texture and flat tinted grey charts, alternately. Each camera gets a default fit
 (``fit_profile``, fast recipe) and, on the held-out pairs: the sampled profile's paired PSNR beside the least-squares
-linear baseline's (:mod:`camdegrade.fitting.baseline`, fitted on the same training pairs: a 7×7 colour filter plus
-an offset, of which a 12-number colour map and a Gaussian blur are special cases), the stages kept, the grid ratio,
+linear baseline's (:mod:`camdegrade.fitting.network.baseline`, fitted on the same training pairs: a 7×7 colour filter
+plus an offset, of which a 12-number colour map and a Gaussian blur are special cases), the stages kept, the grid ratio,
 band powers and flat-noise ratio (:func:`camdegrade.measures.fidelity.measure_fidelity`), a critic with and
 without the clean source for the profile and for the baseline (8 critics: 4 seeds, each trained on half the
 held-out pairs and scored on the other half, and back; :func:`camdegrade.measures.critic.repeated_critic_test`;
@@ -38,7 +38,7 @@ from camdegrade._recipes import CURVES, TEXTURES, UPSAMPLINGS
 from camdegrade.diagnose import diagnose
 from camdegrade.effects import Blur, Color, Noise, Tone
 from camdegrade.fitting import FitConfig, fit_profile
-from camdegrade.fitting.baseline import apply_linear_baseline, fit_linear_baseline
+from camdegrade.fitting.network.baseline import apply_linear_baseline, fit_linear_baseline
 from camdegrade.measures.critic import repeated_critic_test
 from camdegrade.measures.fidelity import measure_fidelity
 from camdegrade.metrics import psnr

@@ -1,6 +1,6 @@
 """The house rules of docs/architecture.md, checked: effect facts live on the effect classes, one seed scheme, the
-layers import only downward, no import cycles, no shim modules, and no function longer than 80 lines unless it says
-why."""
+layers import only downward, no import cycles, no shim modules, no function longer than 60 lines, no file longer than
+400 and no folder of more than 10 modules unless it says why; a fit is a loop of steps."""
 
 from __future__ import annotations
 
@@ -8,6 +8,7 @@ import ast
 import subprocess
 import sys
 import textwrap
+from collections import Counter
 from pathlib import Path
 
 import pytest
@@ -294,7 +295,26 @@ def test_nothing_in_the_package_is_deprecated() -> None:
 
 #: Functions allowed more than MAX_FUNCTION_LINES lines, each with the reason.
 LONG_FUNCTIONS: dict[str, str] = {}
-MAX_FUNCTION_LINES = 80
+MAX_FUNCTION_LINES = 60
+#: Modules allowed more than MAX_FILE_LINES lines (path in the package), each with the reason.
+LONG_FILES: dict[str, str] = {
+    "inference.py": "the CPU plans of both networks; a split by network is left for later (issue 45)",
+    "measures/critic.py": "the critic's network, patches and tests together; left for later (issue 45)",
+    "_profile_format/check.py": "the torch-free checks of every header field; left for later (issue 45)",
+    "diagnose/core.py": "diagnose() and its verdict in words; the verdict's own module is left for later (issue 45)",
+    "diagnose/report.py": "the report and its HTML; left for later (issue 45)",
+}
+MAX_FILE_LINES = 400
+#: Folders (path in the package, "." the package itself) allowed more than MAX_FOLDER_MODULES modules, with why.
+LARGE_FOLDERS: dict[str, str] = {
+    ".": "the package's leaf helpers and top rooms; sorting them into folders is left for later (issue 45)",
+    "effects": "one module per effect (the registry's rule); grouping by stage is left for later (issue 45)",
+    "functional": "one module per kernel family; left for later (issue 45)",
+    "measures": "one module per statistic family and the critics; left for later (issue 45)",
+    "cli": "one module per command and their shared options; left for later (issue 45)",
+    "diagnose": "where / which / how far, the critics, the report; left for later (issue 45)",
+}
+MAX_FOLDER_MODULES = 10
 
 
 def _function_lengths(source: str, module: str) -> dict[str, int]:
@@ -327,13 +347,51 @@ def _all_function_lengths() -> dict[str, int]:
     return lengths
 
 
-def test_no_function_is_longer_than_80_lines_without_a_reason() -> None:
+def test_no_function_is_longer_than_60_lines_without_a_reason() -> None:
     lengths = _all_function_lengths()
     too_long = {name: lines for name, lines in lengths.items() if lines > MAX_FUNCTION_LINES}
     assert set(too_long) <= set(LONG_FUNCTIONS), sorted(too_long.items(), key=lambda item: -item[1])
     stale = {name for name in LONG_FUNCTIONS if lengths.get(name, 0) <= MAX_FUNCTION_LINES}
     assert not stale, f"allowed but gone or short now, remove them from LONG_FUNCTIONS: {sorted(stale)}"
     assert len(lengths) > 500
+
+
+def test_no_file_is_longer_than_400_lines_without_a_reason() -> None:
+    lines = {str(path.relative_to(PACKAGE)): len(path.read_text().splitlines()) for path in MODULES.values()}
+    too_long = {name for name, count in lines.items() if count > MAX_FILE_LINES}
+    assert too_long <= set(LONG_FILES), sorted(too_long - set(LONG_FILES))
+    stale = {name for name in LONG_FILES if lines.get(name, 0) <= MAX_FILE_LINES}
+    assert not stale, f"allowed but gone or short now, remove them from LONG_FILES: {sorted(stale)}"
+
+
+def test_no_folder_holds_more_than_10_modules_without_a_reason() -> None:
+    folders = Counter(str(path.parent.relative_to(PACKAGE)) for path in MODULES.values())
+    crowded = {folder for folder, count in folders.items() if count > MAX_FOLDER_MODULES}
+    assert crowded <= set(LARGE_FOLDERS), sorted(crowded - set(LARGE_FOLDERS))
+    stale = {folder for folder in LARGE_FOLDERS if folders.get(folder, 0) <= MAX_FOLDER_MODULES}
+    assert not stale, f"allowed but small now, remove them from LARGE_FOLDERS: {sorted(stale)}"
+    assert folders["fitting/steps"] and folders["pairs"]  # the folders were read
+
+
+def test_a_fit_is_a_loop_of_steps() -> None:
+    """``fit_profile`` is load → split → the recipe's steps (the network among them) → record, in at most 40 lines
+    and with no record written by hand; the unpaired fit runs the same loop over its steps, and its state is one
+    small class (issue 45)."""
+    from camdegrade.fitting import fit, steps
+    from camdegrade.fitting.unpaired import UNPAIRED_STEPS, bench
+
+    lengths = _all_function_lengths()
+    assert lengths["fitting.fit.fit_profile"] <= 40
+    assert lengths["fitting.unpaired.fit.fit_unpaired"] <= 40
+    for module in (fit, PACKAGE / "fitting" / "unpaired" / "fit.py"):
+        source = module.read_text() if isinstance(module, Path) else Path(module.__file__).read_text()
+        assert "run_steps(" in source and "_note" not in source
+    assert all(isinstance(step, steps.FitStep) for _, step in UNPAIRED_STEPS)
+    assert not hasattr(bench, "_UnpairedFit")
+    state = next(
+        n for n in ast.walk(ast.parse(Path(bench.__file__).read_text())) if getattr(n, "name", "") == "UnpairedFit"
+    )
+    assert state.end_lineno - state.lineno + 1 <= 120
 
 
 def test_the_function_length_check_can_fail() -> None:

@@ -16,9 +16,10 @@ from bad_inputs import cut_image, one_line_error, png_with_rows, run_cli
 from camdegrade import CameraProfile, load_profile
 from camdegrade.diagnose import diagnose
 from camdegrade.errors import CamdegradeError, PairsError
-from camdegrade.fitting.checkpoint import CHECKPOINT_KEY, load_checkpoint
 from camdegrade.fitting.fit import fit_profile
-from camdegrade.fitting.training import FitConfig, fit_network
+from camdegrade.fitting.network.checkpoint import CHECKPOINT_KEY, load_checkpoint
+from camdegrade.fitting.network.training import fit_network
+from camdegrade.fitting.recipe import FitConfig
 from camdegrade.io import write_image
 from camdegrade.pairs.discovery import discover_pairs
 from camdegrade.sim import simulate_pairs

@@ -440,7 +440,7 @@ def test_a_recipe_takes_one_effect_name_as_a_name_not_its_letters() -> None:
 
     with pytest.raises(ValueError, match=r"effects must be effect names .* got unknown \['tonne'\]"):
         FitConfig.recipe("fast").replace(effects="tonne")
-    assert FitConfig.recipe("fast").replace(effects="tone").effects == ("tone",)
+    assert FitConfig.recipe("fast").replace(effects="tone").option("effects") == ("tone",)
 
 
 def test_fit_lists_manifest_rows_naming_missing_files_and_exits_1(tmp_path: Path, capsys) -> None:

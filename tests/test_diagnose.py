@@ -16,7 +16,7 @@ from camdegrade.diagnose.changes import add_effect
 from camdegrade.diagnose.heldout import HeldOut
 from camdegrade.diagnose.report import REQUIRED_KEYS
 from camdegrade.effects import EFFECTS, JPEG, Noise, Tone, Vignetting
-from camdegrade.fitting.noise import fit_noise_stage
+from camdegrade.fitting.in_chain import fit_noise_stage
 from camdegrade.functional.analysis import box_mean, flat_mask
 from camdegrade.functional.noise_stats import measure_set
 from camdegrade.io import write_image

@@ -8,8 +8,8 @@ import torch.nn.functional as F
 from camdegrade import CameraProfile, load_profile
 from camdegrade.cli import main
 from camdegrade.effects import Blur, Tone
-from camdegrade.fitting.distill import distill_profile
-from camdegrade.fitting.training import FitConfig
+from camdegrade.fitting.network.distill import distill_profile
+from camdegrade.fitting.recipe import FitConfig
 from camdegrade.io import write_image
 from camdegrade.synthetic import dead_leaves_image, dead_leaves_images
 from profiles_for_tests import seeded_network

@@ -14,10 +14,12 @@ from camdegrade._pixels import bytes_to_unit, unit_to_bytes
 from camdegrade.cli._quality import quality_lines
 from camdegrade.effects import Blur, Noise, Tone
 from camdegrade.fitting import FitConfig, fit_profile
-from camdegrade.fitting.evidence import noise_evidence
-from camdegrade.fitting.stages import _judge
+from camdegrade.fitting.steps import PairedFit
+from camdegrade.fitting.steps.effects import EffectStage
+from camdegrade.fitting.steps.noise_evidence import noise_evidence
 from camdegrade.io import write_image
 from camdegrade.measures.critic import repeated_critic_test, split_critic_test
+from camdegrade.pairs import PairSet
 from camdegrade.sim import VirtualCamera
 from camdegrade.synthetic import dead_leaves_images
 
@@ -138,12 +140,15 @@ def test_validation_pairs_without_flat_pixels_leave_the_judgement_to_the_trainin
         charts = [(_chart(96, seed), camera(_chart(96, seed), generator=generator)) for seed in range(3)]
         leaves = [bytes_to_unit(image) for image in dead_leaves_images(2, 48, seed=0)]
         textured = [(leaf, camera(leaf, generator=generator)) for leaf in leaves]
+    lines: list[str] = []
+    train, val = PairSet.load(charts), PairSet.load(textured)
     profile = CameraProfile(None, [Tone(**TONE)])
-    kept, note, line = _judge(profile, Noise(a=0.002, b=1e-5), textured, charts, eight_bit=False)
-    assert kept is not None and note["kept"] and note["pairs"] == 3
+    fit = PairedFit.of(train, train, val, profile=profile, seed=0, say=lines.append, arch="local_affine", refit=False)
+    note = EffectStage(Noise).judge(fit, Noise(a=0.002, b=1e-5))
+    assert [type(effect) for effect in fit.profile.effects] == [Noise, Tone] and note["kept"] and note["pairs"] == 3
     assert note["evidence"] == "training (the validation pairs hold too few flat pixels)"
-    assert line.startswith("kept on 3 pair(s)")
-    assert line.endswith("[evidence: training (the validation pairs hold too few flat pixels)]")
+    assert lines[-1].startswith("effect noise: kept on 3 pair(s)")
+    assert lines[-1].endswith("[evidence: training (the validation pairs hold too few flat pixels)]")
 
 
 # --- the critic on one set of pairs ---------------------------------------------------------------------------

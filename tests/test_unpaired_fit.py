@@ -18,8 +18,8 @@ from camdegrade._seeds import derived_generator
 from camdegrade.diagnose.unpaired import diagnose_unpaired
 from camdegrade.effects import JPEG, Blur, Color, FrequencyResponse, Noise, Sharpen, Tone, Vignetting
 from camdegrade.errors import PairsError
-from camdegrade.fitting._distribution_match import RESPONSE_FLOOR
 from camdegrade.fitting.unpaired import MIN_IMAGES, NOT_IDENTIFIABLE, UNPAIRED_EFFECTS, fit_unpaired
+from camdegrade.fitting.unpaired.spectrum import RESPONSE_FLOOR
 from camdegrade.functional.resolution import resolution_image
 from camdegrade.functional.tone import tone_curve
 from camdegrade.synthetic import dead_leaves_images

@@ -142,7 +142,7 @@ class LocalAffineNet(ShiftNetwork):
     1.2 with them; docs/fitting.md).
 
     Initialised to pass the image through (``K`` the identity, ``A`` the identity, ``b`` zero); a fit starts it
-    from a least-squares linear baseline (:func:`camdegrade.fitting.baseline.fit_linear_baseline`). About the
+    from a least-squares linear baseline (:func:`camdegrade.fitting.network.baseline.fit_linear_baseline`). About the
     paper network's arithmetic per pixel (its encoder dominates both).
 
     Args:

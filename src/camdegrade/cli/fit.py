@@ -71,7 +71,8 @@ def run(args: argparse.Namespace) -> int:
 
     from camdegrade._distributed import is_distributed, is_main_process
     from camdegrade.fitting.fit import fit_profile, init_distributed_from_env
-    from camdegrade.fitting.training import FitConfig, FitInterrupted
+    from camdegrade.fitting.network.training import FitInterrupted
+    from camdegrade.fitting.recipe import FitConfig
     from camdegrade.pairs.pairset import PairSet
 
     if (args.pairs is None) == (args.unpaired is None):

@@ -15,7 +15,7 @@ from camdegrade.diagnose.strength import refine_strength
 from camdegrade.effects import Effect
 from camdegrade.effects.base import evenly_spaced
 from camdegrade.errors import CamdegradeError
-from camdegrade.fitting.noise import fit_stage_in_chain
+from camdegrade.fitting.in_chain import fit_stage_in_chain
 from camdegrade.measures import StatisticSet, family_gaps, gap_spread
 from camdegrade.profile import CameraProfile
 

@@ -36,7 +36,7 @@ class Resolution(Effect):
 
     Not a default diagnosis candidate (:attr:`Effect.candidate`): fitted after a network that has already learned
     the camera's low-pass, a second reduction blurs twice (on a simulated 2× camera the held-out PSNR falls from
-    43.3 to 37.2 dB); it is found before the network is trained (:mod:`camdegrade.fitting.resolution`).
+    43.3 to 37.2 dB); it is found before the network is trained (:mod:`camdegrade.fitting.steps.resolution`).
 
     References:
         R. Keys, "Cubic convolution interpolation for digital image processing", IEEE TASSP 29(6), 1981.
@@ -87,7 +87,7 @@ class Resolution(Effect):
         """The scale (of ``scales``, or the full resolution) whose ``up(down(source))`` is nearest ``target`` in mean
         squared error. Exact on a target made by one of them (tested); it needs the
         source to hold the detail the sensor lost, so after a fitted network it is not the way to find one
-        (:mod:`camdegrade.fitting.resolution` is)."""
+        (:mod:`camdegrade.fitting.steps.resolution` is)."""
         pairs = as_pairs(source, target)
 
         def error(scale: float) -> float:

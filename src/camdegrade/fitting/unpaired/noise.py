@@ -22,12 +22,15 @@ stage.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import ClassVar
 
 import torch
 from torch import Tensor
 
-from camdegrade.effects import Noise
+from camdegrade.effects import Effect, FrequencyResponse, Noise
 from camdegrade.effects._noise_fit import calibrate, check_measurable, initial_noise
+from camdegrade.fitting.unpaired.bench import UnpairedFit, UnpairedStep
 from camdegrade.functional.analysis import box_mean, noisy_flat_mask
 from camdegrade.functional.noise_stats import HIGH_PASS, NoiseSums
 
@@ -57,11 +60,35 @@ def fit_noise_unpaired(
     rounds: int = 2,
     direct: bool = False,
 ) -> tuple[Noise | None, dict]:
+    """The noise stage whose simulation on the clean set matches ``real`` (the captures' :func:`flat_sums`), or
+    ``None`` where it is below :data:`NOISE_FLOOR` or :data:`NOISE_SHARE`; and notes for the metadata
+    (:func:`propose_noise`, then :func:`judge_noise`)."""
+    proposal = propose_noise(real, simulate, taps=taps, banding=banding, rounds=rounds, direct=direct)
+    return judge_noise(proposal, real), proposal.notes
+
+
+@dataclass(frozen=True)
+class NoiseProposal:
+    """A noise stage fitted to the captures, the clean set's flat-pixel noise without it, and the notes."""
+
+    noise: Noise
+    base: NoiseSums
+    notes: dict
+
+
+def propose_noise(
+    real: NoiseSums,
+    simulate: Callable[[Noise | None], list[Tensor]],
+    *,
+    taps: int = 5,
+    banding: bool = True,
+    rounds: int = 2,
+    direct: bool = False,
+) -> NoiseProposal:
     """The noise stage whose simulation on the clean set matches ``real`` (the captures' :func:`flat_sums`).
 
     ``simulate(noise)`` runs the clean set through the fitted chain with ``noise`` in place (``None``: without
-    noise; fixed seeds). Returns the stage (``None`` below :data:`NOISE_FLOOR` or :data:`NOISE_SHARE`) and notes
-    for the metadata.
+    noise; fixed seeds).
 
     References:
         A. Foi, M. Trimeche, V. Katkovnik, K. Egiazarian, "Practical Poissonian-Gaussian noise modeling and fitting
@@ -73,16 +100,49 @@ def fit_noise_unpaired(
     source = without_moments(real) if direct else base
     start = initial_noise(Noise, real, source, taps)
     noise = calibrate(start, simulate, flat_sums, real, source, rounds=0 if direct else rounds, banding=banding)
-    level = noise.magnitude()
     notes = {
-        "std_mid_grey_levels": round(level, 3),
+        "std_mid_grey_levels": round(noise.magnitude(), 3),
         "flat_pixels": real.pixels,
         "captures_std_levels": _rounded(real.pooled_std()),
         "clean_std_levels": _rounded(base.pooled_std()),
         "direct": direct,
     }
-    kept = level >= NOISE_FLOOR and real.pooled_std() >= NOISE_SHARE * base.pooled_std()
-    return (noise if kept else None), notes
+    return NoiseProposal(noise, base, notes)
+
+
+def judge_noise(proposal: NoiseProposal, real: NoiseSums) -> Noise | None:
+    """The stage, kept where its std at mid-grey is at least :data:`NOISE_FLOOR` and the captures' flat pixels vary
+    :data:`NOISE_SHARE` times more than the simulated clean set's without it."""
+    level = proposal.noise.magnitude()
+    kept = level >= NOISE_FLOOR and real.pooled_std() >= NOISE_SHARE * proposal.base.pooled_std()
+    return proposal.noise if kept else None
+
+
+@dataclass(frozen=True)
+class NoiseMatch(UnpairedStep):
+    """The noise step: calibrated through the whole chain (read straight from the captures where there is no clean
+    set and nothing after the noise); ``refit``: once more where a detail response is kept (it shapes the noise
+    before it, as the camera's does)."""
+
+    name: ClassVar[str] = "noise"
+    kinds: ClassVar[tuple[type[Effect], ...]] = (Noise,)
+    refit: bool = False
+
+    def applies(self, fit: UnpairedFit) -> bool:
+        return not self.refit or fit.stages.get(FrequencyResponse.name) is not None
+
+    def propose(self, fit: UnpairedFit) -> NoiseProposal:
+        def simulate(noise: Noise | None) -> list[Tensor]:
+            return fit.simulate(fit.chain(noise=noise), fit.sets.noise_crops, "unpaired-noise")
+
+        direct = fit.cleans is None and not fit.stages_after(Noise)
+        return propose_noise(fit.sets.real_noise, simulate, direct=direct)
+
+    def judge(self, fit: UnpairedFit, proposal: NoiseProposal) -> dict:
+        noise = judge_noise(proposal, fit.sets.real_noise)
+        fit.keep(noise, Noise)
+        fit.say(f"noise: {proposal.notes['std_mid_grey_levels']} levels at mid-grey{'' if noise else ' (not kept)'}")
+        return proposal.notes
 
 
 def without_moments(sums: NoiseSums) -> NoiseSums:

@@ -2,8 +2,9 @@
 the profile's network gives on clean images (knowledge distillation), and the effect stages are copied as they are.
 
 Steps: clean images (a folder, tensors, or generated dead-leaves images) → split by image into training and
-validation → the teacher network's float32 output on each → :func:`~camdegrade.fitting.training.fit_network` of a
-a network of ``width`` on (clean, teacher output) with the given recipe → a :class:`CameraProfile` with the
+validation → the teacher network's float32 output on each →
+:func:`~camdegrade.fitting.network.training.fit_network` of a network of ``width`` on (clean, teacher output) with
+the given recipe → a :class:`CameraProfile` with the
 student network and copies of the teacher's effect stages, whose metadata records how it was made and how close
 the student came to the teacher on the validation images.
 
@@ -31,12 +32,14 @@ from camdegrade._seeds import derived_generator
 from camdegrade._threads import torch_threads
 from camdegrade._version import __version__
 from camdegrade.effects.base import evenly_spaced
-from camdegrade.fitting.fit import record_quality
-from camdegrade.fitting.training import EpochResult, FitConfig, ImagePair, fit_network, resolve_recipe
+from camdegrade.fitting.network.training import EpochResult, fit_network
+from camdegrade.fitting.recipe import FitConfig, resolve_recipe
+from camdegrade.fitting.record import record_quality
 from camdegrade.functional.geometry import shrink_to_max_side
 from camdegrade.inference import run_network
 from camdegrade.metrics import psnr
 from camdegrade.pairs.folder import read_folder
+from camdegrade.pairs.pairset import ImagePair
 from camdegrade.profile import CameraProfile, as_profile
 from camdegrade.synthetic import dead_leaves_images
 

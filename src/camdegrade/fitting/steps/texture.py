@@ -22,11 +22,13 @@ import itertools
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, replace
+from typing import ClassVar
 
 import torch
 from torch import Tensor
 
 from camdegrade.effects import Blur, Effect, Sharpen
+from camdegrade.fitting.steps.base import FitStep, PairedFit, Verdict
 from camdegrade.functional.blur import TRUNCATE
 from camdegrade.measures.fidelity import BAND_EDGES, luma_spectrum
 from camdegrade.metrics import psnr
@@ -163,33 +165,37 @@ def choose_texture(clean_part: Tensor, noise_part: Tensor, real: Tensor) -> tupl
     return values, error
 
 
-def fit_texture(
-    profile: CameraProfile,
-    fit_pairs: Sequence[tuple[Tensor, Tensor]],
-    held_out: Sequence[tuple[Tensor, Tensor]],
-    say: Log,
-    seed: int = 0,
-) -> tuple[CameraProfile, dict]:
-    """``profile`` with a blur and a sharpening that match its texture to the captures' (fitted on ``fit_pairs``,
-    judged on ``held_out``; float ``(3, H, W)`` pairs), or unchanged where the evidence is not there; and the note
-    recorded in ``fitted['texture']``."""
-    if any(isinstance(effect, (Blur, Sharpen)) for effect in profile.effects):
-        say("texture: the profile already has a blur or sharpen stage; not fitted")
-        return profile, {"kept": False, "reason": "the profile already has a blur or sharpen stage"}
-    pairs = list(fit_pairs)[:TEXTURE_PAIRS]
-    stages = _stages_of(profile)
-    outputs = _network_outputs(profile, [clean for clean, _ in pairs])
-    real = radial_powers([captured for _, captured in pairs])
-    clean_part = radial_powers(stages.simulate(outputs, seed=seed, deterministic=True))
-    sampled = radial_powers(stages.simulate(outputs, seed=seed, stream="texture"))
-    noise_part = (sampled - clean_part).clamp_min(0.0)
-    before = float(band_errors(sampled, real).pow(2).mean().sqrt())
-    values, after = choose_texture(clean_part, noise_part, real)
-    fitted = TextureFit(*values, kept=False, train_error_before=before, train_error_after=after)
-    if not fitted.stages():
-        return _verdict(profile, fitted, say)
-    judged = judge_texture(profile, list(held_out or pairs)[:TEXTURE_PAIRS], fitted, seed)
-    return _verdict(profile.with_effects(*fitted.stages()) if judged.kept else profile, judged, say)
+@dataclass(frozen=True)
+class TextureMatch(FitStep):
+    """The texture step: a blur and a sharpening chosen on the training pairs (:func:`choose_texture`: the
+    candidates' band errors predicted from their transfer functions), kept where the validation pairs confirm them
+    (:meth:`judge`); recorded in ``fitted['texture']``."""
+
+    name: ClassVar[str] = "texture"
+    needs_network: ClassVar[bool] = True
+
+    def propose(self, fit: PairedFit) -> TextureFit | Verdict:
+        profile, seed = fit.profile, fit.seed
+        if any(isinstance(effect, (Blur, Sharpen)) for effect in profile.effects):
+            fit.say("texture: the profile already has a blur or sharpen stage; not fitted")
+            return Verdict({"kept": False, "reason": "the profile already has a blur or sharpen stage"})
+        pairs = list(fit.train_pairs)[:TEXTURE_PAIRS]
+        stages = _stages_of(profile)
+        outputs = _network_outputs(profile, [clean for clean, _ in pairs])
+        real = radial_powers([captured for _, captured in pairs])
+        clean_part = radial_powers(stages.simulate(outputs, seed=seed, deterministic=True))
+        sampled = radial_powers(stages.simulate(outputs, seed=seed, stream="texture"))
+        noise_part = (sampled - clean_part).clamp_min(0.0)
+        before = float(band_errors(sampled, real).pow(2).mean().sqrt())
+        values, after = choose_texture(clean_part, noise_part, real)
+        fitted = TextureFit(*values, kept=False, train_error_before=before, train_error_after=after)
+        return Verdict(_verdict(fitted, fit.say)) if not fitted.stages() else fitted
+
+    def judge(self, fit: PairedFit, fitted: TextureFit) -> dict:
+        judged = judge_texture(fit.profile, fit.judge_pairs(TEXTURE_PAIRS), fitted, fit.seed)
+        if judged.kept:
+            fit.profile = fit.profile.with_effects(*judged.stages())
+        return _verdict(judged, fit.say)
 
 
 def _stages_of(profile: CameraProfile) -> CameraProfile:
@@ -231,7 +237,8 @@ def judge_texture(
     )
 
 
-def _verdict(profile: CameraProfile, fitted: TextureFit, say: Log) -> tuple[CameraProfile, dict]:
+def _verdict(fitted: TextureFit, say: Log) -> dict:
+    """``fitted``'s record, said on the log."""
     word = "kept" if fitted.kept else "dropped"
     evidence = (
         f"; validation band error {fitted.val_error_before:.2f} -> {fitted.val_error_after:.2f} log2, PSNR "
@@ -244,4 +251,4 @@ def _verdict(profile: CameraProfile, fitted: TextureFit, say: Log) -> tuple[Came
         f"{fitted.sharpen_amount} -> {word} (training band error {fitted.train_error_before:.2f} -> "
         f"{fitted.train_error_after:.2f} log2{evidence})"
     )
-    return profile, fitted.to_dict()
+    return fitted.to_dict()

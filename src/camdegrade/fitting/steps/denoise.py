@@ -21,14 +21,17 @@ References:
 from __future__ import annotations
 
 import itertools
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import ClassVar
 
 import torch
 from torch import Tensor
 
 from camdegrade._seeds import derived_generator
 from camdegrade.effects import Denoise
-from camdegrade.fitting.texture import band_errors, radial_powers
+from camdegrade.fitting.steps.base import FitStep, PairedFit, Verdict
+from camdegrade.fitting.steps.texture import band_errors, radial_powers
 from camdegrade.functional import blur_planes, denoise_image
 from camdegrade.functional.analysis import luma
 from camdegrade.metrics import psnr
@@ -49,8 +52,6 @@ MAX_BAND_RISE_LOG2 = 0.1
 MAX_PSNR_LOSS_DB = 0.5
 #: At most this many training pairs choose it, and as many validation pairs judge it.
 DENOISE_PAIRS = 8
-
-Log = Callable[[str], None]
 
 
 def detail_amplitudes(images: Sequence[Tensor], seed: int = 0) -> Tensor:
@@ -76,43 +77,52 @@ def eight_bit(image: Tensor) -> Tensor:
     return (image.clamp(0, 1) * 255).round() / 255
 
 
-def fit_denoise(
-    profile: CameraProfile,
-    fit_pairs: Sequence[tuple[Tensor, Tensor]],
-    held_out: Sequence[tuple[Tensor, Tensor]],
-    say: Log,
-    seed: int = 0,
-) -> tuple[CameraProfile, dict]:
-    """``profile`` with a :class:`~camdegrade.effects.Denoise` stage last (after any sharpening: it removes the faint
-    detail that the network and the sharpening pass), or unchanged where the validation pairs (``held_out``; the
-    training pairs when there are none) do not confirm it; and the note for ``fitted['denoise']``."""
-    if any(isinstance(effect, Denoise) for effect in profile.effects):
-        say("denoise: the profile already has a denoise stage; not fitted")
-        return profile, {"kept": False, "reason": "the profile already has a denoise stage"}
-    pairs = list(fit_pairs)[:DENOISE_PAIRS]
-    sampled = profile.simulate([clean for clean, _ in pairs], seed=seed, stream="denoise")
-    real = detail_amplitudes([captured for _, captured in pairs], seed)
-    distance, sigma, level = _best_candidate(sampled, real, seed)
-    stage = Denoise(sigma, level / 255)
-    before = amplitude_distance(detail_amplitudes(sampled, seed), real)
-    note = {
-        "sigma": sigma,
-        "threshold_levels": level,
-        "train_distance_before": before,
-        "train_distance_after": distance,
-    }
-    if distance >= before:
-        say(f"denoise: no candidate brings the faint detail closer to the captures' ({before:.3f} levels) -> dropped")
-        return profile, {"kept": False, "reason": "no candidate lowers the detail-amplitude distance", **_rounded(note)}
-    judged = judge_denoise(profile, stage, list(held_out or fit_pairs)[:DENOISE_PAIRS], seed)
-    note = _rounded({**note, **judged})
-    say(
-        f"denoise: sigma {sigma}, threshold {level} levels -> {'kept' if judged['kept'] else 'dropped'} (validation "
-        f"detail-amplitude distance {judged['val_distance_before']:.3f} -> {judged['val_distance_after']:.3f} levels, "
-        f"band error {judged['val_band_error_before']:.2f} -> {judged['val_band_error_after']:.2f} log2, PSNR "
-        f"{judged['val_psnr_before']:.2f} -> {judged['val_psnr_after']:.2f} dB)"
-    )
-    return (profile.with_effects(stage) if judged["kept"] else profile), note
+@dataclass(frozen=True)
+class DenoiseMatch(FitStep):
+    """The denoise step: a :class:`~camdegrade.effects.Denoise` stage last (after any sharpening: it removes the
+    faint detail that the network and the sharpening pass), the candidate whose sampled output's detail amplitudes
+    come closest to the training captures', kept where the validation pairs confirm it (:func:`judge_denoise`);
+    recorded in ``fitted['denoise']``."""
+
+    name: ClassVar[str] = "denoise"
+    needs_network: ClassVar[bool] = True
+
+    def propose(self, fit: PairedFit) -> tuple[Denoise, dict] | Verdict:
+        profile, seed, say = fit.profile, fit.seed, fit.say
+        if any(isinstance(effect, Denoise) for effect in profile.effects):
+            say("denoise: the profile already has a denoise stage; not fitted")
+            return Verdict({"kept": False, "reason": "the profile already has a denoise stage"})
+        pairs = list(fit.train_pairs)[:DENOISE_PAIRS]
+        sampled = profile.simulate([clean for clean, _ in pairs], seed=seed, stream="denoise")
+        real = detail_amplitudes([captured for _, captured in pairs], seed)
+        distance, sigma, level = _best_candidate(sampled, real, seed)
+        before = amplitude_distance(detail_amplitudes(sampled, seed), real)
+        note = {
+            "sigma": sigma,
+            "threshold_levels": level,
+            "train_distance_before": before,
+            "train_distance_after": distance,
+        }
+        if distance >= before:
+            shown = f"{before:.3f} levels"
+            say(f"denoise: no candidate brings the faint detail closer to the captures' ({shown}) -> dropped")
+            reason = "no candidate lowers the detail-amplitude distance"
+            return Verdict({"kept": False, "reason": reason, **_rounded(note)})
+        return Denoise(sigma, level / 255), note
+
+    def judge(self, fit: PairedFit, proposal: tuple[Denoise, dict]) -> dict:
+        stage, fitted = proposal
+        judged = judge_denoise(fit.profile, stage, fit.judge_pairs(DENOISE_PAIRS), fit.seed)
+        fit.say(
+            f"denoise: sigma {fitted['sigma']}, threshold {fitted['threshold_levels']} levels -> "
+            f"{'kept' if judged['kept'] else 'dropped'} (validation detail-amplitude distance "
+            f"{judged['val_distance_before']:.3f} -> {judged['val_distance_after']:.3f} levels, band error "
+            f"{judged['val_band_error_before']:.2f} -> {judged['val_band_error_after']:.2f} log2, PSNR "
+            f"{judged['val_psnr_before']:.2f} -> {judged['val_psnr_after']:.2f} dB)"
+        )
+        if judged["kept"]:
+            fit.profile = fit.profile.with_effects(stage)
+        return _rounded({**fitted, **judged})
 
 
 def _best_candidate(sampled: Sequence[Tensor], real: Tensor, seed: int) -> tuple[float, float, float]:

@@ -1,5 +1,5 @@
-"""Training the domain-shifting network on (clean, captured) image tensors: the recipes (camdegrade's fast one and
-the paper's), the training step, early stopping on the validation PSNR.
+"""Training the domain-shifting network on (clean, captured) image tensors with a recipe
+(:class:`~camdegrade.fitting.FitConfig`): the training step, early stopping on the validation PSNR.
 
 Resumable (a safetensors checkpoint after every epoch), deterministic for a seed on one machine, and able to run
 under ``torchrun`` (DDP: every rank draws the same crops from the shared seed and trains on its share of each
@@ -8,12 +8,10 @@ batch, so the global batch and the result match a single process).
 
 from __future__ import annotations
 
-import hashlib
 import math
 import os
 from collections.abc import Callable, Sequence
-from dataclasses import asdict, dataclass, fields, replace
-from pathlib import Path
+from dataclasses import asdict, dataclass
 from typing import Any
 
 import torch
@@ -22,173 +20,29 @@ import torch.nn.functional as F
 from torch import Tensor
 from tqdm.auto import tqdm
 
-from camdegrade import _recipes
-from camdegrade._checks import check_seed
 from camdegrade._distributed import is_distributed, rank_and_world_size
 from camdegrade._files import check_writable
 from camdegrade._pixels import as_unit
-from camdegrade._recipes import CURVES, FAST, MIN_SENSOR_SCALE, RECIPES, TEXTURES, TRAINING_FIELDS, UPSAMPLINGS
+from camdegrade._recipes import TRAIN_PRECISIONS
 from camdegrade._seeds import derive_seed, derived_generator
-from camdegrade.effects import Resolution, check_effect_names
+from camdegrade.effects import Resolution
 from camdegrade.errors import CamdegradeError
-from camdegrade.fitting.checkpoint import TrainingState, capture_state, load_checkpoint, save_checkpoint
+from camdegrade.fitting.network.checkpoint import (
+    TrainingState,
+    capture_state,
+    initial_state,
+    pairs_fingerprint,
+    save_checkpoint,
+)
+from camdegrade.fitting.recipe import FitConfig
 from camdegrade.inference import native_bfloat16, run_network
 from camdegrade.metrics import psnr
-from camdegrade.network import ARCHITECTURES, MAX_WIDTH, SIZE_MULTIPLE, ShiftNetwork, build_network
-
-#: One aligned pair: (clean, captured), ``(3, H, W)`` each, same size: uint8 (as read), or float in [0, 1].
-ImagePair = tuple[Tensor, Tensor]
+from camdegrade.network import SIZE_MULTIPLE, ShiftNetwork, build_network
+from camdegrade.pairs.pairset import ImagePair
 
 
 class FitInterrupted(CamdegradeError):
     """The fit was interrupted (Ctrl-C); the checkpoint of the last finished epoch is kept for ``resume``."""
-
-
-#: How the learning rate moves: ``"step"`` halves it every ``lr_halving_epochs`` epochs (the paper's schedule);
-#: ``"cosine"`` lowers it from ``lr`` to 0 along a half cosine over ``epochs``, one step per epoch.
-SCHEDULES: tuple[str, ...] = _recipes.SCHEDULES
-#: Arithmetic of the forward and backward passes: ``"bfloat16"`` autocasts the convolutions (float32 weights,
-#: optimizer and loss); ``"auto"`` does so where the device computes bfloat16 natively, else float32.
-TRAIN_PRECISIONS: tuple[str, ...] = _recipes.TRAIN_PRECISIONS
-
-
-@dataclass(frozen=True)
-class FitConfig:
-    """A fitting recipe: L2 loss and Adam on random ``crop``×``crop`` windows of the full-resolution pairs (instead of
-    the paper's squashed resizes); an epoch draws ``crops_per_pair`` windows from every training pair; a share
-    ``val_fraction`` of the scenes validates; the ``effects`` stages are fitted after the network.
-
-    The defaults are camdegrade's fast recipe (``RECIPES["fast"]``, :mod:`camdegrade._recipes`): batches of 8, Adam on
-    a cosine schedule, stopping early once the validation PSNR has not risen for ``patience`` epochs.
-    ``FitConfig.recipe("paper")`` is the paper's: 100 epochs, Adam at lr 0.01 halved every 30 epochs, batch 32,
-    no early stopping. Either trains in bfloat16 where the device computes it natively (``precision="auto"``).
-    Change values with :meth:`replace`: ``FitConfig.recipe("fast").replace(epochs=3)``.
-
-    Args:
-        patience: stop after this many epochs without a better validation PSNR (by at least 0.01 dB); 0 never
-            stops early. The best epoch's weights are returned either way.
-        schedule: one of :data:`SCHEDULES`; ``lr_halving_epochs`` is used by ``"step"`` only.
-        precision: one of :data:`TRAIN_PRECISIONS`.
-        width: the network's width (the paper's 64).
-        arch: the network (:data:`~camdegrade.network.ARCHITECTURES`): ``"local_affine"`` (the fast recipe's; no
-            4-pixel grid) or ``"paper"`` (the paper recipe's, :class:`~camdegrade.network.DomainShiftNet`).
-        upsample: how ``local_affine`` brings its colour field to full resolution, one of
-            :data:`~camdegrade.network.FIELD_UPSAMPLING` (the paper network ignores it).
-        curves: ``local_affine``'s pointwise curves, one of :data:`~camdegrade._recipes.CURVES`: ``"channel"`` (the
-            fast recipe's) or ``"none"`` (the paper recipe's; the paper network ignores it).
-        val_fraction: share of *scenes* held out for choosing the best epoch and checking the effect stages
-            (``fit_profile``; ``distill_profile`` holds out that share of its images, at least one).
-        effects: effect stages ``fit_profile`` fits after the network (names from ``EFFECTS``; ``()``: network only).
-            ``distill_profile`` copies its teacher's stages instead.
-        texture: one of :data:`~camdegrade._recipes.TEXTURES`: ``"match"`` (the fast recipe's) adds a blur and a
-            sharpening after the effect stages where they bring the band power closer to the captures' on the
-            validation pairs (:mod:`camdegrade.fitting.texture`); ``"none"`` (the paper recipe's) never does.
-        sensor_scale: a camera that upscales (its sensor, or the mode it is used in, has fewer pixels than its
-            output): the sensor's resolution relative to the output, from 0.125 to 1. Below 1, ``fit_profile``
-            trains a ``local_affine`` network through a :class:`~camdegrade.effects.Resolution` stage of that scale
-            and keeps the stage after it; ``"auto"`` (the fast recipe's): the scale found from the training
-            captures (:mod:`camdegrade.fitting.resolution`), or none; 1 (the paper recipe's): none.
-    """
-
-    epochs: int = FAST["epochs"]
-    crop: int = FAST["crop"]
-    batch_size: int = FAST["batch_size"]
-    lr: float = FAST["lr"]
-    lr_halving_epochs: int = FAST["lr_halving_epochs"]
-    crops_per_pair: int = FAST["crops_per_pair"]
-    seed: int = FAST["seed"]
-    schedule: str = FAST["schedule"]
-    patience: int = FAST["patience"]
-    precision: str = FAST["precision"]
-    width: int = FAST["width"]
-    arch: str = FAST["arch"]
-    upsample: str = FAST["upsample"]
-    curves: str = FAST["curves"]
-    val_fraction: float = FAST["val_fraction"]
-    effects: tuple[str, ...] = FAST["effects"]
-    texture: str = FAST["texture"]
-    sensor_scale: str | float = FAST["sensor_scale"]
-
-    def __post_init__(self) -> None:
-        for name in ("epochs", "crop", "batch_size", "lr_halving_epochs", "crops_per_pair", "width"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-                raise ValueError(f"{name} must be a positive integer, got {name}={value!r}")
-        if self.width > MAX_WIDTH:
-            raise ValueError(f"width must be at most {MAX_WIDTH}, got width={self.width}")
-        if isinstance(self.patience, bool) or not isinstance(self.patience, int) or self.patience < 0:
-            raise ValueError(f"patience must be an integer >= 0 (0: no early stopping), got patience={self.patience!r}")
-        if self.crop % SIZE_MULTIPLE:
-            raise ValueError(f"crop must be a multiple of {SIZE_MULTIPLE}, got crop={self.crop}")
-        if not (isinstance(self.lr, (int, float)) and math.isfinite(self.lr) and self.lr > 0):
-            raise ValueError(f"lr must be a positive number, got lr={self.lr!r}")
-        choices = (
-            ("schedule", SCHEDULES),
-            ("precision", TRAIN_PRECISIONS),
-            ("arch", tuple(ARCHITECTURES)),
-            ("texture", TEXTURES),
-            ("upsample", UPSAMPLINGS),
-            ("curves", CURVES),
-        )
-        for name, allowed in choices:
-            if getattr(self, name) not in allowed:
-                raise ValueError(f"{name} must be one of {allowed}, got {name}={getattr(self, name)!r}")
-        scale = self.sensor_scale
-        number = not isinstance(scale, bool) and isinstance(scale, (int, float))
-        if scale != "auto" and not (number and MIN_SENSOR_SCALE <= scale <= 1):
-            raise ValueError(
-                f"sensor_scale must be 'auto' or a number from {MIN_SENSOR_SCALE} to 1, got sensor_scale={scale!r}"
-            )
-        if number and scale < 1 and self.arch != "local_affine":
-            raise ValueError(
-                f"sensor_scale={scale} needs arch='local_affine' (its network is trained through the sensor), "
-                f"got arch={self.arch!r}"
-            )
-        share = self.val_fraction
-        if isinstance(share, bool) or not isinstance(share, (int, float)) or not 0.0 <= share < 1.0:
-            raise ValueError(f"val_fraction must be in [0, 1), got val_fraction={share!r}")
-        object.__setattr__(self, "effects", tuple(check_effect_names(self.effects)))
-        if Resolution.name in self.effects:
-            raise ValueError(
-                "effects: 'resolution' is not fitted after the network (it would blur twice); the network is trained "
-                "through it: use sensor_scale (--sensor-scale): 'auto' finds it in the captures, or a scale such as 0.5"
-            )
-        check_seed(self.seed)
-
-    @classmethod
-    def recipe(cls, name: str = "fast", **overrides: Any) -> FitConfig:
-        """The named recipe of :data:`RECIPES`, with ``overrides`` (``None`` values keep the recipe's)."""
-        if name not in RECIPES:
-            raise ValueError(f"recipe must be one of {tuple(RECIPES)}, got recipe={name!r}")
-        values = {**RECIPES[name], **{key: value for key, value in overrides.items() if value is not None}}
-        return cls(**values)
-
-    def replace(self, **changes: Any) -> FitConfig:
-        """This recipe with ``changes`` (``None`` values keep this recipe's), checked like a new one."""
-        unknown = sorted(set(changes) - {item.name for item in fields(self)})
-        if unknown:
-            raise TypeError(f"FitConfig has no field(s) {unknown}; its fields: {[item.name for item in fields(self)]}")
-        return replace(self, **{key: value for key, value in changes.items() if value is not None})
-
-    def as_dict(self) -> dict[str, Any]:
-        """Every value, ``effects`` as a list (JSON's)."""
-        values = asdict(self)
-        values["effects"] = list(self.effects)
-        return values
-
-    def training_dict(self) -> dict[str, Any]:
-        """The network's training values (:data:`~camdegrade._recipes.TRAINING_FIELDS`): what a profile records as
-        ``fitted['recipe']`` and a checkpoint must match to be resumed."""
-        return {name: getattr(self, name) for name in TRAINING_FIELDS}
-
-
-def resolve_recipe(recipe: str | FitConfig) -> FitConfig:
-    """``recipe``: a name of ``RECIPES`` or a :class:`FitConfig`."""
-    if isinstance(recipe, FitConfig):
-        return recipe
-    if not isinstance(recipe, str):
-        raise TypeError(f"recipe must be a recipe name {tuple(RECIPES)} or a FitConfig, got {type(recipe).__name__}")
-    return FitConfig.recipe(recipe)
 
 
 @dataclass(frozen=True)
@@ -294,7 +148,7 @@ def fit_network(
         fingerprint += f" through a sensor at {float(after.scale):.4g}x"
     network, optimizer, scheduler, generator = _new_training(config, device, initial)
     start = _starting_score(network, val, device, after) if initial is not None else None
-    state = _initial_state(network, optimizer, scheduler, generator, config, checkpoint, resume, fingerprint, start)
+    state = initial_state(network, optimizer, scheduler, generator, config, checkpoint, resume, fingerprint, start)
     model = _distributed(network, device) if world > 1 else network
     step = _TrainStep(model, optimizer, config, device, world, after)
     bar = _progress_bar(config, len(train), state.epoch, enabled=progress and rank == 0)
@@ -412,73 +266,6 @@ def _new_training(config: FitConfig, device: torch.device | str, initial: ShiftN
     else:
         scheduler = torch.optim.lr_scheduler.StepLR(optimizer, step_size=config.lr_halving_epochs, gamma=0.5)
     return network, optimizer, scheduler, derived_generator(config.seed, "training-crops")
-
-
-def pairs_fingerprint(train: Sequence[ImagePair], val: Sequence[ImagePair], names: Sequence[str] | None = None) -> str:
-    """A short hash of the pairs a fit uses: their number, names, sizes, dtypes and a grid of about 4096 sampled
-    pixels per image (cheap: no image is copied whole), so a resume can tell other pairs from the same ones."""
-    digest = hashlib.blake2b(digest_size=8)
-    for part, pairs in (("train", train), ("val", val)):
-        digest.update(f"{part}:{len(pairs)};".encode())
-        for image in (image for pair in pairs for image in pair):
-            step = max(1, math.isqrt(image.shape[-2] * image.shape[-1] // _SAMPLED_PIXELS))
-            sample = image.detach()[..., ::step, ::step].cpu().contiguous()
-            digest.update(f"{tuple(image.shape)}{image.dtype};".encode())
-            digest.update(sample.numpy().tobytes())
-    for name in names or ():
-        digest.update(f"{name}\0".encode())
-    return digest.hexdigest()
-
-
-_SAMPLED_PIXELS = 4096
-
-
-def _initial_state(
-    network, optimizer, scheduler, generator, config, checkpoint, resume, fingerprint: str, start=None
-) -> TrainingState:
-    best_score, best_network = start if start is not None else (-math.inf, None)
-    fresh = capture_state(
-        network,
-        optimizer,
-        scheduler,
-        generator,
-        epoch=0,
-        best_score=best_score,
-        best_network=best_network,
-        config=config.training_dict(),
-        data=fingerprint,
-    )
-    if not resume:
-        return fresh
-    if checkpoint is None:
-        raise ValueError("resume=True needs checkpoint=PATH")
-    if not Path(checkpoint).exists():
-        raise CamdegradeError(
-            f"resume: checkpoint {str(checkpoint)!r} does not exist; check its path, or start a new fit without resume"
-        )
-    state = load_checkpoint(checkpoint)
-    # A resume may change how long the fit runs, unless the schedule is laid out over its length (cosine).
-    free = ("patience",) if config.schedule == "cosine" else ("epochs", "patience")
-    recipe = {k: v for k, v in config.training_dict().items() if k not in free}
-    saved = {k: v for k, v in state.config.items() if k not in free}
-    if set(saved) != set(recipe):
-        raise ValueError(
-            f"checkpoint {str(checkpoint)!r} was written by another camdegrade version (its recipe has the fields "
-            f"{sorted(saved)}); start a new fit without resume"
-        )
-    if recipe != saved:
-        raise ValueError(f"checkpoint {str(checkpoint)!r} was written with a different recipe: {saved}, now {recipe}")
-    if state.data != fingerprint:
-        raise CamdegradeError(
-            f"checkpoint {str(checkpoint)!r} was written for other training pairs or sensor (fingerprint "
-            f"{state.data or 'none recorded'}, these pairs give {fingerprint}); resume with the same pairs, or start "
-            "a new fit without resume"
-        )
-    network.load_state_dict(state.network)
-    optimizer.load_state_dict(state.optimizer)
-    scheduler.load_state_dict(state.scheduler)
-    generator.set_state(state.generator)
-    return state
 
 
 class _TrainStep:

@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import hashlib
 import json
+import math
 import os
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -15,6 +18,7 @@ from torch import Tensor
 
 from camdegrade._files import atomic_path
 from camdegrade.errors import CamdegradeError
+from camdegrade.pairs.pairset import ImagePair
 
 CHECKPOINT_KEY = "camdegrade_checkpoint"
 #: Metadata keys every checkpoint holds (and the tensor ``generator``).
@@ -121,3 +125,73 @@ def capture_state(
         generator=generator.get_state(),
         **fields,
     )
+
+
+def pairs_fingerprint(train: Sequence[ImagePair], val: Sequence[ImagePair], names: Sequence[str] | None = None) -> str:
+    """A short hash of the pairs a fit uses: their number, names, sizes, dtypes and a grid of about 4096 sampled
+    pixels per image (cheap: no image is copied whole), so a resume can tell other pairs from the same ones."""
+    digest = hashlib.blake2b(digest_size=8)
+    for part, pairs in (("train", train), ("val", val)):
+        digest.update(f"{part}:{len(pairs)};".encode())
+        for image in (image for pair in pairs for image in pair):
+            step = max(1, math.isqrt(image.shape[-2] * image.shape[-1] // _SAMPLED_PIXELS))
+            sample = image.detach()[..., ::step, ::step].cpu().contiguous()
+            digest.update(f"{tuple(image.shape)}{image.dtype};".encode())
+            digest.update(sample.numpy().tobytes())
+    for name in names or ():
+        digest.update(f"{name}\0".encode())
+    return digest.hexdigest()
+
+
+_SAMPLED_PIXELS = 4096
+
+
+def initial_state(
+    network, optimizer, scheduler, generator, config, checkpoint, resume, fingerprint: str, start=None
+) -> TrainingState:
+    """The training state a fit starts from: fresh (the network at ``start``'s best weights and score, when given),
+    or with ``resume`` the checkpoint's, after checking that it was written for the same recipe (``config``, a
+    :class:`~camdegrade.fitting.FitConfig`) and pairs (``fingerprint``: :func:`pairs_fingerprint`)."""
+    best_score, best_network = start if start is not None else (-math.inf, None)
+    fresh = capture_state(
+        network,
+        optimizer,
+        scheduler,
+        generator,
+        epoch=0,
+        best_score=best_score,
+        best_network=best_network,
+        config=config.training_dict(),
+        data=fingerprint,
+    )
+    if not resume:
+        return fresh
+    if checkpoint is None:
+        raise ValueError("resume=True needs checkpoint=PATH")
+    if not Path(checkpoint).exists():
+        raise CamdegradeError(
+            f"resume: checkpoint {str(checkpoint)!r} does not exist; check its path, or start a new fit without resume"
+        )
+    state = load_checkpoint(checkpoint)
+    # A resume may change how long the fit runs, unless the schedule is laid out over its length (cosine).
+    free = ("patience",) if config.schedule == "cosine" else ("epochs", "patience")
+    recipe = {k: v for k, v in config.training_dict().items() if k not in free}
+    saved = {k: v for k, v in state.config.items() if k not in free}
+    if set(saved) != set(recipe):
+        raise ValueError(
+            f"checkpoint {str(checkpoint)!r} was written by another camdegrade version (its recipe has the fields "
+            f"{sorted(saved)}); start a new fit without resume"
+        )
+    if recipe != saved:
+        raise ValueError(f"checkpoint {str(checkpoint)!r} was written with a different recipe: {saved}, now {recipe}")
+    if state.data != fingerprint:
+        raise CamdegradeError(
+            f"checkpoint {str(checkpoint)!r} was written for other training pairs or sensor (fingerprint "
+            f"{state.data or 'none recorded'}, these pairs give {fingerprint}); resume with the same pairs, or start "
+            "a new fit without resume"
+        )
+    network.load_state_dict(state.network)
+    optimizer.load_state_dict(state.optimizer)
+    scheduler.load_state_dict(state.scheduler)
+    generator.set_state(state.generator)
+    return state

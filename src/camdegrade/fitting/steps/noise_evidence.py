@@ -30,7 +30,7 @@ from torch import Tensor
 from camdegrade._pixels import bytes_to_unit, unit_to_bytes
 from camdegrade._seeds import derived_generator
 from camdegrade.effects import Effect
-from camdegrade.fitting.noise import replace_stage
+from camdegrade.fitting.in_chain import replace_stage
 from camdegrade.functional.analysis import flat_mask
 from camdegrade.functional.noise_stats import NoiseSums
 from camdegrade.inference import run_network

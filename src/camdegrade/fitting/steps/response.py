@@ -1,7 +1,7 @@
 """A fit's last stage: the frequency response that gives the sampled profile the captures' luma spectrum.
 
-The texture stages (:mod:`camdegrade.fitting.texture`: one blur, one unsharp mask) and the noise reduction
-(:mod:`camdegrade.fitting.faint_detail`) leave the sampled profile's spectrum off the captures' where no Gaussian
+The texture stages (:mod:`camdegrade.fitting.steps.texture`: one blur, one unsharp mask) and the noise reduction
+(:mod:`camdegrade.fitting.steps.denoise`) leave the sampled profile's spectrum off the captures' where no Gaussian
 family bends: on City100 the built-in stayed −0.50 and −1.14 log2 short at 0.16–0.25 and 0.25–0.35 cycles/pixel,
 because the captures' detail there is not where the clean image's is (coherence 0.06 at 0.23–0.25) and least
 squares shrinks it. A :class:`~camdegrade.effects.FrequencyResponse` fitted to the captures' power per frequency
@@ -15,13 +15,16 @@ References:
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import ClassVar
 
 from torch import Tensor
 
 from camdegrade.effects import FrequencyResponse
-from camdegrade.fitting.faint_detail import eight_bit
-from camdegrade.fitting.texture import MAX_PSNR_LOSS_DB, MIN_BAND_GAIN_LOG2, band_errors, radial_powers
+from camdegrade.fitting.steps.base import FitStep, PairedFit, Verdict
+from camdegrade.fitting.steps.denoise import eight_bit
+from camdegrade.fitting.steps.texture import MAX_PSNR_LOSS_DB, MIN_BAND_GAIN_LOG2, band_errors, radial_powers
 from camdegrade.measures.fidelity import grid_rms
 from camdegrade.metrics import psnr
 from camdegrade.profile import CameraProfile
@@ -34,46 +37,48 @@ RESPONSE_PAIRS = 16
 #: the frequencies beside the lattice amplifies a network's fixed pattern (the grid line of the fidelity work).
 MAX_GRID_RATIO = 1.5
 
-Log = Callable[[str], None]
 
+@dataclass(frozen=True)
+class ResponseMatch(FitStep):
+    """The response step: a :class:`~camdegrade.effects.FrequencyResponse` last, fitted on the training pairs
+    between the profile's sampled output (8-bit, as training sees it) and the captures, kept where the validation
+    pairs confirm it (:func:`judge_response`); recorded in ``fitted['response']``."""
 
-def fit_response(
-    profile: CameraProfile,
-    fit_pairs: Sequence[tuple[Tensor, Tensor]],
-    held_out: Sequence[tuple[Tensor, Tensor]],
-    say: Log,
-    seed: int = 0,
-) -> tuple[CameraProfile, dict]:
-    """``profile`` with a :class:`~camdegrade.effects.FrequencyResponse` last, fitted on ``fit_pairs`` between its
-    sampled output (8-bit, as training sees it) and the captures, or unchanged where the validation pairs
-    (``held_out``; the training pairs when there are none) do not confirm it; and the note for
-    ``fitted['response']``."""
-    if any(isinstance(effect, FrequencyResponse) for effect in profile.effects):
-        say("response: the profile already has a frequency response; not fitted")
-        return profile, {"kept": False, "reason": "the profile already has a frequency response"}
-    pairs = list(fit_pairs)[:RESPONSE_PAIRS]
-    sampled = [eight_bit(image) for image in profile.simulate([clean for clean, _ in pairs], seed, stream="response")]
-    stage = FrequencyResponse.fit(sampled, [captured for _, captured in pairs])
-    evidence = judge_response(profile, stage, list(held_out or pairs)[:RESPONSE_PAIRS], seed)
-    note = {"knots": stage.knots, "magnitude": stage.magnitude(), **evidence}
-    note = {key: round(value, 4) if isinstance(value, float) else value for key, value in note.items()}
-    say(
-        f"response: {stage.knots}x{stage.knots} knots, {note['magnitude']:.2f} log2 RMS -> "
-        f"{'kept' if note['kept'] else 'dropped'} (validation band error {note['val_band_error_before']:.2f} -> "
-        f"{note['val_band_error_after']:.2f} log2, grid ratio {note['val_grid_before']:.2f} -> "
-        f"{note['val_grid_after']:.2f}, PSNR {note['val_psnr_before']:.2f} -> {note['val_psnr_after']:.2f} dB)"
-    )
-    return (profile.with_effects(stage) if note["kept"] else profile), note
+    name: ClassVar[str] = "response"
+    needs_network: ClassVar[bool] = True
+
+    def propose(self, fit: PairedFit) -> FrequencyResponse | Verdict:
+        if any(isinstance(effect, FrequencyResponse) for effect in fit.profile.effects):
+            fit.say("response: the profile already has a frequency response; not fitted")
+            return Verdict({"kept": False, "reason": "the profile already has a frequency response"})
+        pairs = list(fit.train_pairs)[:RESPONSE_PAIRS]
+        cleans = [clean for clean, _ in pairs]
+        sampled = [eight_bit(image) for image in fit.profile.simulate(cleans, fit.seed, stream="response")]
+        return FrequencyResponse.fit(sampled, [captured for _, captured in pairs])
+
+    def judge(self, fit: PairedFit, stage: FrequencyResponse) -> dict:
+        evidence = judge_response(fit.profile, stage, fit.judge_pairs(RESPONSE_PAIRS), fit.seed)
+        note = {"knots": stage.knots, "magnitude": stage.magnitude(), **evidence}
+        note = {key: round(value, 4) if isinstance(value, float) else value for key, value in note.items()}
+        fit.say(
+            f"response: {stage.knots}x{stage.knots} knots, {note['magnitude']:.2f} log2 RMS -> "
+            f"{'kept' if note['kept'] else 'dropped'} (validation band error {note['val_band_error_before']:.2f} -> "
+            f"{note['val_band_error_after']:.2f} log2, grid ratio {note['val_grid_before']:.2f} -> "
+            f"{note['val_grid_after']:.2f}, PSNR {note['val_psnr_before']:.2f} -> {note['val_psnr_after']:.2f} dB)"
+        )
+        if note["kept"]:
+            fit.profile = fit.profile.with_effects(stage)
+        return note
 
 
 def judge_response(
     profile: CameraProfile, stage: FrequencyResponse, pairs: Sequence[tuple[Tensor, Tensor]], seed: int
 ) -> dict:
     """The evidence of ``pairs`` (the validation pairs) for adding ``stage`` last: kept when the sampled output's
-    RMS band error falls by :data:`~camdegrade.fitting.texture.MIN_BAND_GAIN_LOG2`, its grid ratio stays within
-    :data:`MAX_GRID_RATIO` (or no higher than before) and the deterministic output's PSNR falls by at most
-    :data:`~camdegrade.fitting.texture.MAX_PSNR_LOSS_DB` (the soft simulated camera's response costs 1.16 dB and is
-    dropped; kept, it would take that noiseless camera's flat-noise ratio to 3.7 and its banding ratio to 6.8,
+    RMS band error falls by :data:`~camdegrade.fitting.steps.texture.MIN_BAND_GAIN_LOG2`, its grid ratio stays
+    within :data:`MAX_GRID_RATIO` (or no higher than before) and the deterministic output's PSNR falls by at most
+    :data:`~camdegrade.fitting.steps.texture.MAX_PSNR_LOSS_DB` (the soft simulated camera's response costs 1.16 dB
+    and is dropped; kept, it would take that noiseless camera's flat-noise ratio to 3.7 and its banding ratio to 6.8,
     docs/fitting.md)."""
     cleans = [clean for clean, _ in pairs]
     captures = [captured for _, captured in pairs]
