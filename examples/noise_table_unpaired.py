@@ -44,7 +44,7 @@ from noise_table import SUBSETS, _load, _residual_sums, _simulate, default_real_
 from camdegrade.effects import Noise
 from camdegrade.fitting.unpaired import MIN_IMAGES, fit_unpaired
 from camdegrade.fitting.unpaired.fit import STAND_IN_SIGMA
-from camdegrade.fitting.unpaired.noise import fit_noise_unpaired, flat_sums
+from camdegrade.fitting.unpaired.noise import flat_sums, judge_noise, propose_noise
 from camdegrade.functional.blur import blur_image
 
 
@@ -112,7 +112,8 @@ def subset_rows(root: Path, only: Sequence[str] | None = None, calibrated: bool 
         }
         if calibrated:
             simulate = partial(_simulate_or_clean, cleans=cleans)
-            stages["own moments calibrated on clean"] = fit_noise_unpaired(flat_sums(reals), simulate)[0]
+            real = flat_sums(reals)
+            stages["own moments calibrated on clean"] = judge_noise(propose_noise(real, simulate), real)
         row = {"subset": subset, "fit": len(reals), "check": len(held_reals), "flat_pixels": real.pixels}
         for label, noise in stages.items():
             sims = _simulate(noise, held_cleans, 1) if noise is not None else held_cleans
@@ -129,7 +130,8 @@ def _captures_only_noise(reals: list[torch.Tensor]) -> Noise | None:
         unpaired = fit_unpaired(reals, effects=("noise",)).effects
         return unpaired[0] if len(unpaired) else None
     stand_ins = [blur_image(image, STAND_IN_SIGMA) for image in reals]
-    return fit_noise_unpaired(flat_sums(reals), partial(_simulate_or_clean, cleans=stand_ins), direct=True)[0]
+    real = flat_sums(reals)
+    return judge_noise(propose_noise(real, partial(_simulate_or_clean, cleans=stand_ins), direct=True), real)
 
 
 def _simulate_or_clean(noise: Noise | None, cleans: list[torch.Tensor]) -> list[torch.Tensor]:

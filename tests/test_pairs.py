@@ -9,20 +9,18 @@ import torch
 from PIL import Image
 
 from camdegrade.errors import PairsError
-from camdegrade.pairs.discovery import discover_pairs, filter_pairs
-from camdegrade.pairs.pair import (
+from camdegrade.pairs.discovery import (
     AMBIGUOUS,
-    BAD_ROW,
-    DUPLICATE,
-    MISSING,
     NO_CAPTURED,
     NO_CLEAN,
     NO_SUFFIX,
     SIZE_MISMATCH,
     TOO_SMALL,
-    UNREADABLE,
-    Pair,
+    discover_pairs,
+    filter_pairs,
 )
+from camdegrade.pairs.manifest import BAD_ROW, DUPLICATE
+from camdegrade.pairs.pair import MISSING, UNREADABLE, Pair
 from camdegrade.pairs.pairset import load_pair, split_by_scene
 
 

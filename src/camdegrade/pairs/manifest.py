@@ -10,7 +10,10 @@ from collections.abc import Iterable, Iterator
 from pathlib import Path
 
 from camdegrade.errors import PairsError
-from camdegrade.pairs.pair import BAD_ROW, DUPLICATE, MISSING, UNREADABLE, Pair, Skipped, relative_stem, scene_id
+from camdegrade.pairs.pair import MISSING, UNREADABLE, Pair, Skipped, relative_stem, scene_id
+
+BAD_ROW = "bad manifest row"
+DUPLICATE = "duplicate pair"
 
 
 def read_manifest(manifest: Path) -> tuple[list[Pair], Skipped]:

@@ -13,17 +13,10 @@ from camdegrade._text import printable
 
 __all__ = ["Pair", "PairReport"]
 
-# Reason categories; a reason is "<category>" or "<category>: <detail>", and summaries group by category.
-NO_CAPTURED = "no captured partner"
-NO_CLEAN = "no clean partner"
-AMBIGUOUS = "ambiguous stem"
-NO_SUFFIX = "matches neither suffix"
+# Why a file is skipped: a reason is "<category>" or "<category>: <detail>", and summaries group by category. The
+# categories every reader shares are here; discovery and the manifest name their own.
 MISSING = "missing file"
-BAD_ROW = "bad manifest row"
-DUPLICATE = "duplicate pair"
 UNREADABLE = "unreadable"
-TOO_SMALL = "too small"
-SIZE_MISMATCH = "size mismatch"
 
 _SEPARATORS = "_-. "
 

@@ -15,7 +15,7 @@ from typing import Any, ClassVar, Protocol
 import torch
 from torch import Tensor
 
-from camdegrade.effects import Resolution
+from camdegrade.effects import Effect, Resolution
 from camdegrade.network import ShiftNetwork
 from camdegrade.pairs.pairset import ImagePair, PairSet
 from camdegrade.profile import CameraProfile
@@ -74,6 +74,11 @@ class Bench(Protocol):
     """What the loop needs of a fit in progress."""
 
     records: dict[str, Any]
+
+    def keep(self, kept: bool, *stages: Effect) -> None:
+        """The profile with ``stages`` added where a judge ``kept`` them."""
+        if kept:
+            self.profile = self.profile.with_effects(*stages)
 
     def unmet(self, step: FitStep) -> str | None: ...
 
@@ -150,6 +155,11 @@ class PairedFit:
     def judge_pairs(self, count: int) -> list[ImagePair]:
         """At most ``count`` pairs a step is judged on: the validation pairs, or the training pairs without any."""
         return list(self.val_pairs or self.train_pairs)[:count]
+
+    def keep(self, kept: bool, *stages: Effect) -> None:
+        """The profile with ``stages`` added where a judge ``kept`` them."""
+        if kept:
+            self.profile = self.profile.with_effects(*stages)
 
     def unmet(self, step: FitStep) -> str | None:
         return "no network" if step.needs_network and self.profile.network is None else None

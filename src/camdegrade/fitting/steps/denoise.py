@@ -120,8 +120,7 @@ class DenoiseMatch(FitStep):
             f"{judged['val_band_error_before']:.2f} -> {judged['val_band_error_after']:.2f} log2, PSNR "
             f"{judged['val_psnr_before']:.2f} -> {judged['val_psnr_after']:.2f} dB)"
         )
-        if judged["kept"]:
-            fit.profile = fit.profile.with_effects(stage)
+        fit.keep(judged["kept"], stage)
         return _rounded({**fitted, **judged})
 
 

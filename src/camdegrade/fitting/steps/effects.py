@@ -73,7 +73,7 @@ class EffectStage(FitStep):
         kept, record, line = self._evidence(fit, effect)
         fit.say(f"effect {self.kind.name}: {line}")
         if kept is not None:
-            fit.profile = fit.profile.with_effects(kept)
+            fit.keep(True, kept)
         return record
 
     def _evidence(self, fit: PairedFit, effect: Effect) -> tuple[Effect | None, dict[str, Any], str]:

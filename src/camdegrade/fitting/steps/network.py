@@ -96,18 +96,10 @@ class NetworkStep(FitStep):
         initial = run.initial
         if initial is None and config.arch == LocalAffineNet.arch:
             initial = _from_baseline(config, baseline)
+        names = [*fit.train.names, *fit.val.names]
+        how = {key: getattr(run, key) for key in ("device", "callback", "checkpoint", "resume", "progress")}
         network, history = fit_network(
-            fit.train.images,
-            fit.val.images,
-            config,
-            device=run.device,
-            callback=run.callback,
-            checkpoint=run.checkpoint,
-            resume=run.resume,
-            progress=run.progress,
-            pair_names=[*fit.train.names, *fit.val.names],
-            initial=initial,
-            after=fit.sensor,
+            fit.train.images, fit.val.images, config, pair_names=names, initial=initial, after=fit.sensor, **how
         )
         return TrainedNetwork(network, history, baseline, minutes=(time.perf_counter() - fit.started) / 60)
 

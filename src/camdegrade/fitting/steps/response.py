@@ -66,8 +66,7 @@ class ResponseMatch(FitStep):
             f"{note['val_band_error_after']:.2f} log2, grid ratio {note['val_grid_before']:.2f} -> "
             f"{note['val_grid_after']:.2f}, PSNR {note['val_psnr_before']:.2f} -> {note['val_psnr_after']:.2f} dB)"
         )
-        if note["kept"]:
-            fit.profile = fit.profile.with_effects(stage)
+        fit.keep(note["kept"], stage)
         return note
 
 

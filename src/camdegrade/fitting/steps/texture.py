@@ -193,8 +193,7 @@ class TextureMatch(FitStep):
 
     def judge(self, fit: PairedFit, fitted: TextureFit) -> dict:
         judged = judge_texture(fit.profile, fit.judge_pairs(TEXTURE_PAIRS), fitted, fit.seed)
-        if judged.kept:
-            fit.profile = fit.profile.with_effects(*judged.stages())
+        fit.keep(judged.kept, *judged.stages())
         return _verdict(judged, fit.say)
 
 

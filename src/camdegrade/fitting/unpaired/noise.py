@@ -51,22 +51,6 @@ def flat_sums(images: Sequence[Tensor]) -> NoiseSums:
     return total
 
 
-def fit_noise_unpaired(
-    real: NoiseSums,
-    simulate: Callable[[Noise | None], list[Tensor]],
-    *,
-    taps: int = 5,
-    banding: bool = True,
-    rounds: int = 2,
-    direct: bool = False,
-) -> tuple[Noise | None, dict]:
-    """The noise stage whose simulation on the clean set matches ``real`` (the captures' :func:`flat_sums`), or
-    ``None`` where it is below :data:`NOISE_FLOOR` or :data:`NOISE_SHARE`; and notes for the metadata
-    (:func:`propose_noise`, then :func:`judge_noise`)."""
-    proposal = propose_noise(real, simulate, taps=taps, banding=banding, rounds=rounds, direct=direct)
-    return judge_noise(proposal, real), proposal.notes
-
-
 @dataclass(frozen=True)
 class NoiseProposal:
     """A noise stage fitted to the captures, the clean set's flat-pixel noise without it, and the notes."""
