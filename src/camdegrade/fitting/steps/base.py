@@ -85,9 +85,9 @@ class Bench(Protocol):
     def skip(self, step: FitStep, reason: str) -> None: ...
 
 
-def run_steps(steps: Iterable[FitStep], fit: Bench, done: Callable[[FitStep], None] | None = None) -> None:
+def run_steps(steps: Iterable[FitStep], fit: Bench) -> None:
     """Run ``steps`` in order on ``fit``: each step's record goes to ``fit.records[step.name]``; a step the fit says
-    it cannot run (:meth:`Bench.unmet`) is skipped with that reason. ``done`` is told of every step."""
+    it cannot run (:meth:`Bench.unmet`) is skipped with that reason."""
     for step in steps:
         reason = fit.unmet(step)
         if reason is not None:
@@ -96,8 +96,6 @@ def run_steps(steps: Iterable[FitStep], fit: Bench, done: Callable[[FitStep], No
             record = step.run(fit)
             if record is not None:
                 fit.records[step.name] = record
-        if done is not None:
-            done(step)
 
 
 @dataclass

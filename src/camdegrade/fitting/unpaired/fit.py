@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
@@ -201,9 +201,8 @@ def fit_unpaired(
         check_count(cleans, "clean")
     say(f"unpaired fit: {len(captures.images)} captures, {len(cleans.images) if cleans else 'no'} clean images")
     fit = UnpairedFit(captures, cleans, measure(captures, cleans), wanted, seed, say)
-    labels = {id(step): label for label, step in UNPAIRED_STEPS}
     with tqdm(total=len(UNPAIRED_STEPS), desc="unpaired fit", unit="step", disable=not progress) as bar:
-        run_steps([step for _, step in UNPAIRED_STEPS], fit, lambda step: _advance(bar, labels[id(step)]))
+        run_steps(_shown(UNPAIRED_STEPS, bar), fit)
     profile = CameraProfile(None, fit.chain(), name=name, description=description)
     profile.fitted = _record(fit, time.perf_counter() - started)
     profile.quality = {"unpaired_fidelity": set_fidelity(fit)}
@@ -300,6 +299,9 @@ def _record(fit: UnpairedFit, seconds: float) -> dict[str, Any]:
     return out
 
 
-def _advance(bar: tqdm, label: str) -> None:
-    bar.set_postfix_str(label)
-    bar.update(1)
+def _shown(steps: Sequence[tuple[str, UnpairedStep]], bar: tqdm) -> Iterator[UnpairedStep]:
+    """``steps`` one after the other, each shown on ``bar`` while it runs."""
+    for label, step in steps:
+        bar.set_postfix_str(label)
+        yield step
+        bar.update(1)
