@@ -98,12 +98,7 @@ def fit_profile(
     run, config = network_run(init_from, config, **how)
     with torch_threads(threads):
         pair_set = pairs if isinstance(pairs, PairSet) else PairSet.load(pairs, log=say)
-        train, val = _split(pair_set, config, say)
-        start = CameraProfile(None, name=name, description=description)
-        refit = run.initial is not None
-        fit = PairedFit.of(
-            pair_set, train, val, profile=start, seed=config.seed, say=say, arch=config.arch, refit=refit
-        )
+        fit = _split(pair_set, config, run, CameraProfile(None, name=name, description=description), say)
         run_steps(config.steps_with(NetworkStep(config, run)), fit)
         return _recorded(fit, pair_set, config, run)
 
@@ -123,13 +118,15 @@ def _check_arguments(pairs: Any, name: Any, description: Any) -> None:
             raise TypeError(f"{label} must be a str, got {label}={text!r} ({type(text).__name__})")
 
 
-def _split(pair_set: PairSet, config: FitConfig, say: Log) -> tuple[PairSet, PairSet]:
-    """``(train, validation)``: a share ``config.val_fraction`` of the scenes validates (seeded)."""
+def _split(pair_set: PairSet, config: FitConfig, run: NetworkRun, start: CameraProfile, say: Log) -> PairedFit:
+    """The fit of ``pair_set`` split by scene (a share ``config.val_fraction`` of the scenes validates, seeded), at
+    the profile ``start``."""
     train, val = pair_set.validation_split(config.val_fraction, config.seed)
     say(f"training on {len(train)} pairs, validating on {len(val)} ({len(set(val.scenes))} scenes)")
     if config.patience and not len(val):
         say("no validation pairs: the fit runs every epoch (early stopping needs validation)")
-    return train, val
+    refit = run.initial is not None
+    return PairedFit.of(pair_set, train, val, profile=start, seed=config.seed, say=say, arch=config.arch, refit=refit)
 
 
 def _recorded(fit: PairedFit, pair_set: PairSet, config: FitConfig, run: NetworkRun) -> CameraProfile:
