@@ -15,12 +15,11 @@ from camdegrade.pairs.discovery import (
     NO_CLEAN,
     NO_SUFFIX,
     SIZE_MISMATCH,
-    TOO_SMALL,
     discover_pairs,
     filter_pairs,
 )
 from camdegrade.pairs.manifest import BAD_ROW, DUPLICATE
-from camdegrade.pairs.pair import MISSING, UNREADABLE, Pair
+from camdegrade.pairs.pair import MISSING, TOO_SMALL, UNREADABLE, Pair
 from camdegrade.pairs.pairset import load_pair, split_by_scene
 
 

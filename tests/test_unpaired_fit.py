@@ -246,7 +246,7 @@ def test_pngs_that_were_jpegs_get_a_warning_and_an_estimated_quality(tmp_path: P
 
 
 def test_too_few_images_names_the_argument_and_the_count(clean: list[torch.Tensor]) -> None:
-    with pytest.raises(PairsError, match=rf"captured must hold at least {MIN_IMAGES} readable images.*got 3"):
+    with pytest.raises(PairsError, match=rf"captured must hold at least {MIN_IMAGES} usable images.*got 3"):
         fit_unpaired(clean[:3], clean)
     with pytest.raises(PairsError, match=r"clean must hold at least"):
         fit_unpaired(clean, clean[:2])

@@ -29,7 +29,7 @@ from typing import Literal
 from camdegrade.errors import PairsError
 from camdegrade.io import IMAGE_EXTENSIONS, iter_images, read_image_size
 from camdegrade.pairs.manifest import read_manifest
-from camdegrade.pairs.pair import UNREADABLE, Pair, PairReport, Skipped, scene_id, size_text
+from camdegrade.pairs.pair import TOO_SMALL, UNREADABLE, Pair, PairReport, Skipped, scene_id, size_text
 
 __all__ = ["discover_pairs", "filter_pairs"]
 
@@ -37,7 +37,6 @@ NO_CAPTURED = "no captured partner"
 NO_CLEAN = "no clean partner"
 AMBIGUOUS = "ambiguous stem"
 NO_SUFFIX = "matches neither suffix"
-TOO_SMALL = "too small"
 SIZE_MISMATCH = "size mismatch"
 
 

@@ -17,6 +17,7 @@ __all__ = ["Pair", "PairReport"]
 # categories every reader shares are here; discovery and the manifest name their own.
 MISSING = "missing file"
 UNREADABLE = "unreadable"
+TOO_SMALL = "too small"
 
 _SEPARATORS = "_-. "
 

@@ -161,8 +161,8 @@ def _read_folder(folder: Path, say: Log) -> list[Tensor]:
     if not folder.is_dir():
         raise NotADirectoryError(f"images must be a folder of images, got {str(folder)!r}")
     found = read_folder(folder)
-    for path, error in found.skipped:
-        say(f"skipped {path}: {error}")
+    for item in found.skipped:
+        say(f"skipped {item.path}: {item.detail}")
     return found.images
 
 

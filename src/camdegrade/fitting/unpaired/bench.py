@@ -107,11 +107,22 @@ class UnpairedFit:
         return any(kind.name in self.wanted for kind in kinds)
 
     def keep(self, stage: Effect | None, *kinds: type[Effect]) -> None:
-        """``stage`` in the chain (nothing for ``None``), in place of the stages of ``kinds`` (their refit)."""
+        """``stage`` in the chain (nothing for ``None``), in place of the stages of ``kinds`` (their refit), once its
+        values are in the stage's range (:meth:`~camdegrade.effects.Effect.check_values`, what saving the profile
+        checks): a value out of range stops the fit at the step that made it, naming it."""
         for kind in kinds:
             self.stages.pop(kind.name, None)
-        if stage is not None:
-            self.stages[stage.name] = stage
+        if stage is None:
+            return
+        try:
+            stage.check_values()
+        except ValueError as error:
+            raise ValueError(
+                f"unpaired fit: the {stage.name} stage fitted to these images is outside its range ({error}); the "
+                "captures are beyond what the stage models: check that they are the camera's photos of scenes like "
+                "the clean images', or leave the stage out (effects)"
+            ) from None
+        self.stages[stage.name] = stage
 
     def not_fit(self, kinds: Sequence[type[Effect]], reason: str) -> None:
         """Record why the asked-for stages of ``kinds`` are not fitted."""

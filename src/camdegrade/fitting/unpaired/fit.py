@@ -31,12 +31,13 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Iterator, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, ClassVar
 
 import torch
 from tqdm.auto import tqdm
 
+from camdegrade._checks import check_seed
 from camdegrade.effects import (
     JPEG,
     Blur,
@@ -54,13 +55,15 @@ from camdegrade.effects import (
 )
 from camdegrade.effects._fitting import downscale
 from camdegrade.effects.base import evenly_spaced
+from camdegrade.errors import CamdegradeError
 from camdegrade.fitting.record import machine_record
-from camdegrade.fitting.steps.base import run_steps
+from camdegrade.fitting.steps.base import Verdict, run_steps
 from camdegrade.fitting.steps.resolution import sensor_trace, sensor_verdict
 from camdegrade.fitting.unpaired.bench import Measured, UnpairedFit, UnpairedStep
 from camdegrade.fitting.unpaired.color_tone import ColorToneMatch
-from camdegrade.fitting.unpaired.images import MIN_IMAGES, ImageSet, Source, check_count, load_images
+from camdegrade.fitting.unpaired.images import MIN_IMAGES, ImageSet, Source, check_count, load_images, load_sides
 from camdegrade.fitting.unpaired.jpeg import JpegFromBlocks, JpegTables
+from camdegrade.fitting.unpaired.judges import self_check_warnings
 from camdegrade.fitting.unpaired.noise import NoiseMatch, flat_sums
 from camdegrade.fitting.unpaired.spectrum import (
     SPECTRUM_SIDE,
@@ -114,12 +117,16 @@ Log = Callable[[str], None]
 class SensorStep(UnpairedStep):
     """The resolution step, first so every later stage is fitted through it: an upscale the captures show and the
     clean set does not (:func:`~camdegrade.fitting.steps.resolution.sensor_trace`; without a clean set, the
-    captures' trace alone), judged against the trace's null and the codec's grid."""
+    captures' trace alone), judged against the trace's null and the codec's grid; or the ``scale`` given."""
 
     name: ClassVar[str] = "resolution"
     kinds: ClassVar[tuple[type[Effect], ...]] = (Resolution,)
+    scale: float | None = None
 
-    def propose(self, fit: UnpairedFit) -> ResamplingTrace:
+    def propose(self, fit: UnpairedFit) -> ResamplingTrace | Verdict:
+        if self.scale is not None:  # given: kept as it is, below 1
+            fit.keep(Resolution(self.scale) if self.scale < 1 else None)
+            return Verdict({"kept": self.scale < 1, "scale": self.scale, "given": True})
         return sensor_trace(fit.cleans.images if fit.cleans else None, fit.captures.images)
 
     def judge(self, fit: UnpairedFit, trace: ResamplingTrace) -> dict[str, Any]:
@@ -167,48 +174,78 @@ def fit_unpaired(
     *,
     effects: Sequence[str] = UNPAIRED_EFFECTS,
     seed: int = 0,
+    sensor_scale: float | str = "auto",
     max_images: int | None = None,
+    strict: bool = False,
     progress: bool = False,
     name: str = "",
     description: str = "",
     log: Log | None = None,
 ) -> CameraProfile:
     """Fit an effects-only camera profile from the camera's photos ``captured`` and an optional ``clean`` set of
-    other scenes of similar content (each a folder or a list of ``(3, H, W)`` tensors, images of any sizes).
+    other scenes of similar content (each a folder, or a list of ``(3, H, W)`` tensors, ``(H, W, 3)`` numpy arrays
+    or PIL images; images of any sizes from 16 px a side).
 
     Args:
         effects: the stages to fit (default :data:`UNPAIRED_EFFECTS`); each is kept only where the captures differ
             from the clean set by more than its floor (see :mod:`camdegrade.fitting.unpaired.judges`).
         seed: the simulations' seed (same seed, same profile).
+        sensor_scale: ``"auto"``: an upscale found from the captures (:func:`~camdegrade.fitting.steps.resolution.
+            sensor_trace`); a number from 0.125 to 1: the sensor's resolution relative to the output, given (1: none).
         max_images: read at most this many images of each side.
+        strict: refuse instead of warning: an unreadable file (before any fitting), or a result with a warning.
         progress: a progress bar over the steps.
 
     Raises:
-        PairsError: fewer than :data:`MIN_IMAGES` readable images on a side, or not a folder.
+        PairsError: fewer than :data:`MIN_IMAGES` usable images on a side (unreadable files and images under 16 px
+            a side are skipped), not a folder, a side without contrast, the same images on both sides; with
+            ``strict``, a skipped file.
+        CamdegradeError: with ``strict``, a result with a warning.
+        TypeError, ValueError: an image of a list that is not an RGB image in [0, 1] or uint8 (named by its
+            index), a seed that is not an int.
         ValueError: an effect that needs correspondence (:data:`NOT_IDENTIFIABLE`), or captures with too few flat
             pixels to measure their noise.
     """
     say = log or (lambda message: None)
     wanted = check_unpaired_effects(effects)
+    steps = _with_sensor(UNPAIRED_STEPS, check_sensor_scale(sensor_scale))
     for label, text in (("name", name), ("description", description)):
         if not isinstance(text, str):
             raise TypeError(f"{label} must be a str, got {label}={text!r} ({type(text).__name__})")
+    check_seed(seed)
     started = time.perf_counter()
-    captures = load_images(captured, "captured", max_images)
-    check_count(captures, "captured")
-    cleans = load_images(clean, "clean", max_images) if clean is not None else None
-    if cleans is not None:
-        check_count(cleans, "clean")
+    captures, cleans, warnings = load_sides(captured, clean, max_images, strict)
     say(f"unpaired fit: {len(captures.images)} captures, {len(cleans.images) if cleans else 'no'} clean images")
     fit = UnpairedFit(captures, cleans, measure(captures, cleans), wanted, seed, say)
-    with tqdm(total=len(UNPAIRED_STEPS), desc="unpaired fit", unit="step", disable=not progress) as bar:
-        run_steps(_shown(UNPAIRED_STEPS, bar), fit)
+    fit.warnings += warnings
+    with tqdm(total=len(steps), desc="unpaired fit", unit="step", disable=not progress) as bar:
+        run_steps(_shown(steps, bar), fit)
     profile = CameraProfile(None, fit.chain(), name=name, description=description)
-    profile.fitted = _record(fit, time.perf_counter() - started)
     profile.quality = {"unpaired_fidelity": set_fidelity(fit)}
+    fit.warnings += self_check_warnings(profile.quality["unpaired_fidelity"], wanted, with_clean=cleans is not None)
+    profile.fitted = _record(fit, time.perf_counter() - started)
     for warning in fit.warnings:
         say(f"warning: {warning}")
+    if strict and fit.warnings:
+        raise CamdegradeError(f"{fit.warnings[0]}; strict: no profile (fix the input, or run without strict)")
     return profile
+
+
+def check_sensor_scale(value: Any) -> float | None:
+    """``sensor_scale`` as a number, or ``None`` for ``"auto"``; a ``ValueError`` for anything else."""
+    number = not isinstance(value, bool) and isinstance(value, (int, float))
+    if value == "auto":
+        return None
+    if not (number and Resolution.MIN_SCALE <= value <= 1):
+        raise ValueError(
+            f"sensor_scale must be 'auto' or a number from {Resolution.MIN_SCALE} to 1, got sensor_scale={value!r}"
+        )
+    return float(value)
+
+
+def _with_sensor(steps: Sequence[tuple[str, UnpairedStep]], scale: float | None) -> list[tuple[str, UnpairedStep]]:
+    """``steps`` with the resolution step's ``scale`` (``None``: found from the captures)."""
+    return [(label, replace(step, scale=scale) if isinstance(step, SensorStep) else step) for label, step in steps]
 
 
 #: Where a profile's simulation of the clean set agrees with the captures in the statistics the fit matches: the
