@@ -73,7 +73,7 @@ def test_a_stage_out_of_its_range_stops_the_fit_at_its_step_naming_it(monkeypatc
     def out_of_range(*args, **options):
         return None, Tone(gamma=17.26), {"gains": [1, 1, 1], "tone_change": [0.0]}
 
-    monkeypatch.setattr("camdegrade.fitting.unpaired.fit_color_tone", out_of_range)
+    monkeypatch.setattr("camdegrade.fitting.unpaired.color_tone.judge_color_tone", out_of_range)
     scenes = [(image * 255).round().to(torch.uint8) for image in _scenes(3, 8, 32)]
     with pytest.raises(ValueError, match=r"the tone stage fitted to these images is outside its range \(gamma must"):
         fit_unpaired(scenes, [(image * 255).round().to(torch.uint8) for image in _scenes(4, 8, 32)], effects=("tone",))
