@@ -26,8 +26,8 @@ bench: $(STAMP)
 	$(BIN)/python bench/run.py
 
 lint: $(STAMP)
-	$(BIN)/ruff check src tests examples bench
-	$(BIN)/ruff format --check src tests examples bench
+	$(BIN)/ruff check src tests examples experiments bench
+	$(BIN)/ruff format --check src tests examples experiments bench
 
 clean:
 	rm -rf out build dist src/*.egg-info .pytest_cache .ruff_cache

@@ -1,4 +1,4 @@
-"""Captures-only noise on REAL captures (``examples/noise_table_unpaired.py``): CC15's fitting-half captures alone
+"""Captures-only noise on REAL captures (``experiments/noise_table_unpaired.py``): CC15's fitting-half captures alone
 (no clean image) give a noise stage that, simulated on the checking half's clean images, is at least as close to the
 real noise there, per channel and intensity bin, as the fitting half's own real noise is (the oracle). Measured
 2026-11-28: median / worst ``|log2|`` 0.19 / 0.70 against the oracle's 0.25 / 0.87 (0.27 / 0.80 before the
@@ -19,7 +19,7 @@ pytestmark = [pytest.mark.realdata, pytest.mark.slow]
 
 
 def test_captures_only_noise_is_about_as_close_as_the_oracle(real_pairs_dir: Path) -> None:
-    example = load_script("examples/noise_table_unpaired.py", "camdegrade_noise_table_unpaired_example")
+    example = load_script("experiments/noise_table_unpaired.py", "camdegrade_noise_table_unpaired_example")
     (row,) = example.subset_rows(real_pairs_dir, only=("cc15_nam_real_noise",))
     (median, worst, bins), (oracle_median, oracle_worst, _) = row["unpaired (captures only)"], row["oracle"]
     assert bins >= 18, row
@@ -27,7 +27,7 @@ def test_captures_only_noise_is_about_as_close_as_the_oracle(real_pairs_dir: Pat
 
 
 def test_strong_phone_noise_is_read_on_the_captures_own_flat_pixels(real_pairs_dir: Path) -> None:
-    example = load_script("examples/noise_table_unpaired.py", "camdegrade_noise_table_unpaired_example")
+    example = load_script("experiments/noise_table_unpaired.py", "camdegrade_noise_table_unpaired_example")
     rows = {row["subset"]: row for row in example.measurement_rows(real_pairs_dir)}
     median, worst, bins = rows["sidd_samples"]["own flat pixels"]
     assert bins >= 15 and median <= 0.1 and worst <= 0.8, rows["sidd_samples"]

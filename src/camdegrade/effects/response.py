@@ -23,7 +23,7 @@ DETAIL_FROM = 0.03
 #: The 4-pixel lattice: a fitted gain at a knot on a multiple of this frequency (cycles/pixel) along both axes is at
 #: most 1 (``lattice=True``). A network's or a codec's fixed pattern lives there (City100's clean frames carry 9.2×
 #: the capture's 4×4 pattern), and amplifying it prints a grid: on the held-out City100 scenes the grid ratio is
-#: well above 1.5 with the fitted gains there and below it with them capped (``examples/response_city100.py``).
+#: well above 1.5 with the fitted gains there and below it with them capped (``experiments/response_city100.py``).
 LATTICE = 0.25
 
 

@@ -6,7 +6,7 @@ validation scenes (``fitted['validation_scenes']``, the profile sampled as the f
 ``quality``, rounded to 8 bits) with ``--seeds`` seeds, paired and image-only, and prints every critic's
 accuracy. With ``--seeds 2`` it repeats the fit's own numbers. Run from the repo root::
 
-    OMP_NUM_THREADS=2 .venv/bin/python examples/fit_critic_seeds.py PROFILE PAIRS [--seeds 4]
+    OMP_NUM_THREADS=2 .venv/bin/python experiments/fit_critic_seeds.py PROFILE PAIRS [--seeds 4]
 """
 
 from __future__ import annotations

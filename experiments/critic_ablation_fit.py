@@ -20,11 +20,11 @@ ratio and log2 band power sim/real, and the detail-amplitude distance the fit's 
 (:func:`~camdegrade.fitting.faint_detail.amplitude_distance`, levels; 0: the captures' own) and the fine detail on
 flat pixels (:func:`flat_fine_detail`: the std of the 8-bit luma minus its 3×3 mean on the clean image's flat
 pixels, over the captures'). ``--no-critics``
-prints the measures alone, in a minute or two. The profile comes from ``examples/fit_city100_default.py``. Run
+prints the measures alone, in a minute or two. The profile comes from ``experiments/fit_city100_default.py``. Run
 from the repo root::
 
-    OMP_NUM_THREADS=2 .venv/bin/python examples/fit_city100_default.py --out out/city100-default.safetensors
-    OMP_NUM_THREADS=2 .venv/bin/python examples/critic_ablation_fit.py --profile out/city100-default.safetensors
+    OMP_NUM_THREADS=2 .venv/bin/python experiments/fit_city100_default.py --out out/city100-default.safetensors
+    OMP_NUM_THREADS=2 .venv/bin/python experiments/critic_ablation_fit.py --profile out/city100-default.safetensors
 
 The critics are seeded, but torch trains them differently with another number of threads: keep
 ``OMP_NUM_THREADS=2`` to reproduce the numbers of docs/results.md.
@@ -159,7 +159,7 @@ def _cell(values: list[float]) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--profile", type=Path, required=True, help="a default fit (examples/fit_city100_default.py)")
+    parser.add_argument("--profile", type=Path, required=True, help="a default fit (experiments/fit_city100_default.py)")
     parser.add_argument("--data", type=Path, default=DEFAULT_DATA)
     parser.add_argument("--seeds", type=int, default=3, help="critic seeds per row and mode (default 3)")
     parser.add_argument("--no-critics", dest="critics", action="store_false", help="the measures alone")

@@ -11,7 +11,7 @@ Gaussian-plus-unsharp chain per band, between the fitting sets and on the 16 hel
 difference there): the same shape on both is the camera's, which a radial detail response fitted on the sets
 carries over. Run from the repo root (about 3 minutes on 2 cores)::
 
-    OMP_NUM_THREADS=2 .venv/bin/python examples/unpaired_transfer_shapes.py [--data DIR]
+    OMP_NUM_THREADS=2 .venv/bin/python experiments/unpaired_transfer_shapes.py [--data DIR]
 """
 
 from __future__ import annotations

@@ -7,7 +7,7 @@ or 001–055, and the profile with it is sampled on the validation scenes 048–
 flat-pixel noise of the captures and of the profile without noise, then per fit the flat-noise and banding ratios
 (simulation / capture), the fitted row banding and the seconds the fit took. Run from the repo root::
 
-    OMP_NUM_THREADS=1 .venv/bin/python examples/city100_noise_split.py [--data DIR]
+    OMP_NUM_THREADS=1 .venv/bin/python experiments/city100_noise_split.py [--data DIR]
 """
 
 from __future__ import annotations

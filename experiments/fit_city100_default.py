@@ -7,15 +7,15 @@ and the sampled profile; fidelity numbers) and, on the held-out scenes 056–070
 paired PSNR of the sampled profile and of its network alone, and :func:`~camdegrade.measures.measure_fidelity`.
 The held-out numbers go into the profile's ``quality`` (the fit's own validation numbers under ``validation``),
 with 8 critics (4 seeds, each trained on half the held-out scenes and scored on the other half, and back).
-Compare it with the built-ins in one table with ``examples/fidelity_city100.py --profile "default fit=OUT"``.
+Compare it with the built-ins in one table with ``experiments/fidelity_city100.py --profile "default fit=OUT"``.
 Run from the repo root::
 
-    OMP_NUM_THREADS=2 .venv/bin/python examples/fit_city100_default.py [--arch local_affine] [--out PATH] \
+    OMP_NUM_THREADS=2 .venv/bin/python experiments/fit_city100_default.py [--arch local_affine] [--out PATH] \
         [--upsample smooth] [--curves none] [--texture none] [--name NAME]
 
 The built-in ``city100-iphonex`` is this fit with the defaults::
 
-    OMP_NUM_THREADS=2 .venv/bin/python examples/fit_city100_default.py --name city100-iphonex \
+    OMP_NUM_THREADS=2 .venv/bin/python experiments/fit_city100_default.py --name city100-iphonex \
         --out src/camdegrade/profiles/city100-iphonex.safetensors
 """
 
@@ -39,7 +39,7 @@ from camdegrade.metrics import psnr
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_DATA = ROOT.parent / "shared" / "data" / "real-pairs"
 LAST_FITTED_SCENE = "055"
-#: Critic seeds on the held-out scenes (8 critics, as ``examples/fidelity_city100.py``).
+#: Critic seeds on the held-out scenes (8 critics, as ``experiments/fidelity_city100.py``).
 CRITIC_SEEDS = 4
 DESCRIPTION = "iPhone X at a distance vs. close-up (City100, real lens/distance blur, tone shift and ISP texture)"
 
@@ -73,7 +73,7 @@ def main() -> None:
         "data": "City100_iPhoneX (Chen et al. CVPR 2019, MIT), REAL pairs of scenes 001-055",
         "held_out_data": f"City100_iPhoneX scenes {', '.join(pair.scene for pair in held)} (never used)",
         "command": " ".join(
-            ["python examples/fit_city100_default.py", f"--arch {args.arch}", f"--out {args.out}"]
+            ["python experiments/fit_city100_default.py", f"--arch {args.arch}", f"--out {args.out}"]
             + [
                 f"--{key} {value}"
                 for key, value in vars(args).items()

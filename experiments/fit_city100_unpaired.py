@@ -9,7 +9,7 @@ on 8 of the scenes, scored on the other 8; 0.5: cannot tell). Rows: the clean im
 ``city100-iphonex`` (the paired fit: network and effects, fitted on pairs of 001–055) and the unpaired profile.
 Run from the repo root::
 
-    OMP_NUM_THREADS=2 .venv/bin/python examples/fit_city100_unpaired.py [--data DIR] [--critic [--critic-seeds 4]] \
+    OMP_NUM_THREADS=2 .venv/bin/python experiments/fit_city100_unpaired.py [--data DIR] [--critic [--critic-seeds 4]] \
         [--png PATH]
 
 It also writes ``docs/unpaired_city100.png``: clean | real | unpaired simulation of three held-out scenes (flat at

@@ -11,7 +11,7 @@ Rows with a noise stage are reported twice: ``mean`` skips the noise stage (the 
 ``sampled`` draws the noise from a fixed seed. Paired PSNR penalises correct noise (an independent noise draw
 adds its variance to the error), so comparisons use the ``mean`` columns. Run from the repo root::
 
-    OMP_NUM_THREADS=1 .venv/bin/python examples/city100_evidence.py \\
+    OMP_NUM_THREADS=1 .venv/bin/python experiments/city100_evidence.py \\
         --write-profile src/camdegrade/profiles/city100-iphonex.safetensors
 """
 
@@ -266,7 +266,7 @@ def main() -> None:
         "seed": args.seed,
         "minutes": round(minutes, 2),
         "machine": machine(),
-        "command": "OMP_NUM_THREADS=1 .venv/bin/python examples/city100_evidence.py"
+        "command": "OMP_NUM_THREADS=1 .venv/bin/python experiments/city100_evidence.py"
         + (f" --write-profile {args.write_profile}" if args.write_profile else ""),
     }
     args.json.parent.mkdir(parents=True, exist_ok=True)
@@ -290,9 +290,9 @@ def write_profile(
         "network output vs capture on train scenes 001-055 (stages kept if MSE -1 %); noise on flat pixels only"
     )
     fitted["effects_command"] = results["command"]
-    fitted["effects_script"] = "examples/city100_evidence.py"
+    fitted["effects_script"] = "experiments/city100_evidence.py"
     note = fitted.get("history_note", "")
-    addition = "effect stages fitted afterwards on the network's train-scene residuals by examples/city100_evidence.py"
+    addition = "effect stages fitted afterwards on the network's train-scene residuals by experiments/city100_evidence.py"
     if addition not in note:
         fitted["history_note"] = f"{note}; {addition}" if note else addition
     quality = dict(base.quality)

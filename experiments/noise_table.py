@@ -11,7 +11,7 @@ i.e. how much the images' own noise differs from image to image.
 
 Usage::
 
-    python examples/noise_table.py [REAL_PAIRS_DIR] [--subsets polyu_real_noise ...] [--json PATH]
+    python experiments/noise_table.py [REAL_PAIRS_DIR] [--subsets polyu_real_noise ...] [--json PATH]
 
 ``REAL_PAIRS_DIR`` defaults to ``$CAMDEGRADE_REAL_PAIRS`` or ``../shared/data/real-pairs`` beside the checkout.
 The data are read in place and never copied.

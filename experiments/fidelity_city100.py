@@ -15,11 +15,11 @@ simulation of the clean images measured against the real captures with :mod:`cam
 Rows: the clean source itself, ``city100-iphonex`` and ``city100-iphonex-fast`` sampled as training sees them
 (``CameraDegrade``, seed = scene index), the built-in's network alone, and the built-in followed by an unsharp
 mask (σ 1, amount 0.5), and the simple answer issue 23 compares with: a blur and a 12-number affine colour map,
-both least squares on scenes 001–055 (``examples/critic_evidence.py``). It prints a markdown table and writes
+both least squares on scenes 001–055 (``experiments/critic_evidence.py``). It prints a markdown table and writes
 ``docs/fidelity_city100.png``: real and simulated crops side by side (flat at 1:1, textured at 2×
 nearest-neighbour) and the radial power spectra. Run from the repo root::
 
-    OMP_NUM_THREADS=2 .venv/bin/python examples/fidelity_city100.py [--data DIR] [--png PATH] [--json PATH]
+    OMP_NUM_THREADS=2 .venv/bin/python experiments/fidelity_city100.py [--data DIR] [--png PATH] [--json PATH]
 """
 
 from __future__ import annotations

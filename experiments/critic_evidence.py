@@ -24,7 +24,7 @@ mid and textured patches, the built-in critic's accuracy by group (:mod:`camdegr
 pooled over seeds), and writes the surest patches of the built-in's image-only critic (seed 0) with the fine
 detail it saw to ``docs/critic_city100.png``. Run from the repo root::
 
-    OMP_NUM_THREADS=1 .venv/bin/python examples/critic_evidence.py [--data DIR] [--seeds 3] [--steps 250]
+    OMP_NUM_THREADS=1 .venv/bin/python experiments/critic_evidence.py [--data DIR] [--seeds 3] [--steps 250]
 
 The critics are seeded, but torch trains them differently with another number of threads (seed 1 of the
 built-in: 0.935 with one thread, 0.914 with two): keep ``OMP_NUM_THREADS=1`` to reproduce these numbers.

@@ -5,7 +5,7 @@ nothing else. Each pair is cut to its 256² window with the most flat pixels (no
 image is flat in absolute terms). The diagnosis must name the missing noise, and the profile it returns must give
 the flat-pixel noise the captures show. Prints one table row per subset (the numbers in docs/diagnosis.md):
 
-    OMP_NUM_THREADS=1 .venv/bin/python examples/diagnose_real_noise.py
+    OMP_NUM_THREADS=1 .venv/bin/python experiments/diagnose_real_noise.py
 
 ``tests/test_diagnose_realdata.py`` runs the same selection and asserts the outcome.
 """

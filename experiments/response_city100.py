@@ -8,7 +8,7 @@ five bands, flat noise, PSNR; with ``--critic-seeds N`` also 2N critics per row 
 trained on the simulation sees). The shipped built-in is the last row. Run from the repo root (about 2 minutes;
 ``--critic-seeds 4`` about 8)::
 
-    OMP_NUM_THREADS=2 .venv/bin/python examples/response_city100.py [--critic-seeds 4]
+    OMP_NUM_THREADS=2 .venv/bin/python experiments/response_city100.py [--critic-seeds 4]
 """
 
 from __future__ import annotations

@@ -2,7 +2,7 @@
 
 Usage::
 
-    python examples/effects_gallery.py [--out docs/effects_gallery.png] [--tile 144]
+    python experiments/effects_gallery.py [--out docs/effects_gallery.png] [--tile 144]
 
 Strengths are exaggerated where an effect is subtle at thumbnail size (chromatic aberration, distortion).
 Everything is seeded, so the image is reproducible byte for byte.

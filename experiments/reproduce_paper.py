@@ -19,8 +19,8 @@ Rows (the paper's four, then ablations), each trained with 3+ seeds and tested o
 
 Run from the repo root (the full run; ``--quick`` is the smoke test's one-seed version)::
 
-    .venv/bin/python examples/reproduce_paper.py --out out/paper
-    .venv/bin/python examples/reproduce_paper.py --quick
+    .venv/bin/python experiments/reproduce_paper.py --out out/paper
+    .venv/bin/python experiments/reproduce_paper.py --quick
 """
 
 from __future__ import annotations

@@ -6,11 +6,11 @@ simulation from its camera or does not; on the soft camera single critics range 
 This trains ``--seeds`` critics on each half and scores each on the other half, with and without the clean source,
 and prints mean ± standard deviation and every accuracy. Run from the repo root::
 
-    OMP_NUM_THREADS=2 .venv/bin/python examples/simulated_camera_fidelity.py --pairs 96 --held-out 48 \\
+    OMP_NUM_THREADS=2 .venv/bin/python experiments/simulated_camera_fidelity.py --pairs 96 --held-out 48 \\
         --cameras soft --curves none --save out/curves-none
-    OMP_NUM_THREADS=2 .venv/bin/python examples/simulated_camera_fidelity.py --pairs 96 --held-out 48 \\
+    OMP_NUM_THREADS=2 .venv/bin/python experiments/simulated_camera_fidelity.py --pairs 96 --held-out 48 \\
         --cameras soft --save out/curves-channel
-    OMP_NUM_THREADS=2 .venv/bin/python examples/critic_seeds.py --camera soft \\
+    OMP_NUM_THREADS=2 .venv/bin/python experiments/critic_seeds.py --camera soft \\
         --profile none=out/curves-none-soft.safetensors --profile channel=out/curves-channel-soft.safetensors
 """
 

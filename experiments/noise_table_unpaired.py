@@ -1,6 +1,6 @@
 """Captures-only noise on the REAL PolyU, CC15 and SIDD pairs: the unpaired fit against the paired one and the oracle.
 
-Per subset (cameras pooled; the halves alternate within each camera and ISO, as ``examples/noise_table.py``'s
+Per subset (cameras pooled; the halves alternate within each camera and ISO, as ``experiments/noise_table.py``'s
 subset table does): :func:`camdegrade.fitting.unpaired.fit_unpaired` sees only the *captures* of the fitting half
 (no clean image, their mean frames unused) and fits a noise stage from their flat regions; the paired
 :meth:`camdegrade.effects.Noise.fit` sees the pairs of the same half. On the checking half, where the clean (mean)
@@ -9,7 +9,7 @@ divided by the real noise's; ``oracle`` is the real noise of the fitting half ov
 reproducing the fitting images' noise exactly would score). Printed: per subset, the median and the worst
 ``|log2 ratio|`` over the measurable bins of each. Run from the repo root::
 
-    OMP_NUM_THREADS=1 .venv/bin/python examples/noise_table_unpaired.py [REAL_PAIRS_DIR] [--measurement] [--calibrated]
+    OMP_NUM_THREADS=1 .venv/bin/python experiments/noise_table_unpaired.py [REAL_PAIRS_DIR] [--measurement] [--calibrated]
         [--splits N]
 
 ``--measurement`` prints instead what limits the captures-only column (first the three captures of each subset

@@ -14,7 +14,7 @@ as clean | real | simulated (built-in) | simulated (before); and it asks the lea
 the scenes, scored on the other 8, each scene cut to its 256² window with the most flat pixels. Run from the repo
 root::
 
-    OMP_NUM_THREADS=2 .venv/bin/python examples/city100_noise_evidence.py [--data DIR] [--png PATH] [--json PATH]
+    OMP_NUM_THREADS=2 .venv/bin/python experiments/city100_noise_evidence.py [--data DIR] [--png PATH] [--json PATH]
 """
 
 from __future__ import annotations

@@ -4,8 +4,8 @@ The pairs (``../shared/data/real-pairs`` beside the checkout, or ``--data``) are
 Split by scene: train 001–047, validation (best-epoch choice) 048–055, held-out 056–070 and 098 (never seen
 during fitting). Run from the repo root::
 
-    .venv/bin/python examples/fit_city100.py --out out/city100-iphonex.safetensors   # the network
-    .venv/bin/python examples/city100_evidence.py --write-profile src/camdegrade/profiles/city100-iphonex.safetensors
+    .venv/bin/python experiments/fit_city100.py --out out/city100-iphonex.safetensors   # the network
+    .venv/bin/python experiments/city100_evidence.py --write-profile src/camdegrade/profiles/city100-iphonex.safetensors
 """
 
 from __future__ import annotations
@@ -112,7 +112,7 @@ def main() -> None:
             "best_epoch": best.epoch,
             "fit_minutes": round(minutes, 1),
             "machine": f"{platform.machine()}, {torch.get_num_threads()} threads, torch {torch.__version__}",
-            "script": "examples/fit_city100.py",
+            "script": "experiments/fit_city100.py",
         },
         quality=quality,
     )

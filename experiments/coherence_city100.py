@@ -14,7 +14,7 @@ Where the capture's coherence is low, its power cannot be predicted from the cle
 least squares leaves it out and the simulation is smoother there than the camera (docs/results.md). The last
 column is the simulation's power against the capture's. Run from the repo root (about a minute)::
 
-    OMP_NUM_THREADS=2 .venv/bin/python examples/coherence_city100.py [--profile city100-iphonex]
+    OMP_NUM_THREADS=2 .venv/bin/python experiments/coherence_city100.py [--profile city100-iphonex]
 
 References:
     J. S. Bendat, A. G. Piersol, "Random Data: Analysis and Measurement Procedures", 4th ed., 2010, ch. 6

@@ -16,7 +16,7 @@ It writes a PNG of real | built-in | built-in + sharpen (sampled, the diagnosis-
 and 062: the flattest 128² window at 1:1 and the most textured 64² window at 2× nearest-neighbour. Run from the
 repo root::
 
-    OMP_NUM_THREADS=2 PYTHONPATH=src python examples/sharpen_city100.py [--data DIR] [--png PATH]
+    OMP_NUM_THREADS=2 PYTHONPATH=src python experiments/sharpen_city100.py [--data DIR] [--png PATH]
 """
 
 from __future__ import annotations

@@ -14,7 +14,7 @@ the odd ones, and back; :func:`~camdegrade.measures.critic.repeated_critic_test`
 the package: they ask whether the power the built-in lacks is what the critic reads (docs/results.md). Run from
 the repo root (about 7 minutes on 2 cores)::
 
-    OMP_NUM_THREADS=2 .venv/bin/python examples/texture_probes_city100.py
+    OMP_NUM_THREADS=2 .venv/bin/python experiments/texture_probes_city100.py
 """
 
 from __future__ import annotations

@@ -8,10 +8,10 @@ stage, the frequency response, matches a network's output to the captures' spect
 student (``camdegrade.fitting.response``, on the captures of the full profile's training scenes, judged on its
 validation scenes); ``--teacher-response`` keeps the copied one. The 16
 held-out scenes (056–070, 098) are used only for the numbers: mean PSNR/SSIM (noise stage skipped) and sampled
-PSNR against the REAL captures, for both profiles, as ``examples/city100_evidence.py`` reports them. Run from the
+PSNR against the REAL captures, for both profiles, as ``experiments/city100_evidence.py`` reports them. Run from the
 repo root::
 
-    .venv/bin/python examples/distill_city100.py --out src/camdegrade/profiles/city100-iphonex-fast.safetensors
+    .venv/bin/python experiments/distill_city100.py --out src/camdegrade/profiles/city100-iphonex-fast.safetensors
 """
 
 from __future__ import annotations
@@ -79,7 +79,7 @@ def main(argv: list[str] | None = None) -> int:
     minutes = (time.perf_counter() - started) / 60
     fast.fitted["images"] = "clean City100 iPhone X images of scenes 001-055 (the full profile's fitting scenes)"
     fast.fitted["command"] = (
-        f"python examples/distill_city100.py --out {args.out} --width {args.width} --epochs {args.epochs} "
+        f"python experiments/distill_city100.py --out {args.out} --width {args.width} --epochs {args.epochs} "
         f"--patience {args.patience} --seed {args.seed}" + (" --teacher-response" if args.teacher_response else "")
     )
     fast.fitted["total_minutes"] = round(minutes, 1)

@@ -16,7 +16,7 @@ by construction. This script measures those errors and re-runs the critic on row
   the profile warped by smooth random fields of 0.3, 0.5 and 1 px RMS. Warps resample bicubically (a bilinear one
   would blur). Run from the repo root::
 
-    OMP_NUM_THREADS=2 .venv/bin/python examples/paired_critic_registration.py [--profile city100-iphonex]
+    OMP_NUM_THREADS=2 .venv/bin/python experiments/paired_critic_registration.py [--profile city100-iphonex]
 """
 
 from __future__ import annotations

@@ -10,7 +10,7 @@ sampled profile, critic with and without the clean source). ``--png`` writes, pe
 crop of one validation pair: clean, capture, simulation (flat at 1:1, textured at 2× nearest-neighbour). Run from
 the repo root::
 
-    OMP_NUM_THREADS=2 .venv/bin/python examples/effect_evidence.py [--pairs 48] [--epochs 10] [--png PATH] [--log]
+    OMP_NUM_THREADS=2 .venv/bin/python experiments/effect_evidence.py [--pairs 48] [--epochs 10] [--png PATH] [--log]
 """
 
 from __future__ import annotations

@@ -7,7 +7,7 @@ sharpening camera, a tone-curve camera, a camera that upscales from half its pix
 ``resolution`` stage), a camera with a detail response blur and sharpening cannot make (24 scenes of 256²), one with
 blur alone (192²), and the control (no effect). Run from the repo root::
 
-    OMP_NUM_THREADS=1 .venv/bin/python examples/unpaired_recovery.py
+    OMP_NUM_THREADS=1 .venv/bin/python experiments/unpaired_recovery.py
 """
 
 from __future__ import annotations

@@ -7,13 +7,13 @@ profile was fitted with, the fast one as it is. The paper's best validation PSNR
 fit's wall time, its best validation PSNR and when it first came within 0.1 dB of that bar.
 
 - ``city100``: the REAL City100 iPhone X pairs (``../shared/data/real-pairs``), train scenes 001–047, validation
-  048–055 (as ``examples/fit_city100.py``); the paper's recipe with 4 crops of 128² per pair and epoch;
+  048–055 (as ``experiments/fit_city100.py``); the paper's recipe with 4 crops of 128² per pair and epoch;
 - ``simulated``: random 256² crops of scikit-image photographs captured by the ``lowcost-robot`` virtual camera
-  (as ``examples/fit_lowcost_robot_sim.py``), validation scene ``rocket``; the paper's recipe with 3 crops.
+  (as ``experiments/fit_lowcost_robot_sim.py``), validation scene ``rocket``; the paper's recipe with 3 crops.
 
 Usage (from the repo root; about 10 minutes on 2 cores with native bfloat16)::
 
-    .venv/bin/python examples/recipe_comparison.py [--data city100 simulated] [--json out/recipes.json]
+    .venv/bin/python experiments/recipe_comparison.py [--data city100 simulated] [--json out/recipes.json]
 """
 
 from __future__ import annotations

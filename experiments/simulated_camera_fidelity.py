@@ -17,7 +17,7 @@ mean, std, 95 % interval) and, with ``--diagnose``, what
 :func:`camdegrade.diagnose` accepts on those pairs. ``--png``: clean, capture, profile, baseline (flat crop at 1:1,
 textured crop at 2×, nearest). Run from the repo root::
 
-    OMP_NUM_THREADS=2 .venv/bin/python examples/simulated_camera_fidelity.py [--pairs 240] [--held-out 64] \
+    OMP_NUM_THREADS=2 .venv/bin/python experiments/simulated_camera_fidelity.py [--pairs 240] [--held-out 64] \
         [--cameras soft dark] [--diagnose] [--png out/simulated_cameras.png] [--upsample smooth] [--curves none] \
         [--texture none] [--sensor-scale 0.5]
 """
@@ -69,7 +69,7 @@ def pairs(name: str, count: int, seed: int) -> list[tuple[torch.Tensor, torch.Te
 
 
 #: Critic seeds per row: each trains one critic on the even held-out pairs and one on the odd ones (8 critics): one
-#: critic of the soft camera reads anything from 0.60 to 0.99 (examples/critic_seeds.py).
+#: critic of the soft camera reads anything from 0.60 to 0.99 (experiments/critic_seeds.py).
 CRITIC_SEEDS = 4
 
 

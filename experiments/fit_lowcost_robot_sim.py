@@ -9,7 +9,7 @@ paper's network, 100 epochs, which made it until then). Crops of one source imag
 column in the manifest), so the validation split never sees a training photograph. The held-out numbers come
 from crops of *other* scikit-image photographs, never used in fitting. Run from the repo root::
 
-    .venv/bin/python examples/fit_lowcost_robot_sim.py --out src/camdegrade/profiles/lowcost-robot-sim.safetensors
+    .venv/bin/python experiments/fit_lowcost_robot_sim.py --out src/camdegrade/profiles/lowcost-robot-sim.safetensors
 """
 
 from __future__ import annotations
@@ -181,12 +181,12 @@ def main() -> None:
         "virtual_camera": PRESETS[PRESET].description,
         "held_out_data": f"{args.held_out_crops} crops each of {list(HELD_OUT_IMAGES)} (never used in fitting)",
         "command": (
-            f"python examples/fit_lowcost_robot_sim.py --out {args.out} --crops-per-image {args.crops_per_image} "
+            f"python experiments/fit_lowcost_robot_sim.py --out {args.out} --crops-per-image {args.crops_per_image} "
             f"--held-out-crops {args.held_out_crops} --size {args.size} --recipe {args.recipe} "
             + (f"--epochs {args.epochs} " if args.epochs is not None else "")
             + f"--crops-per-pair {args.crops_per_pair} --seed {args.seed}"
         ),
-        "script": "examples/fit_lowcost_robot_sim.py",
+        "script": "experiments/fit_lowcost_robot_sim.py",
         "total_minutes": round(minutes, 1),
         "machine": f"{platform.machine()}, {torch.get_num_threads()} threads, torch {torch.__version__}",
     }

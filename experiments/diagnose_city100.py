@@ -9,8 +9,8 @@ is measured where the clean image is flat, and a city scene's flat regions are f
 train (N seeds, each both ways of an alternate split of the held-out pairs, on a new draw of the changed profile's
 simulations), whose mean should fall in the report's interval.
 
-    OMP_NUM_THREADS=2 .venv/bin/python examples/diagnose_city100.py --out out/diagnose/city100
-    OMP_NUM_THREADS=2 .venv/bin/python examples/diagnose_city100.py \
+    OMP_NUM_THREADS=2 .venv/bin/python experiments/diagnose_city100.py --out out/diagnose/city100
+    OMP_NUM_THREADS=2 .venv/bin/python experiments/diagnose_city100.py \
         --profile tests/fixtures/city100-iphonex-2026-11-23.safetensors --out out/diagnose/city100-before
 """
 

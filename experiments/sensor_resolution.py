@@ -3,13 +3,13 @@
 For each set of images, :func:`camdegrade.measures.resampling.resampling_trace`'s coherence at 1/2, 1/3 and 1/4
 cycles/pixel, the null (median at control frequencies) and the period found. Sets: 24 dead-leaves images of 128²
 (8-bit) as they are, upscaled from 1/2, 1/3 and 1/4 of their resolution, blurred (σ 1.2) and with sensor noise;
-the captures of the two simulated cameras of ``examples/simulated_camera_fidelity.py`` (soft: a 2× resolution loss;
+the captures of the two simulated cameras of ``experiments/simulated_camera_fidelity.py`` (soft: a 2× resolution loss;
 dark: none) and of the ``lowcost-robot`` virtual camera (half resolution); dead leaves blurred and compressed
 hard (JPEG's 8×8 grid repeats at 1/4 and 1/2 too), and upscaled then compressed; and, where
 ``../shared/data/real-pairs`` is present, the first 24 captures and clean images of each real subset. Run from
 the repo root::
 
-    OMP_NUM_THREADS=2 .venv/bin/python examples/sensor_resolution.py [--json out/sensor_resolution.json]
+    OMP_NUM_THREADS=2 .venv/bin/python experiments/sensor_resolution.py [--json out/sensor_resolution.json]
 """
 
 from __future__ import annotations
