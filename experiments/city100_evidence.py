@@ -292,7 +292,9 @@ def write_profile(
     fitted["effects_command"] = results["command"]
     fitted["effects_script"] = "experiments/city100_evidence.py"
     note = fitted.get("history_note", "")
-    addition = "effect stages fitted afterwards on the network's train-scene residuals by experiments/city100_evidence.py"
+    addition = (
+        "effect stages fitted afterwards on the network's train-scene residuals by experiments/city100_evidence.py"
+    )
     if addition not in note:
         fitted["history_note"] = f"{note}; {addition}" if note else addition
     quality = dict(base.quality)

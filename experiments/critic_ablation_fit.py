@@ -159,7 +159,9 @@ def _cell(values: list[float]) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--profile", type=Path, required=True, help="a default fit (experiments/fit_city100_default.py)")
+    parser.add_argument(
+        "--profile", type=Path, required=True, help="a default fit (experiments/fit_city100_default.py)"
+    )
     parser.add_argument("--data", type=Path, default=DEFAULT_DATA)
     parser.add_argument("--seeds", type=int, default=3, help="critic seeds per row and mode (default 3)")
     parser.add_argument("--no-critics", dest="critics", action="store_false", help="the measures alone")

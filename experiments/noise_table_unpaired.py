@@ -9,8 +9,8 @@ divided by the real noise's; ``oracle`` is the real noise of the fitting half ov
 reproducing the fitting images' noise exactly would score). Printed: per subset, the median and the worst
 ``|log2 ratio|`` over the measurable bins of each. Run from the repo root::
 
-    OMP_NUM_THREADS=1 .venv/bin/python experiments/noise_table_unpaired.py [REAL_PAIRS_DIR] [--measurement] [--calibrated]
-        [--splits N]
+    OMP_NUM_THREADS=1 .venv/bin/python experiments/noise_table_unpaired.py [REAL_PAIRS_DIR] [--measurement] \\
+        [--calibrated] [--splits N]
 
 ``--measurement`` prints instead what limits the captures-only column (first the three captures of each subset
 whose own-flat reading is furthest above their clean-referenced noise, then the table): on the checking half
