@@ -20,6 +20,7 @@ from camdegrade import CameraDegrade, list_profiles, load_profile
 from camdegrade.functional.analysis import flat_mask
 from camdegrade.io import write_image
 from camdegrade.metrics import psnr
+from camdegrade.summary import profile_summary
 
 SIZE = 256
 
@@ -105,10 +106,8 @@ def main() -> None:
         "grid": str(grid_path),
     }
     (args.out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
-    print(f"profile        {profile.name}: {profile.description}")
-    print(f"effect chain   {', '.join(profile.effect_names) or '(network only)'}")
-    for key, value in profile.quality.items():
-        print(f"  {key:28s} {value}")
+    print(profile_summary(args.profile))
+    print()
     for name, stats in summary["images"].items():
         print(f"image {name:10s} PSNR(degraded, clean) = {stats['psnr_degraded_vs_clean_db']:.2f} dB")
     print(f"degraded {len(images)} images of {SIZE}x{SIZE} in {seconds:.2f} s")

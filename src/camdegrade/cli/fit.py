@@ -20,9 +20,9 @@ from camdegrade.cli._common import (
     say,
 )
 from camdegrade.cli._pairs import PAIRS_LAYOUTS, add_pair_options, discover, report_files
-from camdegrade.cli._quality import quality_lines
 from camdegrade.cli._recipe import add_recipe_options, check_schedule_options, recipe_changes
 from camdegrade.errors import CamdegradeError
+from camdegrade.summary import quality_lines
 
 
 def add_parser(commands: argparse._SubParsersAction) -> None:
