@@ -100,12 +100,17 @@ print(heavy())
 
 def test_every_public_name_is_the_object_its_module_defines() -> None:
     from camdegrade import data, fitting, network, profile, sim, transform
+    from camdegrade.fitting import unpaired
 
     homes = {
         "BatchDegrade": data,
         "DegradedDataset": data,
         "DegradedIterableDataset": data,
         "IndexedDataset": data,
+        "FitConfig": fitting,
+        "PairSet": fitting,
+        "distill_profile": fitting,
+        "fit_unpaired": unpaired,
         "fit_profile": fitting,
         "DomainShiftNet": network,
         "CameraProfile": profile,
@@ -126,6 +131,34 @@ def test_every_public_name_is_the_object_its_module_defines() -> None:
     assert camdegrade.engine.__name__ == "camdegrade.engine"  # a module, imported on first access
     with pytest.raises(AttributeError, match="has no attribute 'no_such_name'"):
         camdegrade.no_such_name  # noqa: B018
+
+
+@pytest.mark.parametrize("first", ["the subpackage", "the top-level name"])
+def test_camdegrade_diagnose_is_the_function_and_the_subpackage_whichever_comes_first(first: str) -> None:
+    """Importing a subpackage sets it on its parent, so ``camdegrade.diagnose`` is the subpackage: it must be callable
+    as the function too, in a fresh interpreter whichever import comes first."""
+    imports = ["import camdegrade.diagnose.report", "from camdegrade import diagnose"]
+    code = "\n".join(
+        [
+            *(imports if first == "the subpackage" else imports[::-1]),
+            """
+import inspect, sys
+import camdegrade, camdegrade.diagnose as package
+from camdegrade.diagnose import DiagnosisReport, diagnose as function
+from camdegrade.diagnose.core import diagnose as core
+assert diagnose is camdegrade.diagnose is package and function is core
+assert camdegrade.diagnose.DiagnosisReport is DiagnosisReport and camdegrade.diagnose.report.DiagnosisReport
+assert inspect.signature(diagnose) == inspect.signature(core)
+try:
+    diagnose("city100-iphonex", [])
+except Exception as error:  # the function ran: it refuses no pairs
+    print(error)
+""",
+        ]
+    )
+    run = _python(code)
+    assert run.returncode == 0, run.stderr
+    assert "pairs must hold at least one (clean, captured) pair" in run.stdout
 
 
 @pytest.mark.parametrize("name", ["city100-iphonex", "city100-iphonex-fast", "lowcost-robot-sim", "stochastic"])

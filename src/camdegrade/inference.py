@@ -25,6 +25,26 @@ from camdegrade.network import (
 )
 from camdegrade.synthetic import dead_leaves_images
 
+__all__ = [
+    "FILTER_OUTPUTS",
+    "MATRIX_UPSAMPLING_MAX",
+    "PRECISIONS",
+    "SPARSE_MAX_LIVE",
+    "SPARSE_MIN_PIXELS",
+    "CpuInference",
+    "CpuPlan",
+    "LocalAffineInference",
+    "Precision",
+    "byte_curve",
+    "cpu_inference",
+    "native_bfloat16",
+    "probe_channel_order",
+    "resolve_precision",
+    "run_network",
+    "upsampled_field",
+    "upsampling_matrix",
+]
+
 #: How the network runs at inference: ``"float32"`` is the reference; ``"bfloat16"`` runs the convolutions and
 #: products in bfloat16; ``"auto"`` picks bfloat16 where the device computes it natively, else float32.
 Precision = Literal["auto", "float32", "bfloat16"]

@@ -15,6 +15,24 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
+__all__ = [
+    "ARCHITECTURES",
+    "CURVE_KNOTS",
+    "FIELD_CHANNELS",
+    "FIELD_SMOOTHING",
+    "FIELD_UPSAMPLING",
+    "LINEAR_TAPS",
+    "MAX_WIDTH",
+    "SIZE_MULTIPLE",
+    "DomainShiftNet",
+    "LocalAffineNet",
+    "ShiftNetwork",
+    "build_network",
+    "check_batch",
+    "piecewise_linear",
+    "smoothed",
+]
+
 #: Total down-sampling of the encoder; inputs are padded to a multiple of this.
 SIZE_MULTIPLE = 4
 #: The widest network built (the paper's is 64): 1024 channels are 27 M parameters, 110 MB. A profile's metadata

@@ -24,6 +24,8 @@ from camdegrade.cli._recipe import add_recipe_options, check_schedule_options, r
 from camdegrade.errors import CamdegradeError
 from camdegrade.summary import quality_lines
 
+__all__ = ["add_parser", "run"]
+
 
 def add_parser(commands: argparse._SubParsersAction) -> None:
     fit = commands.add_parser(

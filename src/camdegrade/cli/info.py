@@ -12,6 +12,8 @@ import sys
 from camdegrade._text import printable
 from camdegrade.cli._common import add_profile
 
+__all__ = ["add_parsers", "run_info", "run_list"]
+
 
 def add_parsers(commands: argparse._SubParsersAction) -> None:
     info = commands.add_parser(

@@ -40,6 +40,8 @@ from camdegrade.fitting.pairset import simulate
 from camdegrade.measures import StatisticSet, family_gaps
 from camdegrade.profile import CameraProfile
 
+__all__ = ["MISFIT_KINDS", "Attribution", "attribute", "check_candidates", "keeping"]
+
 
 @dataclass
 class Attribution:

@@ -28,6 +28,8 @@ from camdegrade.diagnose.critique import CRITIC_CHANCE, Critique, critiques
 from camdegrade.fitting.pairset import PairSet, simulate
 from camdegrade.measures.visible import TEXTURE_LOG2, TextureComparison, compare_texture
 
+__all__ = ["CriticCheck", "check_changes"]
+
 
 @dataclass
 class CriticCheck:

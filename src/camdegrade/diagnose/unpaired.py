@@ -28,6 +28,8 @@ from camdegrade.io import iter_images, read_image
 from camdegrade.measures import NO_REFERENCE, image_statistics
 from camdegrade.profile import CameraProfile, as_profile
 
+__all__ = ["diagnose_unpaired"]
+
 
 def _stack(images: list[Tensor]) -> dict[str, Tensor]:
     per_image = [image_statistics(image) for image in images]

@@ -17,6 +17,8 @@ from camdegrade.effects.base import Effect, Pairs, check_range, register_effect
 from camdegrade.effects.blur import fit_margin
 from camdegrade.functional.sharpen import denoise_image, faint_part
 
+__all__ = ["Denoise"]
+
 #: Where :meth:`Denoise.fit` starts: every sigma × threshold of this grid (threshold in [0, 1] units: 1 to 16 levels).
 _GRID_SIGMAS = (0.5, 0.8, 1.2, 1.8, 2.7)
 _GRID_THRESHOLDS = (0.0, 1 / 255, 2 / 255, 4 / 255, 8 / 255, 16 / 255)

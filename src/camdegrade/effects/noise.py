@@ -19,6 +19,8 @@ from camdegrade.effects.base import Effect, Encoding, Pairs, check_range, regist
 from camdegrade.functional import linear_to_srgb, srgb_to_linear
 from camdegrade.functional.noise import add_noise_, correlated_field, mix_channels, noise_std
 
+__all__ = ["Noise"]
+
 
 @register_effect
 class Noise(Effect):

@@ -16,6 +16,8 @@ from camdegrade.effects._fitting import as_pairs
 from camdegrade.effects.base import Effect, Pairs, check_range, register_effect
 from camdegrade.functional.resolution import resolution_image
 
+__all__ = ["SCALES", "Resolution"]
+
 #: The sensor resolutions :meth:`Resolution.fit` tries (besides 1): the integer reductions and the common
 #: non-integer ones (720 → 1080 lines is 2/3, 960 → 1280 is 3/4). Each has a period of at most 4 pixels.
 SCALES: tuple[float, ...] = (1 / 2, 1 / 3, 1 / 4, 2 / 3, 3 / 4)

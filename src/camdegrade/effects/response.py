@@ -14,6 +14,8 @@ from camdegrade.effects.base import Effect, Pairs, check_range, register_effect
 from camdegrade.functional.analysis import hann2d, luma
 from camdegrade.functional.response import frequency_response_image, knot_coordinates
 
+__all__ = ["DEFAULT_KNOTS", "DETAIL_FROM", "LATTICE", "FrequencyResponse"]
+
 #: Knots per axis of a new response: cells of 0.05 cycles/pixel. On City100 the captures' excess over the built-in's
 #: texture peaks at a radius of 0.25 on the diagonals (gains 3–4) and at 0.2–0.25 on the axes (gains about 2), so
 #: the response is a grid over (|f_y|, |f_x|), not a function of the radius.

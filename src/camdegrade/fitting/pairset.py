@@ -29,6 +29,8 @@ from camdegrade.fitting.pairs import UNREADABLE, Pair, PairReport, discover_pair
 from camdegrade.io import read_image
 from camdegrade.profile import CameraProfile
 
+__all__ = ["Log", "PairSet", "PairsSource", "held_out_scenes", "load_pair", "simulate", "split_by_scene"]
+
 Log = Callable[[str], None]
 
 

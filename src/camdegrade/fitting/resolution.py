@@ -19,6 +19,8 @@ from camdegrade.effects import Resolution
 from camdegrade.effects.base import evenly_spaced
 from camdegrade.measures.resampling import resampling_trace
 
+__all__ = ["SENSOR_CAPTURES", "find_sensor"]
+
 #: At most this many captures are read (evenly spaced): the coherence is pooled over their rows and columns, and a
 #: dozen frames of 128² already separate an upscale from none by more than 0.4.
 SENSOR_CAPTURES = 32

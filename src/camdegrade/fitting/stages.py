@@ -13,6 +13,8 @@ from camdegrade.fitting.pairset import simulate
 from camdegrade.fitting.training import ImagePair
 from camdegrade.profile import CameraProfile
 
+__all__ = ["MIN_RELATIVE_GAIN", "Log", "fit_effects"]
+
 #: A position-dependent stage is kept where it removes at least this share of the held-out mean squared error.
 MIN_RELATIVE_GAIN = 0.01
 

@@ -36,6 +36,23 @@ from camdegrade.inference import native_bfloat16, run_network
 from camdegrade.metrics import psnr
 from camdegrade.network import ARCHITECTURES, MAX_WIDTH, SIZE_MULTIPLE, ShiftNetwork, build_network
 
+__all__ = [
+    "MIN_PROGRESS_DB",
+    "SCHEDULES",
+    "TRAIN_PRECISIONS",
+    "EpochResult",
+    "FitConfig",
+    "FitInterrupted",
+    "ImagePair",
+    "evaluate_psnr",
+    "fit_network",
+    "new_network",
+    "pairs_fingerprint",
+    "random_crop_batch",
+    "resolve_recipe",
+    "training_dtype",
+]
+
 #: One aligned pair: (clean, captured), ``(3, H, W)`` each, same size: uint8 (as read), or float in [0, 1].
 ImagePair = tuple[Tensor, Tensor]
 
