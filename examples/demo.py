@@ -74,12 +74,12 @@ def test_chart(size: int) -> torch.Tensor:
     return (chart.clamp(0, 1) * 255).round().to(torch.uint8)
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--profile", default="city100-iphonex", help=f"one of {list_profiles()} or a path")
     parser.add_argument("--out", type=Path, default=Path("out/demo"))
     parser.add_argument("--seed", type=int, default=0)
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
 
     profile = load_profile(args.profile)
     degrade = CameraDegrade(profile, seed=args.seed)
@@ -112,7 +112,8 @@ def main() -> None:
         print(f"image {name:10s} PSNR(degraded, clean) = {stats['psnr_degraded_vs_clean_db']:.2f} dB")
     print(f"degraded {len(images)} images of {SIZE}x{SIZE} in {seconds:.2f} s")
     print(f"wrote {grid_path} (clean | degraded | |diff| x4) and {args.out / 'summary.json'}")
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(main())

@@ -173,13 +173,16 @@ def _fit(fitted: Mapping[str, Any]) -> list[str]:
 
 
 def _steps(fitted: Mapping[str, Any]) -> tuple[list[str], list[str]]:
-    """The fit's steps and candidate stages that record whether they were kept, in the order recorded."""
+    """The fit's steps and candidate stages that record whether they were kept, in the order recorded; an unpaired
+    fit lists the stages it kept (``kept``) and those it did not fit (``not_fitted``)."""
     records = [(key, value) for key, value in fitted.items() if key != "effects"]
     records += list(_mapping(fitted.get("effects")).items())
-    kept, dropped = [], []
+    kept, dropped = [], [printable(key) for key in _mapping(fitted.get("not_fitted"))]
     for key, value in records:
         if isinstance(value, Mapping) and isinstance(value.get("kept"), bool):
             (kept if value["kept"] else dropped).append(printable(key))
+    if isinstance(fitted.get("kept"), list):
+        kept = [printable(name) for name in fitted["kept"]]
     return kept, dropped
 
 
