@@ -32,8 +32,8 @@ class Denoise(Effect):
     """Noise reduction by coring on the sRGB values, as a camera's ISP removes grain before it sharpens:
     ``y = clip(x − faint(x − G_σ ⊛ x, threshold), 0, 1)`` (:func:`~camdegrade.functional.sharpen.denoise_image`):
     detail well below ``threshold`` is smoothed away, detail well above it is kept. A phone's output has almost no
-    faint fine detail (coring a City100 iPhone X capture again leaves a critic at chance: docs/results.md), which
-    a least-squares network passes through from the clean image.
+    faint fine detail (docs/results.md, *What the critic sees in a default fit*), which a least-squares network
+    passes through from the clean image.
 
     Args:
         sigma: the Gaussian's standard deviation in pixels (the scale of the detail removed).
