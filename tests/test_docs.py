@@ -49,7 +49,29 @@ def test_every_docs_page_is_linked_from_the_readme() -> None:
 def test_the_readme_is_a_first_page() -> None:
     text = (ROOT / "README.md").read_text()
     assert len(text.splitlines()) <= 120
-    assert "make demo" in text and "make test" in text
+    assert "make demo" in text and re.search(r"^make test\b", text, re.MULTILINE) and "make test-all" in text
+
+
+def _recipe(target: str) -> str:
+    """The commands of a Makefile target."""
+    found = re.search(rf"^{target}:.*\n((?:\t.*\n)+)", (ROOT / "Makefile").read_text(), flags=re.MULTILINE)
+    assert found, target
+    return found.group(1)
+
+
+def test_make_test_is_the_fast_tier_and_ci_runs_everything() -> None:
+    assert '-m "not slow"' in _recipe("test")
+    assert "-m pytest" in _recipe("test-all") and "not slow" not in _recipe("test-all")
+    ci = [line.split()[:2] for line in (ROOT / ".ci" / "run").read_text().splitlines() if line.startswith("make ")]
+    assert ci == [["make", "test-all"], ["make", "lint"]]
+    assert "experiments" in _recipe("lint")
+
+
+@pytest.mark.parametrize("name", ["fitting.md", "diagnosis.md"])
+def test_the_how_to_pages_stay_short(name: str) -> None:
+    """How to run it, what it prints, what to do about it; the measurements live in results.md."""
+    text = (ROOT / "docs" / name).read_text()
+    assert len(text.splitlines()) <= 250 and "results.md#" in text
 
 
 def test_the_link_check_can_fail() -> None:
