@@ -120,6 +120,7 @@ def test_seed_scheme_is_a_fixed_formula() -> None:
     assert torch.equal(first, torch.randn(4, generator=derived_generator(1, "x")))
 
 
+@pytest.mark.slow
 def test_seed_scheme_is_the_same_in_another_process() -> None:
     code = "from camdegrade._seeds import derive_seed; print(derive_seed(7, 'dataloader-worker', 3))"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout

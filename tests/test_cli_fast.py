@@ -82,6 +82,7 @@ def test_the_entry_point_module_imports_no_torch_for_info() -> None:
     assert not imported & set(HEAVY)
 
 
+@pytest.mark.slow
 def test_import_camdegrade_imports_torch_only_when_a_name_needs_it() -> None:
     code = f"""
 import sys
@@ -133,6 +134,7 @@ def test_every_public_name_is_the_object_its_module_defines() -> None:
         camdegrade.no_such_name  # noqa: B018
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("first", ["the subpackage", "the top-level name"])
 def test_camdegrade_diagnose_is_the_function_and_the_subpackage_whichever_comes_first(first: str) -> None:
     """Importing a subpackage sets it on its parent, so ``camdegrade.diagnose`` is the subpackage: it must be callable

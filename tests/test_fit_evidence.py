@@ -53,6 +53,7 @@ def _pairs(camera: VirtualCamera, count: int = 12, size: int = 128) -> list[tupl
 QUICK = FitConfig.recipe("fast").replace(epochs=2, crop=32, crops_per_pair=4)
 
 
+@pytest.mark.slow
 def test_a_noiseless_camera_gets_no_noise_stage() -> None:
     lines: list[str] = []
     profile = fit_profile(_pairs(_camera(None)), QUICK.replace(val_fraction=0.25), log=lines.append)
@@ -64,6 +65,7 @@ def test_a_noiseless_camera_gets_no_noise_stage() -> None:
     assert any(line.startswith("effect noise: dropped on 3 pair(s)") for line in lines), lines
 
 
+@pytest.mark.slow
 def test_a_noisy_camera_keeps_its_noise_at_its_level_and_reports_the_critic() -> None:
     lines: list[str] = []
     camera = _camera(Noise(a=0.003, b=2e-5))
@@ -214,6 +216,7 @@ def _told_apart(count: int = 4) -> tuple[list[torch.Tensor], list[torch.Tensor],
     return cleans, cleans, [(clean * 0.5).clamp(0, 1) for clean in cleans]  # far from the captures
 
 
+@pytest.mark.slow
 def test_repeated_critics_score_every_pair_and_the_first_is_the_split_critic() -> None:
     pairs, scenes = _told_apart(), ["b", "a", "d", "c"]
     result = repeated_critic_test(pairs, scenes, seeds=2, steps=30, image_only=True)
