@@ -168,6 +168,7 @@ def test_withheld_vignetting_is_named_and_closes_the_gap(vignetting_report: Diag
     assert report.profile is not None and "vignetting" in report.profile.effect_names
 
 
+@pytest.mark.slow  # the vignetting diagnosis (a module fixture, about 30 s of CPU) is most of it
 def test_json_schema(vignetting_report: DiagnosisReport, tmp_path: Path) -> None:
     data = json.loads(vignetting_report.write_json(tmp_path / "r.json").read_text())
     assert list(data)[: len(REQUIRED_KEYS)] == list(REQUIRED_KEYS)
@@ -198,6 +199,7 @@ def test_json_schema(vignetting_report: DiagnosisReport, tmp_path: Path) -> None
     assert data["skipped"] == []
 
 
+@pytest.mark.slow  # the vignetting diagnosis (a module fixture, about 30 s of CPU) is most of it
 def test_html_is_one_self_contained_file(vignetting_report: DiagnosisReport, tmp_path: Path) -> None:
     page = vignetting_report.write_html(tmp_path / "r.html").read_text()
     assert page.startswith("<!DOCTYPE html>")
