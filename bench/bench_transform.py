@@ -246,7 +246,7 @@ def diagnose_time(threads: int) -> float | None:
     return result["seconds"]
 
 
-#: The profile of width 32 distilled from the default one (``examples/distill_city100.py``).
+#: The profile of width 32 distilled from the default one (``experiments/distill_city100.py``).
 FAST_PROFILE = "city100-iphonex-fast"
 
 
@@ -313,7 +313,7 @@ def line_cases() -> tuple[dict[str, Case], dict[str, float]]:
 
 def fast_profile_quality() -> float | None:
     """How far the fast profile's held-out City100 mean PSNR lies below the full one's (dB), as recorded when it was
-    made (``examples/distill_city100.py``)."""
+    made (``experiments/distill_city100.py``)."""
     if FAST_PROFILE not in list_profiles():
         return None
     quality = load_profile(FAST_PROFILE).quality

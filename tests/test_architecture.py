@@ -121,6 +121,7 @@ def test_seed_scheme_is_a_fixed_formula() -> None:
     assert torch.equal(first, torch.randn(4, generator=derived_generator(1, "x")))
 
 
+@pytest.mark.slow
 def test_seed_scheme_is_the_same_in_another_process() -> None:
     code = "from camdegrade._seeds import derive_seed; print(derive_seed(7, 'dataloader-worker', 3))"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
@@ -310,7 +311,6 @@ TOO_BIG: dict[str, str] = {
     "effects/": "one module per effect (the registry's rule); grouping by stage is left for later (issue 45)",
     "functional/": "one module per kernel family; left for later (issue 45)",
     "measures/": "one module per statistic family and the critics; left for later (issue 45)",
-    "cli/": "one module per command and their shared options; left for later (issue 45)",
     "diagnose/": "where / which / how far, the critics, the report; left for later (issue 45)",
 }
 

@@ -127,6 +127,7 @@ def test_diagnose_refuses_too_few_pairs(tmp_path: Path) -> None:
         diagnose(CameraProfile(None, []), _write_pairs(tmp_path / "pairs", 2))
 
 
+@pytest.mark.slow
 def test_diagnose_reports_the_pairs_it_skipped_in_stdout_and_json(tmp_path: Path, capsys) -> None:
     folder = _write_pairs(tmp_path / "pairs", 11, mismatched=2)
     cut_image(folder / "captured" / "s10.png", keep=0.5, size=(32, 32))  # unreadable: the run ends with status 1

@@ -381,6 +381,7 @@ def test_unpaired_diagnosis_skips_a_truncated_image_and_reports_it(tmp_path: Pat
     assert (tmp_path / "r.json").exists()
 
 
+@pytest.mark.slow
 def test_file_names_that_are_not_utf8_are_printed_escaped(tmp_path: Path) -> None:
     """Under PYTHONIOENCODING=utf-8 the progress line of such a name raised UnicodeEncodeError and stopped apply."""
     import subprocess

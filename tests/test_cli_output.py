@@ -81,8 +81,11 @@ def test_info_shows_hostile_names_escaped(tmp_path: Path, capsys) -> None:
     code, out, err = run_cli(["info", _hostile_profile(tmp_path / "cam.safetensors")], capsys)
     _assert_safe(out + err)
     assert code == 0, err
-    assert "name:        cam\\x1b[2J\\x1b[Hforged: line\\u202e" in out
-    assert "description: desc\\n\\x1b[2J" in out
+    assert "profile    cam\\x1b[2J\\x1b[Hforged: line\\u202e" in out
+    assert "           desc\\n\\x1b[2J" in out
+    code, out, err = run_cli(["info", _hostile_profile(tmp_path / "cam.safetensors"), "--json"], capsys)
+    _assert_safe(out + err)
+    assert code == 0 and json.loads(out)["name"] == f"cam{FORGED}"  # JSON escapes it, and reads back as written
 
 
 def test_apply_lists_hostile_file_names_escaped(tmp_path: Path, capsys) -> None:

@@ -154,6 +154,7 @@ def vignetting_report() -> DiagnosisReport:
     return diagnose(profile, calibration, held_out=held_out, candidates=["vignetting", "tone", "blur", "noise"])
 
 
+@pytest.mark.slow
 def test_withheld_vignetting_is_named_and_closes_the_gap(vignetting_report: DiagnosisReport) -> None:
     report = vignetting_report
     assert report.added[0] == "vignetting" and report.accepted[0] == "add vignetting"
@@ -167,6 +168,7 @@ def test_withheld_vignetting_is_named_and_closes_the_gap(vignetting_report: Diag
     assert report.profile is not None and "vignetting" in report.profile.effect_names
 
 
+@pytest.mark.slow  # the vignetting diagnosis (a module fixture, about 30 s of CPU) is most of it
 def test_json_schema(vignetting_report: DiagnosisReport, tmp_path: Path) -> None:
     data = json.loads(vignetting_report.write_json(tmp_path / "r.json").read_text())
     assert list(data)[: len(REQUIRED_KEYS)] == list(REQUIRED_KEYS)
@@ -197,6 +199,7 @@ def test_json_schema(vignetting_report: DiagnosisReport, tmp_path: Path) -> None
     assert data["skipped"] == []
 
 
+@pytest.mark.slow  # the vignetting diagnosis (a module fixture, about 30 s of CPU) is most of it
 def test_html_is_one_self_contained_file(vignetting_report: DiagnosisReport, tmp_path: Path) -> None:
     page = vignetting_report.write_html(tmp_path / "r.html").read_text()
     assert page.startswith("<!DOCTYPE html>")
@@ -208,6 +211,7 @@ def test_html_is_one_self_contained_file(vignetting_report: DiagnosisReport, tmp
     assert "Learned critic" in page and "A flat region at 1:1" in page
 
 
+@pytest.mark.slow
 def test_control_names_nothing() -> None:
     camera = _camera(Vignetting(k1=-0.2), Noise(a=0.002))
     profile = CameraProfile(None, [Vignetting(k1=-0.2), Noise(a=0.002)])
@@ -232,6 +236,7 @@ def _cli(argv: list[str]) -> int:
     return main(["diagnose", *argv], prog="camdegrade")
 
 
+@pytest.mark.slow
 def test_cli_writes_json_html_and_profile(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     camera = _camera(Tone(gamma=1.25, black=0.02))
     _write_pairs(tmp_path / "pairs", _pairs(camera, 16, 48, seed=7))
@@ -309,6 +314,7 @@ def test_a_critic_with_one_answer_scores_chance_and_says_so() -> None:
     assert not score(net, patches, seed=0).one_answer
 
 
+@pytest.mark.slow
 def test_captures_identical_to_the_clean_images_say_the_profile_degrades_more() -> None:
     """Issue 26: a camera that changes nothing, a profile (network and effects) that degrades a lot. No single change
     closes the gap, but the verdict must not call it unexplained: the profile degrades more than the camera."""

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import pytest
 import torch
 import torch.nn.functional as F
 
@@ -91,6 +92,7 @@ def test_a_profile_without_network_cannot_be_distilled() -> None:
         raise AssertionError("accepted")
 
 
+@pytest.mark.slow
 def test_cli_distills_on_generated_images_and_never_writes_over_the_teacher(tmp_path, capsys) -> None:
     teacher = _teacher().save(tmp_path / "teacher.safetensors")
     assert main(["distill", str(teacher), "-o", str(teacher), "--epochs", "1", "--quiet"]) == 1

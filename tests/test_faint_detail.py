@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import pytest
 import torch
 
 from camdegrade import CameraProfile
@@ -58,6 +59,7 @@ def test_a_profile_with_a_denoise_stage_is_left_alone() -> None:
     assert note == {"kept": False, "reason": "the profile already has a denoise stage"} and profile is base
 
 
+@pytest.mark.slow
 def test_a_fit_records_its_denoise_step_and_the_paper_recipe_skips_it() -> None:
     pairs = [
         ((clean * 255).round().to(torch.uint8), (captured * 255).round().to(torch.uint8))

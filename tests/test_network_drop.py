@@ -64,6 +64,7 @@ def test_a_camera_with_a_tone_change_keeps_its_network() -> None:
     assert note["gain_db"] > 3.0
 
 
+@pytest.mark.slow
 def test_without_validation_pairs_the_network_is_kept() -> None:
     profile = fit_profile(_pairs(noise_only=True), RECIPE.replace(effects=(), val_fraction=0.0))
     assert profile.network is not None

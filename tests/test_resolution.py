@@ -193,6 +193,7 @@ def _camera_pairs(scale: float, count: int, seed: int) -> list[tuple[Tensor, Ten
 TINY = {"epochs": 6, "crops_per_pair": 16, "crop": 32, "texture": "none", "effects": ()}
 
 
+@pytest.mark.slow
 def test_a_fit_trains_its_network_through_the_upscale_it_finds() -> None:
     train, held = _camera_pairs(0.5, 24, seed=1), _camera_pairs(0.5, 8, seed=2)
     found = fit_profile(train, FitConfig.recipe("fast", **TINY))
@@ -230,6 +231,7 @@ def test_the_note_says_no_stage_where_the_network_was_dropped() -> None:
     assert profile.fitted["resolution"]["kept"] is False, profile.fitted["resolution"]
 
 
+@pytest.mark.slow
 def test_a_camera_without_an_upscale_gets_no_stage() -> None:
     profile = fit_profile(_camera_pairs(1.0, 16, seed=1), FitConfig.recipe("fast", **TINY))
     assert profile.fitted["resolution"]["kept"] is False

@@ -1,5 +1,5 @@
 """The sharpen stage on the REAL City100 iPhone X captures over the paper-network built-in (``PAPER_BUILT_IN``)
-(``examples/sharpen_city100.py`` measures it on every scene): fitted on 8 of scenes 001–055 against the built-in's
+(``experiments/sharpen_city100.py`` measures it on every scene): fitted on 8 of scenes 001–055 against the built-in's
 deterministic output, it finds a gentle, wide sharpening and raises the paired PSNR of 4 held-out scenes. Skipped
 when the shared real-pairs folder is absent."""
 
@@ -26,7 +26,7 @@ def _psnr(sims: list[torch.Tensor], reals: list[torch.Tensor]) -> float:
 
 
 def test_the_iphone_sharpens_beyond_the_built_in(real_pairs_dir: Path) -> None:
-    example = load_script("examples/sharpen_city100.py", "camdegrade_sharpen_city100")
+    example = load_script("experiments/sharpen_city100.py", "camdegrade_sharpen_city100")
     profile = load_profile(PAPER_BUILT_IN)
     cleans, reals = example.load(real_pairs_dir, evenly_spaced(example.FIT, 8))
     sources = profile.simulate(cleans, seed=0, deterministic=True)

@@ -98,6 +98,7 @@ def test_the_recipes_choose_the_texture_step() -> None:
     assert "texture" not in FitConfig().training_dict()
 
 
+@pytest.mark.slow
 def test_a_fit_records_its_texture_step_and_the_paper_recipe_skips_it() -> None:
     images = [(image * 255).round().to(torch.uint8) for image in _images(10, seed=9)]
     pairs = [

@@ -1,4 +1,4 @@
-"""The unpaired fit of the REAL City100 iPhone X (``examples/fit_city100_unpaired.py``) on a smaller split than the
+"""The unpaired fit of the REAL City100 iPhone X (``experiments/fit_city100_unpaired.py``) on a smaller split than the
 example's, to stay fast: clean images of scenes 001–010 and captures of 036–045 (no scene on both sides), checked on
 the pairs of every other held-out scene (8 of 056–070, 098). Its flat noise is within [0.8, 1.25] of the camera's,
 every spectrum band within ±1 log2 (the example's 35 + 20 images bring four of five within ±0.5, see
@@ -23,7 +23,7 @@ torch.set_num_threads(1)
 
 @pytest.fixture(scope="module")
 def result(real_pairs_dir: Path) -> tuple:
-    example = load_script("examples/fit_city100_unpaired.py", "camdegrade_fit_city100_unpaired")
+    example = load_script("experiments/fit_city100_unpaired.py", "camdegrade_fit_city100_unpaired")
     scenes = example.city100(real_pairs_dir)
     captured, clean = example.CAPTURED_SCENES[:10], example.CLEAN_SCENES[:10]
     profile, _ = example.fit(scenes, progress=False, captured=captured, clean=clean)

@@ -19,8 +19,8 @@ from camdegrade._checks import check_seed
 
 #: camdegrade's default recipe: many small steps on small windows (batches of 8 windows of 64², 32 per pair and
 #: epoch: the pixels of 8 windows of 128², in four times the steps), Adam on a cosine schedule over 10 epochs,
-#: stopping early once the validation PSNR stops rising (``patience`` epochs without 0.01 dB of progress). Chosen on
-#: City100 and a simulated camera (``examples/recipe_comparison.py``, docs/fitting.md).
+#: stopping early once the validation PSNR stops rising (``patience`` epochs without 0.01 dB of progress). Chosen by
+#: the time to a good network (docs/results.md, *The recipes: time to a good network*).
 FAST: dict[str, Any] = {
     "epochs": 10,
     "crop": 64,

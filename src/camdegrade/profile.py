@@ -34,6 +34,8 @@ from camdegrade.errors import ProfileError
 from camdegrade.inference import Precision, run_network
 from camdegrade.network import ARCHITECTURES, ShiftNetwork
 
+__all__ = ["CameraProfile", "EffectParams", "as_profile", "check_profile_values", "load_profile"]
+
 EffectParams = list[dict[str, Tensor]]
 
 

@@ -22,6 +22,8 @@ from camdegrade.cli._common import (
 )
 from camdegrade.cli._pairs import PAIRS_LAYOUTS, add_pair_options, discover, report_files
 
+__all__ = ["NOT_OFFERED", "add_parser", "run"]
+
 #: ``diagnose`` keywords the command does not offer, and why.
 NOT_OFFERED = {
     "held_out": "the command splits PAIRS by scene",

@@ -12,6 +12,8 @@ from camdegrade.cli._common import add_profile, add_threads, check_outputs, chec
 from camdegrade.cli._recipe import add_recipe_options, check_schedule_options, recipe_changes
 from camdegrade.errors import CamdegradeError
 
+__all__ = ["NOT_OFFERED", "STUDENT_WIDTH", "add_parser", "run"]
+
 #: The student's width unless told (``camdegrade.fitting.network.distill.DEFAULT_WIDTH``, here without importing torch).
 STUDENT_WIDTH = 32
 #: Recipe fields distill does not offer, and why.

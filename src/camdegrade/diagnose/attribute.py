@@ -39,6 +39,8 @@ from camdegrade.effects import EFFECTS, check_effect_names
 from camdegrade.measures import StatisticSet, family_gaps
 from camdegrade.profile import CameraProfile
 
+__all__ = ["MISFIT_KINDS", "Attribution", "attribute", "check_candidates", "keeping"]
+
 
 @dataclass
 class Attribution:

@@ -19,6 +19,22 @@ from camdegrade.profile import CameraProfile
 if TYPE_CHECKING:
     from camdegrade.diagnose.search import Round
 
+__all__ = [
+    "KINDS",
+    "AddEffect",
+    "Change",
+    "ChangeKind",
+    "Made",
+    "Plan",
+    "RefitNetwork",
+    "RefitStage",
+    "RemoveStage",
+    "add_effect",
+    "check_kinds",
+    "effect_params",
+    "without_stage",
+]
+
 
 @dataclass
 class Change:

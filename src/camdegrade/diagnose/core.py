@@ -22,6 +22,8 @@ from camdegrade.pairs.pair import PairReport
 from camdegrade.pairs.pairset import PairSet, PairsSource
 from camdegrade.profile import CameraProfile, as_profile
 
+__all__ = ["IMAGE_ONLY", "MIN_PAIRS", "REFIT_OPTIONS", "diagnose", "findings_of", "refit_command"]
+
 #: Fewest pairs on each side of the split: below this a held-out gap has no spread to judge it by, and the
 #: diagnosis refuses rather than state a verdict from one or two pairs.
 MIN_PAIRS = 4

@@ -28,6 +28,8 @@ from camdegrade.diagnose.critique import CRITIC_CHANCE, Critique, critiques
 from camdegrade.measures.visible import TEXTURE_LOG2, TextureComparison, compare_texture
 from camdegrade.pairs.pairset import PairSet
 
+__all__ = ["CriticCheck", "check_changes"]
+
 
 @dataclass
 class CriticCheck:

@@ -13,6 +13,8 @@ from camdegrade.measures import StatisticSet, bootstrap_indices, family_gaps, ga
 from camdegrade.measures.gap import Scale, measurement_scale
 from camdegrade.profile import CameraProfile
 
+__all__ = ["BOOTSTRAP_ROUNDS", "MIN_REDUCTION", "MIN_RELATIVE", "SIGNIFICANCE", "Baseline", "HeldOut", "ImagePairs"]
+
 #: A reduction counts when it exceeds this many bootstrap standard errors ...
 SIGNIFICANCE = 3.0
 #: ... and this absolute size (gap units: one family off by one tau everywhere is 1) ...

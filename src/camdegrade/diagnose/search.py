@@ -19,6 +19,8 @@ from camdegrade.fitting.in_chain import fit_stage_in_chain
 from camdegrade.measures import StatisticSet, family_gaps, gap_spread
 from camdegrade.profile import CameraProfile
 
+__all__ = ["MIN_NOISE_PAIRS", "NOISE_PAIRS", "NOISE_PIXELS", "REFINE_PAIRS", "Log", "Round", "Search", "prefer_simpler"]
+
 #: Calibration pairs on which the strength of each fitted change is refined.
 REFINE_PAIRS = 12
 #: Calibration pairs a noise stage is calibrated on by simulating the profile (about ``NOISE_PIXELS`` pixels).

@@ -25,6 +25,8 @@ from camdegrade.measures import NO_REFERENCE, image_statistics
 from camdegrade.pairs.folder import FolderImages, read_folder
 from camdegrade.profile import CameraProfile, as_profile
 
+__all__ = ["diagnose_unpaired"]
+
 
 def _stack(images: list[Tensor]) -> dict[str, Tensor]:
     per_image = [image_statistics(image) for image in images]

@@ -336,7 +336,7 @@ def _set_banding(noise: Noise, real: NoiseSums, null: NoiseSums) -> None:
     noise without banding); zero where that excess is not significant.
 
     The excess rows and columns share is not banding but 2-D noise correlated further than the stage's kernel
-    reaches (the SIDD phones' chroma blotches: row and column means both 9–12 levels beyond the null), so each
+    reaches (chroma blotches; measured in docs/results.md, *Real sensor noise: PolyU, CC15 and SIDD*), so each
     direction keeps only what it has beyond the other. Banding drawn from it printed a plaid over the whole frame. A
     camera with row and column banding loses the weaker, and the stronger its part beyond it; row banding alone (a
     sensor's usual) is kept. Only an excess significant in both directions is shared.

@@ -14,6 +14,8 @@ from camdegrade.effects import Effect, Noise
 from camdegrade.inference import run_network
 from camdegrade.profile import CameraProfile
 
+__all__ = ["CALIBRATION_PAIRS", "fit_noise_stage", "fit_stage_in_chain", "replace_stage"]
+
 #: A stage that calibrates itself by simulation uses about this many pairs (every ⌊N / this⌋-th of N pairs, so
 #: between this many and twice as many): about 1 Mpixel at 256².
 CALIBRATION_PAIRS = 32

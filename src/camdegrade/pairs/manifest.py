@@ -12,6 +12,8 @@ from pathlib import Path
 from camdegrade.errors import PairsError
 from camdegrade.pairs.pair import MISSING, UNREADABLE, Pair, Skipped, relative_stem, scene_id
 
+__all__ = ["BAD_ROW", "DUPLICATE", "read_manifest"]
+
 BAD_ROW = "bad manifest row"
 DUPLICATE = "duplicate pair"
 

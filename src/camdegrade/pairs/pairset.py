@@ -27,10 +27,10 @@ from camdegrade.pairs.align import AlignmentResult, align_pair, format_shifts
 from camdegrade.pairs.discovery import discover_pairs
 from camdegrade.pairs.pair import UNREADABLE, Pair, PairReport, size_text
 
-__all__ = ["ImagePair", "PairSet", "PairsSource", "load_pair", "split_by_scene"]
-
 #: One aligned pair as tensors: (clean, captured), ``(3, H, W)`` each, same size: uint8 (as read), or float in [0, 1].
 ImagePair = tuple[Tensor, Tensor]
+
+__all__ = ["ImagePair", "Log", "PairSet", "PairsSource", "held_out_scenes", "load_pair", "split_by_scene"]
 
 Log = Callable[[str], None]
 

@@ -22,6 +22,8 @@ from camdegrade._seeds import derived_generator
 from camdegrade.metrics import psnr
 from camdegrade.network import LINEAR_TAPS
 
+__all__ = ["PIXELS_PER_PAIR", "RIDGE", "ImagePair", "apply_linear_baseline", "baseline_psnr", "fit_linear_baseline"]
+
 #: Pixels sampled from each pair: 148 unknowns per channel are well determined by a few thousand; more only costs.
 PIXELS_PER_PAIR = 8192
 #: Ridge, relative to the mean diagonal of the normal matrix: keeps a flat image's collinear neighbours solvable

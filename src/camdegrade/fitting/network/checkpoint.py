@@ -20,6 +20,8 @@ from camdegrade._files import atomic_path
 from camdegrade.errors import CamdegradeError
 from camdegrade.pairs.pairset import ImagePair
 
+__all__ = ["CHECKPOINT_KEY", "REQUIRED_KEYS", "TrainingState", "capture_state", "load_checkpoint", "save_checkpoint"]
+
 CHECKPOINT_KEY = "camdegrade_checkpoint"
 #: Metadata keys every checkpoint holds (and the tensor ``generator``).
 REQUIRED_KEYS = ("epoch", "best_score", "history", "config", "param_groups", "scheduler")

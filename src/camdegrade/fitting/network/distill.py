@@ -43,6 +43,17 @@ from camdegrade.pairs.pairset import ImagePair
 from camdegrade.profile import CameraProfile, as_profile
 from camdegrade.synthetic import dead_leaves_images
 
+__all__ = [
+    "DEFAULT_WIDTH",
+    "MAX_IMAGES",
+    "MAX_SIDE",
+    "SYNTHETIC_IMAGES",
+    "SYNTHETIC_SIZE",
+    "Log",
+    "distill_profile",
+    "student_warnings",
+]
+
 Log = Callable[[str], None]
 #: Images a distillation generates when it is given none (dead leaves, 256²).
 SYNTHETIC_IMAGES = 64

@@ -19,6 +19,8 @@ from torch import Tensor
 from camdegrade.network import ShiftNetwork
 from camdegrade.profile import CameraProfile
 
+__all__ = ["LEARNING_RATE", "PIXELS", "STEPS", "finetune_network"]
+
 #: Full-batch Adam steps on the decoder, over calibration pairs of about ``PIXELS`` pixels in all.
 STEPS = 40
 PIXELS = 1 << 19

@@ -40,6 +40,17 @@ from camdegrade.metrics import psnr
 from camdegrade.network import SIZE_MULTIPLE, ShiftNetwork, build_network
 from camdegrade.pairs.pairset import ImagePair
 
+__all__ = [
+    "MIN_PROGRESS_DB",
+    "EpochResult",
+    "FitInterrupted",
+    "evaluate_psnr",
+    "fit_network",
+    "new_network",
+    "random_crop_batch",
+    "training_dtype",
+]
+
 
 class FitInterrupted(CamdegradeError):
     """The fit was interrupted (Ctrl-C); the checkpoint of the last finished epoch is kept for ``resume``."""

@@ -37,6 +37,22 @@ from camdegrade.functional.analysis import luma
 from camdegrade.metrics import psnr
 from camdegrade.profile import CameraProfile
 
+__all__ = [
+    "DENOISE_PAIRS",
+    "MAX_BAND_RISE_LOG2",
+    "MAX_PSNR_LOSS_DB",
+    "MEASURE_SIGMAS",
+    "MIN_DISTANCE_DROP",
+    "SAMPLES_PER_FRAME",
+    "SIGMAS",
+    "THRESHOLD_LEVELS",
+    "DenoiseMatch",
+    "amplitude_distance",
+    "detail_amplitudes",
+    "eight_bit",
+    "judge_denoise",
+]
+
 #: Candidate sigmas (pixels) and thresholds (8-bit levels) of the stage.
 SIGMAS = (0.7, 1.0, 1.5)
 THRESHOLD_LEVELS = (1.0, 1.5, 2.0, 3.0, 4.0, 6.0, 8.0)

@@ -37,6 +37,16 @@ from camdegrade.inference import run_network
 from camdegrade.measures.fidelity import noise_ratios
 from camdegrade.profile import CameraProfile
 
+__all__ = [
+    "BOOTSTRAP_ROUNDS",
+    "MIN_EXCESS_LEVELS",
+    "MIN_NOISE_RATIO",
+    "NoiseEvidence",
+    "as_stored",
+    "noise_evidence",
+    "relative_gain",
+]
+
 #: The capture's flat noise must be at least this many times the profile's without the stage: below it the
 #: profile already has 90 % of the camera's noise (a flat-noise ratio of 0.9 or more) and needs no stage.
 MIN_NOISE_RATIO = 1 / 0.9

@@ -23,6 +23,8 @@ from camdegrade.fitting.steps.base import FitStep, PairedFit, Verdict
 from camdegrade.measures.resampling import ResamplingTrace, resampling_trace
 from camdegrade.network import LocalAffineNet
 
+__all__ = ["SENSOR_CAPTURES", "SensorResolution", "sensor_trace", "sensor_verdict"]
+
 #: At most this many captures are read (evenly spaced): the coherence is pooled over their rows and columns, and a
 #: dozen frames of 128² already separate an upscale from none by more than 0.4.
 SENSOR_CAPTURES = 32

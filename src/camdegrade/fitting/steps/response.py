@@ -29,6 +29,8 @@ from camdegrade.measures.fidelity import grid_rms
 from camdegrade.metrics import psnr
 from camdegrade.profile import CameraProfile
 
+__all__ = ["MAX_GRID_RATIO", "RESPONSE_PAIRS", "ResponseMatch", "judge_response"]
+
 #: At most this many training pairs fit the response, and as many validation pairs judge it (City100: 16 frames
 #: of 840×600; each frame's power per cell is a noisy estimate, so a mean over frames needs a dozen or more).
 RESPONSE_PAIRS = 16

@@ -34,6 +34,27 @@ from camdegrade.measures.fidelity import BAND_EDGES, luma_spectrum
 from camdegrade.metrics import psnr
 from camdegrade.profile import CameraProfile
 
+__all__ = [
+    "BLUR_SIGMAS",
+    "DIRECTIONS",
+    "GAUSSIAN_IDENTITY_SIGMA",
+    "MAX_PSNR_LOSS_DB",
+    "MIN_BAND_GAIN_LOG2",
+    "RADIAL_BIN",
+    "SHARPEN_AMOUNTS",
+    "SHARPEN_SIGMAS",
+    "TEXTURE_PAIRS",
+    "TextureFit",
+    "TextureMatch",
+    "band_errors",
+    "choose_texture",
+    "gaussian_gain",
+    "judge_texture",
+    "predicted_error",
+    "radial_powers",
+    "transfer",
+]
+
 #: Candidate blur σ (pixels, on the sRGB values; 0: none), and unsharp-mask σ and amount (0: none).
 BLUR_SIGMAS = (0.0, 0.3, 0.4, 0.5, 0.6, 0.7, 0.85, 1.0, 1.2, 1.5)
 SHARPEN_SIGMAS = (0.5, 0.7, 1.0, 1.5, 2.0, 3.0)

@@ -27,6 +27,8 @@ from camdegrade.fitting.unpaired.images import ImageSet
 from camdegrade.functional.noise_stats import NoiseSums
 from camdegrade.profile import CameraProfile
 
+__all__ = ["CHAIN_ORDER", "NEEDS_CLEAN", "Log", "Measured", "UnpairedFit", "UnpairedStep"]
+
 #: The stages' order in the fitted chain (physical: optics, sensor, ISP, codec; the ISP's upscale last before the
 #: codec, so the sensor's noise and the ISP's sharpening are upsampled with the image).
 CHAIN_ORDER = tuple(

@@ -24,6 +24,22 @@ from camdegrade.io import to_rgb
 from camdegrade.pairs.folder import read_folder
 from camdegrade.pairs.pair import TOO_SMALL
 
+__all__ = [
+    "ACCEPTED",
+    "MIN_CONTRAST_LEVELS",
+    "MIN_IMAGES",
+    "MIN_SIDE",
+    "SAME_SHARE",
+    "ImageSet",
+    "Source",
+    "check_all_read",
+    "check_contrast",
+    "check_count",
+    "load_images",
+    "load_sides",
+    "same_images",
+]
+
 #: Fewest usable images on each side: set means of fewer images are mostly content.
 MIN_IMAGES = 8
 #: Smallest side (px) of a usable image: the sensor's resampling trace needs 16×16 (:mod:`camdegrade.measures.

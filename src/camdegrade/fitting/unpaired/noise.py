@@ -61,6 +61,28 @@ from camdegrade.fitting.unpaired.bench import UnpairedFit, UnpairedStep
 from camdegrade.functional.analysis import box_mean, noisy_flat_mask
 from camdegrade.functional.noise_stats import HIGH_PASS, NoiseSums, measure_set
 
+__all__ = [
+    "CURVATURE",
+    "FLOOR_LEVELS",
+    "HALF_SUPPORT",
+    "NOISE_FLOOR",
+    "NOISE_SHARE",
+    "RAISE_LIMIT",
+    "ROUNDS",
+    "SLOPE",
+    "TEXTURE_LOG2",
+    "LevelsRule",
+    "NoiseMatch",
+    "NoiseProposal",
+    "fit_noise_unpaired",
+    "flat_sums",
+    "judge_noise",
+    "on_noiseless_pixels",
+    "propose_noise",
+    "smooth_levels",
+    "without_moments",
+]
+
 #: A noise stage is kept when its std at mid-grey is at least this many 8-bit levels (8-bit rounding alone leaves
 #: about 0.3).
 NOISE_FLOOR = 0.5
