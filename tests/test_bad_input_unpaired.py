@@ -12,8 +12,8 @@ from PIL import Image
 
 from bad_inputs import good_image, one_line_error, run_cli
 from camdegrade.errors import PairsError
-from camdegrade.fitting._unpaired_images import MIN_SIDE, load_images
 from camdegrade.fitting.unpaired import MIN_IMAGES, fit_unpaired
+from camdegrade.fitting.unpaired.images import MIN_SIDE, load_images
 
 
 def _images(count: int = MIN_IMAGES, side: int = 32, seed: int = 0) -> list[torch.Tensor]:

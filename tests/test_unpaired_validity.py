@@ -16,11 +16,10 @@ from PIL import Image
 from camdegrade import load_profile
 from camdegrade.effects import JPEG, Noise, Tone
 from camdegrade.errors import CamdegradeError
-from camdegrade.fitting._distribution_match import channel_quantiles, color_tone_estimate, pixel_sample
-from camdegrade.fitting._noise_curve import smooth_levels
-from camdegrade.fitting._unpaired_check import self_check_warnings
-from camdegrade.fitting._unpaired_noise import RAISE_LIMIT, fit_noise_unpaired, flat_sums
 from camdegrade.fitting.unpaired import fit_unpaired
+from camdegrade.fitting.unpaired.color_tone import channel_quantiles, color_tone_estimate, pixel_sample
+from camdegrade.fitting.unpaired.judges import self_check_warnings
+from camdegrade.fitting.unpaired.noise import RAISE_LIMIT, fit_noise_unpaired, flat_sums, smooth_levels
 from camdegrade.profile import check_profile_values
 from camdegrade.synthetic import dead_leaves_images
 
@@ -74,7 +73,7 @@ def test_a_stage_out_of_its_range_stops_the_fit_at_its_step_naming_it(monkeypatc
     def out_of_range(*args, **options):
         return None, Tone(gamma=17.26), {"gains": [1, 1, 1], "tone_change": [0.0]}
 
-    monkeypatch.setattr("camdegrade.fitting.unpaired.fit_color_tone", out_of_range)
+    monkeypatch.setattr("camdegrade.fitting.unpaired.color_tone.judge_color_tone", out_of_range)
     scenes = [(image * 255).round().to(torch.uint8) for image in _scenes(3, 8, 32)]
     with pytest.raises(ValueError, match=r"the tone stage fitted to these images is outside its range \(gamma must"):
         fit_unpaired(scenes, [(image * 255).round().to(torch.uint8) for image in _scenes(4, 8, 32)], effects=("tone",))
@@ -109,7 +108,9 @@ def test_a_result_whose_own_check_is_off_warns_with_its_numbers() -> None:
 
 
 def test_strict_refuses_a_result_with_a_warning(monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setattr("camdegrade.fitting.unpaired.self_check_warnings", lambda *a, **k: ["the fit's own check: x"])
+    monkeypatch.setattr(
+        "camdegrade.fitting.unpaired.fit.self_check_warnings", lambda *a, **k: ["the fit's own check: x"]
+    )
     scenes = [(image * 255).round().to(torch.uint8) for image in _scenes(3, 8, 32)]
     profile = fit_unpaired(scenes, effects=("vignetting",))
     assert profile.fitted["warnings"] == ["the fit's own check: x"]

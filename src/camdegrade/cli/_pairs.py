@@ -42,7 +42,7 @@ def add_pair_options(parser: argparse.ArgumentParser, *, loading: bool) -> None:
 
 def discover(args: argparse.Namespace):
     """The discovery report of ``args.pairs`` with the command's options (the only discovery of the command)."""
-    from camdegrade.fitting.pairs import discover_pairs
+    from camdegrade.pairs.discovery import discover_pairs
 
     return discover_pairs(
         args.pairs,

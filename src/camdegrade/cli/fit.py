@@ -21,9 +21,11 @@ from camdegrade.cli._common import (
     say,
 )
 from camdegrade.cli._pairs import PAIRS_LAYOUTS, add_pair_options, discover, report_files
-from camdegrade.cli._quality import quality_lines
 from camdegrade.cli._recipe import add_recipe_options, check_schedule_options, recipe_changes
 from camdegrade.errors import CamdegradeError
+from camdegrade.summary import quality_lines
+
+__all__ = ["add_parser", "run"]
 
 #: What ``fit --unpaired`` does with each of ``fit``'s options (by ``dest``; ``tests/test_unpaired_cli.py`` builds the
 #: parser and holds every option to one of the two): passed on to :func:`~camdegrade.fitting.unpaired.fit_unpaired`
@@ -111,8 +113,9 @@ def run(args: argparse.Namespace) -> int:
 
     from camdegrade._distributed import is_distributed, is_main_process
     from camdegrade.fitting.fit import fit_profile, init_distributed_from_env
-    from camdegrade.fitting.pairset import PairSet
-    from camdegrade.fitting.training import FitConfig, FitInterrupted
+    from camdegrade.fitting.network.training import FitInterrupted
+    from camdegrade.fitting.recipe import FitConfig
+    from camdegrade.pairs.pairset import PairSet
 
     if (args.pairs is None) == (args.unpaired is None):
         raise ValueError("give either PAIRS or --unpaired CAPTURED, got " + ("both" if args.pairs else "neither"))

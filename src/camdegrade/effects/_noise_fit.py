@@ -137,7 +137,7 @@ def calibrate(
         rounds: correction rounds of the level table and the correlations.
         banding: then fit row and column banding against the simulated null (none where the data show none).
         levels_rule: applied to the level table ``(3, K)`` after each correction (the unpaired fit's: smooth in
-            the signal level and bounded, :mod:`camdegrade.fitting._unpaired_noise`). Every table stays within
+            the signal level and bounded, :mod:`camdegrade.fitting.unpaired.noise`). Every table stays within
             the stage's range (:attr:`Noise.MAX_LEVEL`) whatever the rule.
     """
     if rounds < 0:
@@ -336,7 +336,7 @@ def _set_banding(noise: Noise, real: NoiseSums, null: NoiseSums) -> None:
     noise without banding); zero where that excess is not significant.
 
     The excess rows and columns share is not banding but 2-D noise correlated further than the stage's kernel
-    reaches (the SIDD phones' chroma blotches: row and column means both 9–12 levels beyond the null), so each
+    reaches (chroma blotches; measured in docs/results.md, *Real sensor noise: PolyU, CC15 and SIDD*), so each
     direction keeps only what it has beyond the other. Banding drawn from it printed a plaid over the whole frame. A
     camera with row and column banding loses the weaker, and the stronger its part beyond it; row banding alone (a
     sensor's usual) is kept. Only an excess significant in both directions is shared.
