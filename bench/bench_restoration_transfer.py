@@ -228,6 +228,36 @@ def report(outcome: dict[str, Any], names: Sequence[str], seeds: Sequence[int], 
     }
 
 
+def combine(paths: Sequence[Path]) -> dict[str, Any]:
+    """The records of several runs (each of its own seeds, the same rows, restorer and held-out scenes) as one:
+    the per-seed PSNRs side by side, summarised again (:func:`summarise`)."""
+    records = [json.loads(path.read_text()) for path in paths]
+    first = records[0]
+    for path, record in zip(paths, records, strict=True):
+        for key in ("held_out", "restorer", "capture_psnr_db"):
+            if record[key] != first[key]:
+                raise ValueError(f"{path}: {key} differs from {paths[0]}'s; only runs of one setting combine")
+        if set(record["psnr_db"]) != set(first["psnr_db"]):
+            raise ValueError(f"{path}: rows {sorted(record['psnr_db'])} differ from {sorted(first['psnr_db'])}")
+    seeds = [seed for record in records for seed in record["seeds"]]
+    if len(set(seeds)) != len(seeds):
+        raise ValueError(f"a seed is in two runs: {seeds}")
+    psnr = {name: [row for record in records for row in record["psnr_db"][name]] for name in first["psnr_db"]}
+    unaligned = first["summary"]["capture_unaligned_psnr_db"]
+    summary = summarise(psnr, first["capture_psnr_db"], [unaligned])
+    print(format_table(summary, seeds))
+    return {
+        "psnr_db": psnr,
+        "capture_psnr_db": first["capture_psnr_db"],
+        "summary": summary,
+        "seeds": seeds,
+        "runs": [str(path) for path in paths],
+        **{key: first[key] for key in ("held_out", "restorer", "camdegrade", "torch")},
+        "wall_seconds": [record["wall_seconds"] for record in records],
+        "cpu_seconds": [record["cpu_seconds"] for record in records],
+    }
+
+
 def write_crops(outcome: dict[str, Any], seed: int, path: Path) -> None:
     """Clean | capture | built-in simulation | restored by the real row | by the built-in row (seed ``seed``)."""
     trained, reference = outcome["trained"], outcome["reference"]
@@ -251,7 +281,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--workers", type=int, default=2, help="processes (one thread each)")
     parser.add_argument("--json", type=Path, default=Path("out/bench/restoration_transfer.json"))
     parser.add_argument("--png", type=Path, default=Path("out/bench/restoration_transfer.png"))
+    parser.add_argument("--patch", type=int, default=Restorer.patch, help="side of the training windows")
+    parser.add_argument("--combine", type=Path, nargs="+", help="merge these runs' JSON (one seed each) into --json")
     args = parser.parse_args(argv)
+    if args.combine:
+        record = combine(args.combine)
+        args.json.write_text(json.dumps(record, indent=2, default=float) + "\n")
+        print(f"wrote {args.json}")
+        return 0
     root = args.real_pairs or Path(os.environ.get("CAMDEGRADE_REAL_PAIRS") or DEFAULT_DATA)
     if not (root / "pairs.csv").is_file():
         print(f"restoration transfer skipped: no pairs.csv in {root} (set CAMDEGRADE_REAL_PAIRS)")
@@ -270,7 +307,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"--quick: the unpaired row left out (no {args.unpaired}; a full run fits it there)")
             args.rows = [name for name in args.rows if name != "unpaired"]
     names = sorted(set(args.rows) | {"real", "colour_map"}, key=ROWS.index)
-    config = replace(Restorer(), steps=args.steps)
+    config = replace(Restorer(), steps=args.steps, patch=args.patch)
     started, cpu_started = time.perf_counter(), time.process_time()
     rows, fitted = make_rows(root.resolve(), names, args.unpaired)
     outcome = run(root.resolve(), held_out, rows, config, args.seeds, args)

@@ -29,8 +29,8 @@ from camdegrade import load_profile
 from camdegrade._pixels import as_unit, unit_to_bytes
 from camdegrade.effects import Blur
 from camdegrade.errors import PairsError
-from camdegrade.fitting import discover_pairs, filter_pairs, load_pair, simulate
 from camdegrade.fitting.unpaired import fit_unpaired
+from camdegrade.pairs import discover_pairs, filter_pairs, load_pair
 from camdegrade.profile import CameraProfile
 
 SUBSET = "city100_iPhoneX"
@@ -146,7 +146,7 @@ class Row:
         if self.source == "clean":
             return list(cleans)
         if self.profile is not None:
-            return [stored(image) for image in simulate(self.profile, cleans, seed, stream=stream)]
+            return self.profile.simulate(cleans, seed, stream=stream, eight_bit=True)
         if self.colour_map is None:
             raise ValueError(f"row {self.name!r} has neither a profile nor a colour map")
         return [stored(self.colour_map(clean)) for clean in cleans]

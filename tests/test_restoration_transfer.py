@@ -115,3 +115,40 @@ def test_the_closure_runs_from_the_colour_map_to_real() -> None:
     assert summary["spread"]["built_in"] == pytest.approx(0.1)
     assert summary["closure"] == pytest.approx({"real": 1.0, "colour_map": 0.0, "built_in": 0.85 / 1.5})
     assert summary["closure_per_seed"]["built_in"] == pytest.approx([1.0 / 1.5, 0.7 / 1.5])
+
+
+def test_runs_of_one_seed_each_combine_into_the_summary_of_all_seeds(tmp_path) -> None:
+    bench = load_script("bench/bench_restoration_transfer.py", "camdegrade_bench_restoration_transfer")
+    capture = [20.0, 30.0]
+    psnr = {
+        "real": [[21.0, 31.0], [21.2, 31.2]],
+        "colour_map": [[19.5, 29.5], [19.7, 29.7]],
+        "built_in": [[20.5, 30.5], [20.4, 30.4]],
+    }
+    paths = []
+    for seed in (0, 1):
+        record = {
+            "psnr_db": {name: [rows[seed]] for name, rows in psnr.items()},
+            "capture_psnr_db": capture,
+            "summary": {"capture_unaligned_psnr_db": 19.0},
+            "seeds": [seed],
+            "held_out": ["056", "057"],
+            "restorer": {"steps": 10},
+            "camdegrade": "x",
+            "torch": "y",
+            "wall_seconds": 1.0,
+            "cpu_seconds": 2.0,
+        }
+        paths.append(tmp_path / f"seed{seed}.json")
+        paths[-1].write_text(bench.json.dumps(record))
+    combined = bench.combine(paths)
+    assert combined["seeds"] == [0, 1]
+    assert combined["summary"]["closure"] == pytest.approx({"real": 1.0, "colour_map": 0.0, "built_in": 0.85 / 1.5})
+    assert combined["summary"]["closure_per_seed"]["built_in"] == pytest.approx([1.0 / 1.5, 0.7 / 1.5])
+    with pytest.raises(ValueError, match="a seed is in two runs"):
+        bench.combine([paths[0], paths[0]])
+    other = bench.json.loads(paths[1].read_text())
+    other["restorer"] = {"steps": 20}
+    paths[1].write_text(bench.json.dumps(other))
+    with pytest.raises(ValueError, match="restorer differs"):
+        bench.combine(paths)
