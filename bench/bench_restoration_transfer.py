@@ -18,6 +18,8 @@ checkout (or ``CAMDEGRADE_REAL_PAIRS``); skipped without it. Run from the repo r
 
     .venv/bin/python bench/bench_restoration_transfer.py            # writes out/bench/restoration_transfer.json
     .venv/bin/python bench/bench_restoration_transfer.py --quick    # one seed, few steps, 3 held-out scenes
+    .venv/bin/python bench/bench_restoration_transfer.py --seeds 1 --json s1.json   # one seed a run, then
+    .venv/bin/python bench/bench_restoration_transfer.py --combine s0.json s1.json s2.json   # merged
 
 The unpaired profile is read from ``--unpaired`` (default ``out/bench/city100-iphonex-unpaired.safetensors``) and
 fitted there once when the file is absent (not in ``--quick``, which then leaves its row out).
