@@ -311,7 +311,8 @@ def _sensor(
     if config.sensor_scale == "auto":
         if config.arch != LocalAffineNet.arch or initial is not None:
             return None, {"kept": False, "reason": "auto: only a local_affine network trained from its baseline"}
-        return find_sensor([clean for clean, _ in train.images], [captured for _, captured in train.images], say)
+        cleans, captures = [clean for clean, _ in train.images], [captured for _, captured in train.images]
+        return find_sensor(cleans, captures, say, then="the network is trained through it")
     if config.sensor_scale >= 1:
         return None, {"kept": False, "scale": 1.0}
     sensor = Resolution(config.sensor_scale)  # FitConfig and fit_profile refused it with arch='paper' or init_from

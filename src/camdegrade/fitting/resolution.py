@@ -4,8 +4,9 @@ A sensor read at half the resolution and upsampled by the ISP leaves, above the 
 the sampled spectrum locked to the sensor's grid: a pattern no shift-invariant filter reproduces, so a network
 trained on such captures smooths it away (a simulated 2× camera: its top band, 0.35–0.5 cycles/pixel, 2.9 log2
 short; a critic tells it from the camera at 0.70–0.75). The upscale's trace is read from the training captures
-(:func:`~camdegrade.measures.resampling.resampling_trace`); where one is found, the network is trained through a
-:class:`~camdegrade.effects.Resolution` stage of that scale, which the profile keeps after it.
+(:func:`~camdegrade.measures.resampling.resampling_trace`); where one is found, a paired fit trains its network
+through a :class:`~camdegrade.effects.Resolution` stage of that scale, which the profile keeps after it, and an
+unpaired fit (no network) fits every later stage through it.
 """
 
 from __future__ import annotations
@@ -25,12 +26,13 @@ SENSOR_CAPTURES = 32
 
 
 def find_sensor(
-    cleans: Sequence[Tensor] | None, captures: Sequence[Tensor], say: Callable[[str], None]
+    cleans: Sequence[Tensor] | None, captures: Sequence[Tensor], say: Callable[[str], None], *, then: str
 ) -> tuple[Resolution | None, dict[str, Any]]:
     """The sensor stage the ``captures`` show (``1/q`` of their resolution) and the ``cleans`` do not (an upscale
     already in the clean images is not the camera's; ``None``: no clean images, the captures' trace alone), or
     ``None``; and the note for ``fitted['resolution']`` (or an unpaired fit's ``fitted['effects']['resolution']``).
-    The clean images need not be the captures' scenes."""
+    The clean images need not be the captures' scenes; ``then`` says on the log what the caller does with a stage
+    found (a fit without a network trains none through it)."""
     reference = None if cleans is None else evenly_spaced(list(cleans), SENSOR_CAPTURES)
     trace = resampling_trace(evenly_spaced(list(captures), SENSOR_CAPTURES), reference)
     shown = ", ".join(f"1/{period} {value:.2f}" for period, value in trace.coherence.items())
@@ -45,6 +47,6 @@ def find_sensor(
     sensor = Resolution(1.0 / trace.period)
     say(
         f"resolution: the captures are upscaled from 1/{trace.period} of their resolution (coherence {shown}; "
-        f"null {trace.null:.2f}, JPEG grid {trace.codec:.2f}): the network is trained through it"
+        f"null {trace.null:.2f}, JPEG grid {trace.codec:.2f}): {then}"
     )
     return sensor, {"kept": True, "scale": round(1.0 / trace.period, 4), **trace.to_dict()}

@@ -294,7 +294,8 @@ class _UnpairedFit:
         if not self.wants(Resolution):
             return
         cleans = self.cleans.images if self.cleans else None
-        stage, self.notes[Resolution.name] = find_sensor(cleans, self.captures.images, self.say)
+        then = "every later stage is fitted through it (the profile has no network)"
+        stage, self.notes[Resolution.name] = find_sensor(cleans, self.captures.images, self.say, then=then)
         if stage is not None:
             self.keep(stage)
 
