@@ -1,7 +1,7 @@
 """Effect stages estimated by matching the distribution of a camera's photos to that of a clean set of *other*
 scenes (no correspondence): colour and tone by quantile matching, vignetting from the normalised radial mean, the
 transfer function (blur, sharpening, then a radial detail response for what those two leave) from radial power
-spectra, JPEG quality from the files' quantisation tables.
+spectra, JPEG quality from the files' quantisation tables (:mod:`camdegrade.fitting._unpaired_jpeg` reads them).
 
 Each estimator compares set statistics, so content differences between the two sets average out only over many
 images; each keeps its stage only when it moves its statistic by more than a stated floor (below which the
@@ -24,7 +24,6 @@ from camdegrade.effects._fitting import downscale, minimize
 from camdegrade.functional import linear_to_srgb, relative_radius, srgb_to_linear
 from camdegrade.functional.analysis import hann2d, luma
 from camdegrade.functional.tone import tone_curve
-from camdegrade.measures.blocks import block_phase_energy
 
 #: Quantiles of each channel compared (1-D optimal transport between two sets is the map between their quantiles).
 QUANTILES = torch.linspace(0.01, 0.99, 99, dtype=torch.float64)
@@ -67,9 +66,6 @@ RESPONSE_LIMIT = math.log2(FrequencyResponse.MAX_GAIN)
 #: 0.032 and a response kept there made new scenes' bands 0.1–0.2 log2 worse (``tests/test_unpaired_fit.py``);
 #: City100's iPhone leaves 0.147, the test suite's detail camera 0.21.
 RESPONSE_FLOOR = 0.06
-#: Gradient energy on the 8×8 block edges, relative to the mean, above which files without a quantisation table
-#: look like JPEGs saved again in a lossless format.
-BLOCK_EDGE_RATIO = 1.08
 
 
 # -- colour and tone ---------------------------------------------------------------------------------------------
@@ -438,12 +434,3 @@ def quality_from_tables(tables: dict[int, Sequence[int]]) -> tuple[int, bool]:
 
     best = min(range(1, 101), key=distance)
     return best, distance(best) == 0.0
-
-
-def block_edge_ratio(images: Sequence[Tensor]) -> float:
-    """Mean gradient energy on the 8×8 block edges relative to the mean over the grid's phases (1: no blocks)."""
-    ratios = []
-    for image in images:
-        num, den = block_phase_energy(image)
-        ratios.append(float(((num[7] + num[15]) / 2) / den[0].clamp_min(1e-12)))
-    return sum(ratios) / len(ratios)

@@ -3,10 +3,10 @@ scenes of similar content — no screen rig, no correspondence between the two s
 
 Every stage is fitted by matching a distribution of the captures (an effects-only profile: no network):
 
-- ``jpeg``: the quality read from the captures' own quantisation tables, when they are JPEG files
-  (:func:`~camdegrade.fitting._distribution_match.quality_from_tables`); for lossless files that show 8×8 block
-  edges (JPEGs saved again: the tables are gone) a quality is estimated from their spectrum, with a
-  warning;
+- ``jpeg``: each capture's quality, read from its quantisation tables when it is a JPEG file, else from the
+  quantisation lattice its pixels still hold (a JPEG saved again losslessly, with a warning); a mixture of the
+  qualities found when they differ; kept only when the captures are compressed more than the clean images
+  (:mod:`camdegrade.fitting._unpaired_jpeg`);
 - ``color``, ``tone``: white-balance gains and a tone curve by quantile matching of the two sets;
 - ``vignetting``: the captures' mean radial luma profile over the clean set's (over a flat field without one);
 - ``blur``, ``sharpen``: the PSF and the unsharp mask whose simulation of the clean set has the captures' radial
@@ -57,12 +57,10 @@ from camdegrade.effects import (
 from camdegrade.effects._fitting import downscale
 from camdegrade.effects.base import evenly_spaced
 from camdegrade.fitting._distribution_match import (
-    BLOCK_EDGE_RATIO,
     RINGS,
     SHARPEN_SIGMA,
     SPECTRUM_SIDE,
     band_centres,
-    block_edge_ratio,
     centre_crop,
     fit_color_tone,
     fit_detail_response,
@@ -70,10 +68,10 @@ from camdegrade.fitting._distribution_match import (
     fit_vignetting,
     log_spectrum,
     mean_spectrum,
-    quality_from_tables,
     ring_profiles,
 )
 from camdegrade.fitting._unpaired_images import MIN_IMAGES, ImageSet, Source, check_count, load_images
+from camdegrade.fitting._unpaired_jpeg import fit_codec
 from camdegrade.fitting._unpaired_noise import fit_noise_unpaired, flat_sums
 from camdegrade.fitting.resolution import find_sensor
 from camdegrade.functional.blur import blur_image
@@ -105,10 +103,6 @@ NOISE_IMAGES = 16
 SPECTRUM_IMAGES = 24
 #: Colour, tone and vignetting are read from the images averaged down to this side (noise averaged out).
 SMALL_SIDE = 256
-#: Qualities tried for captures that show JPEG blocks but carry no quantisation table, on this many crops.
-JPEG_QUALITIES = (*range(30, 100, 5), 98)
-QUALITY_IMAGES = 12
-BLOCKS_WARNING = "the captures show 8×8 block edges"
 #: Knots per axis of the detail response: 0.025 cycles/pixel apart, finer than the narrowest band it is fitted on.
 RESPONSE_KNOTS = 21
 #: Without a clean set the noise is simulated on the captures smoothed by a Gaussian of this sigma (px).
@@ -222,7 +216,6 @@ class _UnpairedFit:
         self.notes: dict[str, Any] = {}
         self.not_fitted: dict[str, str] = {}
         self.warnings: list[str] = []
-        self.block_ratio: float | None = None
         stand_ins = cleans.images if cleans else [blur_image(image, STAND_IN_SIGMA) for image in captures.images]
         self.noise_crops = evenly_spaced(stand_ins, NOISE_IMAGES)
         self.spectrum_crops = [centre_crop(image, SPECTRUM_SIDE) for image in evenly_spaced(stand_ins, SPECTRUM_IMAGES)]
@@ -241,9 +234,6 @@ class _UnpairedFit:
             ("vignetting again", lambda: self.fit_vignetting(simulated=True)),
             ("noise", self.fit_noise),
             ("blur and sharpening", self.fit_transfer),
-            ("jpeg quality without tables", self.fit_jpeg_from_blocks),
-            ("blur and sharpening with it", self.refit_transfer),
-            ("jpeg quality again", self.fit_jpeg_from_blocks),
             ("colour and tone through the blur", lambda: self.fit_color_tone(test=True)),
             ("vignetting through the blur", lambda: self.fit_vignetting(simulated=True)),
             ("noise again", self.fit_noise),
@@ -300,61 +290,17 @@ class _UnpairedFit:
             self.keep(stage)
 
     def fit_jpeg(self) -> None:
+        """The codec stage (:func:`~camdegrade.fitting._unpaired_jpeg.fit_codec`): before every stage fitted through
+        the chain, since its quality is read from the files or their pixels, not fitted."""
         if not self.wants(JPEG):
             return
-        tables, count = self.captures.tables, len(self.captures.images)
-        if not tables:
-            ratio = block_edge_ratio(evenly_spaced(self.captures.images, 32))
-            self.notes[JPEG.name] = {"jpeg_files": 0, "block_edge_ratio": round(ratio, 3)}
-            if ratio > BLOCK_EDGE_RATIO:
-                self.block_ratio = ratio  # a quality is estimated from the blocks once the chain before it stands
-            else:
-                self._skip([JPEG], "the captures are not JPEG files and show no 8×8 blocks")
-            return
-        found = [quality_from_tables(table) for table in tables]
-        qualities = sorted(quality for quality, _ in found)
-        median = qualities[len(qualities) // 2]
-        jitter = max(abs(qualities[0] - median), abs(qualities[-1] - median))
-        self.keep(JPEG(median, quality_jitter=jitter, probability=len(tables) / count))
-        self.notes[JPEG.name] = {
-            "jpeg_files": len(tables),
-            "quality": median,
-            "qualities": [qualities[0], qualities[-1]],
-            "standard_tables": all(exact for _, exact in found),
-        }
-        self.say(f"jpeg: quality {median} read from {len(tables)} files' quantisation tables")
-
-    def fit_jpeg_from_blocks(self) -> None:
-        """Captures that were JPEGs once but carry no table: the quality whose simulation has the captures' mean
-        spectrum (:data:`JPEG_QUALITIES`; the codec acts on the top bands), with a warning that it is an estimate.
-
-        The block-edge ratio only says *that* there was a codec: as a measure of its quality it is the content's
-        (City100's captures range 0.87–2.10 per image, their clean images 0.88–1.52; 20 captures' mean 1.20, 16
-        other captures' 1.10), and matching it chose quality 90, whose block edges put +0.77 log2 too much power
-        into the held-out top band."""
-        if self.block_ratio is None:
-            return
-        crops = evenly_spaced(self.spectrum_crops, QUALITY_IMAGES)
-        chain = self.chain(jpeg=None)
-        mismatch = {
-            quality: float(
-                (mean_spectrum(self.simulate([*chain, JPEG(quality)], crops, "unpaired-blocks")) - self.real_spectrum)
-                .pow(2)
-                .mean()
-            )
-            for quality in JPEG_QUALITIES
-        }
-        quality = min(mismatch, key=mismatch.__getitem__)
-        self.keep(JPEG(quality))
-        self.warnings = [warning for warning in self.warnings if not warning.startswith(BLOCKS_WARNING)]
-        self.notes[JPEG.name] |= {"quality_from_spectrum": quality, "spectrum_mismatch": round(mismatch[quality], 4)}
-        self.warnings.append(
-            f"{BLOCKS_WARNING} ({self.block_ratio:.2f}× the mean gradient energy; above "
-            f"{BLOCK_EDGE_RATIO} means JPEG blocks) but are not JPEG files, so their quantisation tables are gone "
-            f"(JPEGs saved again as PNG?): the jpeg stage's quality {quality} is estimated from the captures' "
-            "spectrum; fit from the camera's original JPEG files for the exact one"
-        )
-        self.say(f"jpeg: quality {quality} estimated from the spectrum (no quantisation table)")
+        stage, self.notes[JPEG.name], warnings, line = fit_codec(self.captures, self.cleans)
+        self.say(line)
+        self.warnings += warnings
+        if stage is None:
+            self._skip([JPEG], self.notes[JPEG.name]["reason"])
+        else:
+            self.keep(stage)
 
     def fit_color_tone(self, *, test: bool) -> None:
         if not self.wants(Color, Tone):
@@ -415,11 +361,6 @@ class _UnpairedFit:
         does, and the stage was calibrated without it."""
         if self.stages.get(FrequencyResponse.name) is not None:
             self.fit_noise()
-
-    def refit_transfer(self) -> None:
-        """The transfer function again once a jpeg stage was estimated after it (the codec changes the spectrum)."""
-        if self.block_ratio is not None:
-            self.fit_transfer()
 
     def fit_transfer(self) -> None:
         if not self.wants(Blur, Sharpen):
