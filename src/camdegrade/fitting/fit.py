@@ -29,8 +29,9 @@ from camdegrade._profile_format.header import running_versions
 from camdegrade._recipes import FAST
 from camdegrade._threads import torch_threads
 from camdegrade._version import __version__
-from camdegrade.effects import Resolution
+from camdegrade.effects import Color, Resolution
 from camdegrade.fitting.baseline import baseline_psnr, fit_linear_baseline
+from camdegrade.fitting.colour_shift import keep_colour_shift
 from camdegrade.fitting.evidence import as_stored
 from camdegrade.fitting.faint_detail import fit_denoise
 from camdegrade.fitting.pairs import MISSING, UNREADABLE
@@ -120,7 +121,8 @@ def fit_profile(
         (also logged; see :func:`quality_warnings`). A network (or linear baseline) that beats the clean image
         passed through unchanged by less than :data:`NETWORK_MIN_GAIN_DB` on the validation pairs is dropped: the
         profile then holds its effect stages only, fitted on the clean images (``fitted['network']`` records the
-        gains it was judged on).
+        gains it was judged on), with a colour stage where the pairs show a significant shift between the channels
+        (:mod:`camdegrade.fitting.colour_shift`, ``fitted['colour_shift']``).
     """
     say = log or _silent
     config = resolve_recipe(recipe)
@@ -184,6 +186,10 @@ def fit_profile(
             }
         eight_bit = all(captured.dtype == torch.uint8 for _, captured in pair_set.images)
         train_pairs, val_pairs = train.unit_pairs(), val.unit_pairs()
+        shift_note = None
+        if not keep_network and Color.name not in config.effects:  # the network held the colour: keep a shift
+            scenes = [*train.scenes, *val.scenes]
+            profile, shift_note = keep_colour_shift(profile, train_pairs, [*train_pairs, *val_pairs], scenes, say)
         profile, effect_notes = fit_effects(profile, train_pairs, val_pairs, config.effects, say, eight_bit=eight_bit)
         texture_note = {"kept": False, "reason": f"texture={config.texture!r}" if keep_network else "no network"}
         denoise_note, response_note = dict(texture_note), dict(texture_note)
@@ -198,6 +204,8 @@ def fit_profile(
         profile.fitted["response"] = response_note
         profile.fitted["init_from"] = init_label
         profile.fitted["network"] = _network_note(keep_network, network_gain)
+        if shift_note is not None:
+            profile.fitted["colour_shift"] = shift_note
         profile.fitted["trained_in"] = str(training_dtype(config.precision, torch.device(device))).split(".")[-1]
         quality = _quality(profile, scores, val, eight_bit, say) if scores is not None else {}
         record_quality(profile, quality, _warnings(quality, history, config, keep_network), say)
