@@ -8,7 +8,7 @@ over the pairs stands out of the pairs' spread. Each channel's log ratio of the 
 scenes; where some channel's is beyond :data:`SIGNIFICANCE` standard errors and :data:`MIN_SHIFT`, a
 :class:`~camdegrade.effects.Color` stage of per-channel gains (white balance, in linear light) is fitted and kept.
 On the real pairs: PolyU (30 scenes) and CC15 (5) show none, SIDD's 12 captures are darker than their references by
-3.5–7.5 % (blue most), beyond 3 standard errors (docs/results.md).
+3.4–7.2 % (blue most), beyond 3 standard errors (docs/results.md).
 """
 
 from __future__ import annotations
