@@ -37,7 +37,7 @@ def test_a_colour_shift_under_the_noise_is_kept_without_the_network() -> None:
     lines: list[str] = []
     profile = fit_profile(pairs, RECIPE, log=lines.append)
     assert profile.network is None and profile.fitted["network"]["kept"] is False
-    assert profile.fitted["colour_shift"]["kept"] is True, profile.fitted["colour_shift"]
+    assert profile.fitted["effects"]["color"]["kept"] is True, profile.fitted["effects"]
     assert [type(effect) for effect in profile.effects] == [Noise, Color]
     cleans, captures = [clean for clean, _ in pairs], [captured for _, captured in pairs]
     simulated = simulate(profile, cleans, seed=0)

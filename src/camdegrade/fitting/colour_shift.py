@@ -66,7 +66,7 @@ def keep_colour_shift(
 ) -> tuple[CameraProfile, dict[str, Any]]:
     """``profile`` (which has no network) with a colour stage of per-channel gains fitted on ``train`` where
     ``pairs`` of ``scenes`` (every pair of the fit) show a significant shift (:func:`channel_shift`), and the note
-    for ``fitted['colour_shift']``."""
+    for ``fitted['effects']['color']``."""
     shift, error, count = channel_shift(pairs, scenes)
     standing = (shift.abs() > SIGNIFICANCE * error) & (shift.abs() >= MIN_SHIFT) & (count >= MIN_SCENES)
     note: dict[str, Any] = {

@@ -120,9 +120,8 @@ def fit_profile(
         ``fitted['warnings']`` when the network does worse than the identity or the baseline on the validation pairs
         (also logged; see :func:`quality_warnings`). A network (or linear baseline) that beats the clean image
         passed through unchanged by less than :data:`NETWORK_MIN_GAIN_DB` on the validation pairs is dropped: the
-        profile then holds its effect stages only, fitted on the clean images (``fitted['network']`` records the
-        gains it was judged on), with a colour stage where the pairs show a significant shift between the channels
-        (:mod:`camdegrade.fitting.colour_shift`, ``fitted['colour_shift']``).
+        profile holds its effect stages only, fitted on the clean images, and a colour stage for a significant shift
+        between the channels (:mod:`~camdegrade.fitting.colour_shift`; ``fitted['network']``: the gains judged).
     """
     say = log or _silent
     config = resolve_recipe(recipe)
@@ -186,11 +185,8 @@ def fit_profile(
             }
         eight_bit = all(captured.dtype == torch.uint8 for _, captured in pair_set.images)
         train_pairs, val_pairs = train.unit_pairs(), val.unit_pairs()
-        shift_note = None
-        if not keep_network and Color.name not in config.effects:  # the network held the colour: keep a shift
-            scenes = [*train.scenes, *val.scenes]
-            profile, shift_note = keep_colour_shift(profile, train_pairs, [*train_pairs, *val_pairs], scenes, say)
-        profile, effect_notes = fit_effects(profile, train_pairs, val_pairs, config.effects, say, eight_bit=eight_bit)
+        pairs = (train, val, train_pairs, val_pairs)
+        profile, effect_notes = _effect_stages(profile, pairs, config, keep_network, say, eight_bit=eight_bit)
         texture_note = {"kept": False, "reason": f"texture={config.texture!r}" if keep_network else "no network"}
         denoise_note, response_note = dict(texture_note), dict(texture_note)
         if config.texture == "match" and keep_network:
@@ -204,8 +200,6 @@ def fit_profile(
         profile.fitted["response"] = response_note
         profile.fitted["init_from"] = init_label
         profile.fitted["network"] = _network_note(keep_network, network_gain)
-        if shift_note is not None:
-            profile.fitted["colour_shift"] = shift_note
         profile.fitted["trained_in"] = str(training_dtype(config.precision, torch.device(device))).split(".")[-1]
         quality = _quality(profile, scores, val, eight_bit, say) if scores is not None else {}
         record_quality(profile, quality, _warnings(quality, history, config, keep_network), say)
@@ -214,6 +208,27 @@ def fit_profile(
 
 def _silent(message: str) -> None:
     pass
+
+
+def _effect_stages(
+    profile: CameraProfile,
+    pairs: tuple[PairSet, PairSet, list[ImagePair], list[ImagePair]],
+    config: FitConfig,
+    keep_network: bool,
+    say: Log,
+    *,
+    eight_bit: bool,
+) -> tuple[CameraProfile, dict[str, Any]]:
+    """The recipe's effect stages (:func:`~camdegrade.fitting.stages.fit_effects`), after a colour stage for the shift
+    between the channels where the network that held it was dropped (:mod:`camdegrade.fitting.colour_shift`, its
+    evidence in the notes as ``color``, unless the recipe fits a colour stage itself)."""
+    train, val, train_pairs, val_pairs = pairs
+    shift_note = None
+    if not keep_network and Color.name not in config.effects:
+        scenes = [*train.scenes, *val.scenes]
+        profile, shift_note = keep_colour_shift(profile, train_pairs, [*train_pairs, *val_pairs], scenes, say)
+    profile, notes = fit_effects(profile, train_pairs, val_pairs, config.effects, say, eight_bit=eight_bit)
+    return profile, notes if shift_note is None else {Color.name: shift_note, **notes}
 
 
 def _warnings(quality: dict[str, Any], history: Sequence[EpochResult], config: FitConfig, kept: bool) -> list[str]:
