@@ -7,8 +7,9 @@ import numpy as np
 import torch
 from PIL import Image
 
-from camdegrade.fitting.resolution import find_sensor
-from camdegrade.fitting.unpaired import MIN_IMAGES, fit_unpaired
+from camdegrade.fitting.steps.resolution import sensor_trace, sensor_verdict
+from camdegrade.fitting.unpaired import fit_unpaired
+from camdegrade.fitting.unpaired.images import MIN_IMAGES
 from camdegrade.synthetic import dead_leaves_images
 
 torch.set_num_threads(1)
@@ -33,7 +34,8 @@ def test_the_unpaired_fit_says_what_it_does_with_an_upscale_it_finds() -> None:
     assert found[0].endswith("): every later stage is fitted through it (the profile has no network)"), found[0]
 
 
-def test_find_sensor_ends_its_line_with_what_the_caller_does() -> None:
+def test_the_sensor_verdict_ends_its_line_with_what_the_caller_does() -> None:
     lines: list[str] = []
-    stage, note = find_sensor(None, _upscaled_by_pil(MIN_IMAGES, seed=4), lines.append, then="CALLER'S WORDS")
+    trace = sensor_trace(None, _upscaled_by_pil(MIN_IMAGES, seed=4))
+    stage, note = sensor_verdict(trace, lines.append, then="CALLER'S WORDS")
     assert stage is not None and note["kept"] is True and lines[-1].endswith("): CALLER'S WORDS"), lines

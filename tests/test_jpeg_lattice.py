@@ -13,8 +13,7 @@ import skimage.data
 import torch
 from PIL import Image
 
-from camdegrade.fitting._distribution_match import standard_tables
-from camdegrade.fitting._unpaired_jpeg import quality_from_steps
+from camdegrade.fitting.unpaired.jpeg import quality_from_steps, standard_tables
 from camdegrade.measures.quantisation import FREQUENCIES, MIN_FREQUENCIES, read_lattice
 
 torch.set_num_threads(1)

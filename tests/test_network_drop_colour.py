@@ -4,15 +4,18 @@ the profile without the network keeps a colour stage, so its simulations have th
 
 from __future__ import annotations
 
+import pytest
 import torch
 import torch.nn.functional as F
 
 from camdegrade.effects import Color, Noise
-from camdegrade.fitting import FitConfig, fit_profile, simulate
+from camdegrade.fitting import FitConfig, fit_profile
 from camdegrade.fitting.colour_shift import channel_shift
 
 torch.set_num_threads(1)
-RECIPE = FitConfig(epochs=2, crop=32, batch_size=4, crops_per_pair=4, val_fraction=0.34, lr=0.003, effects=("noise",))
+RECIPE = FitConfig(epochs=2, crop=32, batch_size=4, crops_per_pair=4, val_fraction=0.34, lr=0.003).replace(
+    effects=("noise",)
+)
 GAINS = torch.tensor([1.025, 1.0, 0.975])[:, None, None]
 
 
@@ -32,6 +35,7 @@ def _red_over_blue(images: list[torch.Tensor]) -> float:
     return float(means[0] / means[2])
 
 
+@pytest.mark.slow  # a 2-epoch fit with its steps: about 5 s of CPU
 def test_a_colour_shift_under_the_noise_is_kept_without_the_network() -> None:
     pairs = _pairs(GAINS)
     lines: list[str] = []
@@ -40,7 +44,7 @@ def test_a_colour_shift_under_the_noise_is_kept_without_the_network() -> None:
     assert profile.fitted["effects"]["color"]["kept"] is True, profile.fitted["effects"]
     assert [type(effect) for effect in profile.effects] == [Noise, Color]
     cleans, captures = [clean for clean, _ in pairs], [captured for _, captured in pairs]
-    simulated = simulate(profile, cleans, seed=0)
+    simulated = profile.simulate(cleans, seed=0)
     clean_rb, captured_rb, simulated_rb = (_red_over_blue(images) for images in (cleans, captures, simulated))
     assert captured_rb - clean_rb > 0.04  # the cast: 1.025 / 0.975
     assert abs(simulated_rb - captured_rb) < 0.01, (clean_rb, captured_rb, simulated_rb)

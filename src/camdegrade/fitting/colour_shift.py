@@ -21,7 +21,8 @@ import torch
 from torch import Tensor
 
 from camdegrade.effects import Color
-from camdegrade.profile import CameraProfile
+
+__all__ = ["MIN_SCENES", "MIN_SHIFT", "SIGNIFICANCE", "channel_shift", "colour_shift"]
 
 #: A channel's mean log ratio counts when it is beyond this many standard errors over the scenes ...
 SIGNIFICANCE = 3.0
@@ -57,16 +58,11 @@ def channel_shift(pairs: Sequence[ImagePair], scenes: Sequence[str]) -> tuple[Te
     return per_scene.mean(0), error, count
 
 
-def keep_colour_shift(
-    profile: CameraProfile,
-    train: Sequence[ImagePair],
-    pairs: Sequence[ImagePair],
-    scenes: Sequence[str],
-    say: Callable[[str], None],
-) -> tuple[CameraProfile, dict[str, Any]]:
-    """``profile`` (which has no network) with a colour stage of per-channel gains fitted on ``train`` where
-    ``pairs`` of ``scenes`` (every pair of the fit) show a significant shift (:func:`channel_shift`), and the note
-    for ``fitted['effects']['color']``."""
+def colour_shift(
+    train: Sequence[ImagePair], pairs: Sequence[ImagePair], scenes: Sequence[str], say: Callable[[str], None]
+) -> tuple[Color | None, dict[str, Any]]:
+    """A colour stage of per-channel gains fitted on ``train`` where ``pairs`` of ``scenes`` (every pair of the fit)
+    show a significant shift (:func:`channel_shift`), or ``None``; and its record (``fitted['effects']['color']``)."""
     shift, error, count = channel_shift(pairs, scenes)
     standing = (shift.abs() > SIGNIFICANCE * error) & (shift.abs() >= MIN_SHIFT) & (count >= MIN_SCENES)
     note: dict[str, Any] = {
@@ -79,11 +75,11 @@ def keep_colour_shift(
     shown = ", ".join(f"{name} {float(value):+.3f}" for name, value in zip("RGB", shift, strict=True))
     if not bool(standing.any()):
         say(f"colour shift: none significant ({shown} log ratio over {count} scene(s))")
-        return profile, {**note, "kept": False}
+        return None, {**note, "kept": False}
     colour = Color.fit([clean for clean, _ in train], [captured for _, captured in train], diagonal=True)
     gains = [round(float(value), 4) for value in colour.matrix.diagonal()]
     say(
         f"colour shift: {shown} log ratio over {count} scenes, beyond {SIGNIFICANCE:g} standard errors: a colour "
         f"stage of gains {gains} is kept without the network"
     )
-    return profile.with_effects(colour), {**note, "kept": True, "gains": gains}
+    return colour, {**note, "kept": True, "gains": gains}

@@ -25,6 +25,8 @@ from torch import Tensor
 
 from camdegrade._pixels import as_unit
 
+__all__ = ["FREQUENCIES", "MIN_FREQUENCIES", "LatticeReading", "block_coefficients", "lattice_scores", "read_lattice"]
+
 #: The AC frequencies ``(u, v)`` (vertical, horizontal) read: the low ones (``u + v`` from 1 to 4), where a photo's
 #: coefficients are mostly off zero. Their steps at quality 95 are 1 or 2, at 30 from 17 to 40.
 FREQUENCIES: tuple[tuple[int, int], ...] = tuple(
