@@ -215,7 +215,17 @@ def _write(profile, args: argparse.Namespace, checkpoint: Path) -> None:
     print(f"wrote {printable(args.output)}")
     for warning in warnings:
         print(f"camdegrade fit: warning: {warning}", file=sys.stderr)
+    _next_step(profile, args)
     fail_on_unreadable(profile.fitted.get("unreadable", []), "the profile was fitted on the other pairs")
+
+
+def _next_step(profile, args: argparse.Namespace) -> None:
+    """The exact diagnose command, quoted, when the fit's validation critic tells the profile from the captures."""
+    from camdegrade.fitting.critic_warning import critic_warning, diagnose_command
+
+    if args.pairs is not None and critic_warning(profile.quality.get("fidelity"), None):
+        command = diagnose_command(str(args.output), str(args.pairs))
+        print(f"camdegrade fit: to look for the cause: {printable(command)}", file=sys.stderr)
 
 
 def _checkpoint(args: argparse.Namespace) -> Path:
