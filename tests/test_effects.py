@@ -55,7 +55,7 @@ STRONG = {
     "chromatic_aberration": lambda: ChromaticAberration(0.01, -0.01),
     "color": lambda: Color(_MATRIX, gain_jitter=0.1),
     "distortion": lambda: Distortion(0.1, 0.02),
-    "jpeg": lambda: JPEG(40, quality_jitter=10, probability=0.7),
+    "jpeg": lambda: JPEG(40, quality_jitter=10, probability=0.7, mixture={40: 0.5, 70: 0.3, 90: 0.2}),
     "misalignment": lambda: Misalignment(0.5, -0.3, 0.4, shift_std=0.5, angle_std=0.2),
     "noise": lambda: Noise(0.01, 1e-4, 0.003, gain_jitter=0.3),
     "sharpen": lambda: Sharpen(1.2, 1.0, 0.01),

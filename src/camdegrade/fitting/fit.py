@@ -90,8 +90,9 @@ def fit_profile(
         (:mod:`~camdegrade.fitting.critic_warning`: the statistics that differ most, the diagnose command). A
         network (or linear baseline) that beats the clean image passed through unchanged by less than
         :data:`~camdegrade.fitting.steps.network.NETWORK_MIN_GAIN_DB` on the validation pairs is dropped: the profile
-        then holds its effect stages only, fitted on the clean images (``fitted['network']`` records the gains it
-        was judged on).
+        then holds its effect stages only, fitted on the clean images, with a colour stage where the pairs show a
+        significant shift between the channels (:mod:`~camdegrade.fitting.colour_shift`, ``fitted['effects']
+        ['color']``); ``fitted['network']`` records the gains it was judged on.
     """
     say = log or _silent
     config = resolve_recipe(recipe)

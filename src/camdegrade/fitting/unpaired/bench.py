@@ -80,7 +80,6 @@ class UnpairedFit:
         self.records: dict[str, Any] = {}
         self.not_fitted: dict[str, str] = {}
         self.warnings: list[str] = []
-        self.block_ratio: float | None = None
 
     def chain(self, **replaced: Effect | None) -> list[Effect]:
         """The kept stages in the chain's order, with ``replaced`` ones in place (``None``: left out)."""
