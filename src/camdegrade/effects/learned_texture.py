@@ -174,11 +174,11 @@ class LearnedTexture(Effect):
     def residual(self, planes: Tensor) -> Tensor:
         """``r`` (before its low frequencies are taken out) on the padded planes (image − ½ and z): :data:`RADIUS`
         pixels fewer on each side."""
-        hidden = planes
+        hidden = planes.contiguous(memory_format=torch.channels_last)  # about 10 % faster on the CPU here
         for index, (name, _, _) in enumerate(LAYERS):
             weight = getattr(self, f"{name}_weight").to(planes.device, planes.dtype)
             bias = getattr(self, f"{name}_bias").to(planes.device, planes.dtype)
             hidden = F.conv2d(hidden, weight, bias)
             if index < len(LAYERS) - 1:
                 hidden = F.leaky_relu(hidden, SLOPE)
-        return hidden
+        return hidden.contiguous()
