@@ -50,7 +50,7 @@ VOCABULARY = {
 
 def _learned_texture() -> LearnedTexture:
     """A learned texture stage as training leaves one: random hidden layers and a residual of a few levels."""
-    stage = LearnedTexture.initial(12, seed=0)
+    stage = LearnedTexture.initial(8, seed=0)
     generator = torch.Generator().manual_seed(1)
     stage.conv3_weight.copy_(torch.randn(stage.conv3_weight.shape, generator=generator) * 0.005)
     stage.conv3_bias.copy_(torch.tensor([0.004, -0.002, 0.001]))

@@ -20,6 +20,7 @@ def test_a_new_stage_is_the_identity_and_training_starts_there() -> None:
         params = stage.make_params(image.shape, torch.Generator().manual_seed(0))
         assert torch.equal(stage(image, params), image)
     assert LearnedTexture.initial(8, seed=3).conv1_weight.abs().sum() > 0  # hidden layers drawn, output zero
+    assert sum(v.numel() for v in LearnedTexture().state_dict().values()) == 1099  # width 8
     assert sum(v.numel() for v in LearnedTexture(12).state_dict().values()) == 2079
 
 
@@ -60,7 +61,7 @@ def test_it_changes_texture_not_the_low_frequencies() -> None:
     stage = strong("learned_texture")
     image = photo_batch(64, 96)
     out = stage(image, stage.make_params(image.shape, torch.Generator().manual_seed(0)))
-    unprojected = LearnedTexture(12, sigma=0.0, weights=dict(stage.named_buffers()))
+    unprojected = LearnedTexture(8, sigma=0.0, weights=dict(stage.named_buffers()))
     raw = unprojected(image, unprojected.make_params(image.shape, torch.Generator().manual_seed(0)))
     inner = (..., slice(8, -8), slice(8, -8))  # away from the borders, whose padding differs
     low = (blur_image(out, 3.0) - blur_image(image, 3.0))[inner].abs().mean() * 255

@@ -249,7 +249,7 @@ BUILT_IN: dict[str, EffectFacts] = {
     "learned_texture": EffectFacts(
         "codec",
         {  # LearnedTexture: MAX_WIDTH, MAX_SIGMA
-            "width": Setting(int, 12, Bound(1, 64, integer=True)),
+            "width": Setting(int, 8, Bound(1, 64, integer=True)),
             "noise": Setting(bool, True),
             "sigma": Setting(float, 1.5, Bound(0.0, 8.0)),
         },

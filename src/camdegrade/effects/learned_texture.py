@@ -54,7 +54,7 @@ class LearnedTexture(Effect):
     camera (docs/results.md, *A learned texture stage*).
 
     Args:
-        width: hidden channels (default 12: 2,079 weights and biases), from 1 to :attr:`MAX_WIDTH`.
+        width: hidden channels (default 8: 1,099 weights and biases; 12: 2,079), from 1 to :attr:`MAX_WIDTH`.
         noise: draw ``z`` (default); without it ``z`` is 0 (the stage's deterministic centre).
         sigma: the low-pass (pixels) whose band the stage leaves alone, from 0 (none taken out) to
             :attr:`MAX_SIGMA`.
@@ -82,7 +82,7 @@ class LearnedTexture(Effect):
     MAX_SIGMA: ClassVar[float] = 8.0
 
     def __init__(
-        self, width: int = 12, *, noise: bool = True, sigma: float = 1.5, weights: Mapping[str, Tensor] | None = None
+        self, width: int = 8, *, noise: bool = True, sigma: float = 1.5, weights: Mapping[str, Tensor] | None = None
     ) -> None:
         super().__init__()
         if isinstance(width, bool) or not isinstance(width, int) or not 1 <= width <= self.MAX_WIDTH:
@@ -106,7 +106,7 @@ class LearnedTexture(Effect):
             self.register_buffer(key, value)
 
     @classmethod
-    def initial(cls, width: int = 12, seed: int = 0) -> LearnedTexture:
+    def initial(cls, width: int = 8, seed: int = 0) -> LearnedTexture:
         """Where training starts: hidden layers drawn for a leaky ReLU (He et al. 2015) from ``seed``, the output
         layer zero, so the stage starts as the identity."""
         generator = torch.Generator().manual_seed(seed)
