@@ -33,7 +33,7 @@ from torch import Tensor
 
 from camdegrade import CameraProfile, load_profile
 from camdegrade._pixels import as_unit, unit_to_bytes
-from camdegrade.fitting import discover_pairs, filter_pairs, load_pair, simulate
+from camdegrade.fitting import discover_pairs, filter_pairs, load_pair
 from camdegrade.fitting.two_sample import TwoSampleOptions, fit_two_sample
 from camdegrade.fitting.two_sample_gate import fit_learned_stage
 from camdegrade.fitting.unpaired import fit_unpaired
@@ -111,7 +111,7 @@ def rows(scenes: dict, candidates: dict[str, CameraProfile | None], critic_seeds
     reals = [scenes[scene][1] for scene in HELD_OUT]
     out = []
     for label, profile in candidates.items():
-        sims = cleans if profile is None else stored(simulate(profile, cleans, 0))
+        sims = cleans if profile is None else stored(profile.simulate(cleans, 0))
         report = measure_fidelity(sims, reals, cleans).to_dict(digits=3)
         critic = repeated_critic_test((cleans, reals, sims), HELD_OUT, critic_seeds, image_only=True)
         out.append({"row": label, **report, "critic_image_only": critic.to_dict()})
@@ -149,7 +149,7 @@ def evidence_page(scenes: dict, columns: dict[str, CameraProfile | None], path: 
     for scene in SHOWN:
         clean, real = scenes[scene]
         seed = HELD_OUT.index(scene)
-        images = [clean, real] + [stored(simulate(p, [clean], seed))[0] for p in columns.values() if p is not None]
+        images = [clean, real] + [stored(p.simulate([clean], seed))[0] for p in columns.values() if p is not None]
         windows = (("flat 1:1", flat_mask(clean), TILE), ("texture 2x", gradient_energy(clean), TILE // 2))
         for kind, score, side in windows:
             top, left = _window(score, side)

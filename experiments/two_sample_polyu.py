@@ -27,10 +27,10 @@ from PIL import Image
 from camdegrade import CameraProfile
 from camdegrade._pixels import as_unit
 from camdegrade.fitting import Pair, discover_pairs, filter_pairs, load_pair
-from camdegrade.fitting._unpaired_noise import flat_sums
 from camdegrade.fitting.two_sample import TwoSampleOptions, fit_two_sample
 from camdegrade.fitting.two_sample_gate import fit_learned_stage, set_statistics
 from camdegrade.fitting.unpaired import fit_unpaired
+from camdegrade.fitting.unpaired.noise import flat_sums
 
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_DATA = ROOT.parent / "shared" / "data" / "real-pairs"

@@ -17,6 +17,8 @@ from camdegrade.effects._common import batch_shape, resolve_params
 from camdegrade.effects.base import Effect, check_range, register_effect
 from camdegrade.functional.blur import blur_image
 
+__all__ = ["LearnedTexture", "layer_shapes"]
+
 #: The layers, each a 3×3 convolution: (name, output channels, input channels); "width" is the config's.
 LAYERS: tuple[tuple[str, int | str, int | str], ...] = (
     ("conv1", "width", 4),

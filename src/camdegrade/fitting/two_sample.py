@@ -46,8 +46,8 @@ from camdegrade._seeds import derive_seed, derived_generator
 from camdegrade.effects import LearnedTexture
 from camdegrade.fitting._patch_critic import PatchCritic, low_pass
 from camdegrade.fitting._two_sample_state import TwoSampleState, load_state, save_state
-from camdegrade.fitting.pairset import simulate
-from camdegrade.fitting.training import FitInterrupted, pairs_fingerprint
+from camdegrade.fitting.network.checkpoint import pairs_fingerprint
+from camdegrade.fitting.network.training import FitInterrupted
 from camdegrade.measures.fidelity import band_power
 from camdegrade.profile import CameraProfile
 
@@ -161,7 +161,7 @@ def fit_two_sample(
 
 def _named_outputs(named: CameraProfile | Simulator, cleans: Sequence[Tensor], seed: int) -> list[Tensor]:
     """The named stages' output on ``cleans``, stored as 8-bit values (as the captures are)."""
-    images = simulate(named, list(cleans), seed, stream="two-sample") if isinstance(named, CameraProfile) else None
+    images = named.simulate(list(cleans), seed, stream="two-sample") if isinstance(named, CameraProfile) else None
     images = images if images is not None else list(named(list(cleans)))
     if len(images) != len(cleans):
         raise ValueError(f"named must give one image per clean image ({len(cleans)}), got {len(images)}")

@@ -25,10 +25,9 @@ from torch import Tensor
 
 from camdegrade.effects import LearnedTexture
 from camdegrade.effects.base import evenly_spaced
-from camdegrade.fitting._distribution_match import SPECTRUM_SIDE, centre_crop
-from camdegrade.fitting._unpaired_noise import flat_sums
-from camdegrade.fitting.pairset import simulate
 from camdegrade.fitting.two_sample import TwoSampleOptions, fit_two_sample
+from camdegrade.fitting.unpaired.noise import flat_sums
+from camdegrade.fitting.unpaired.spectrum import SPECTRUM_SIDE, centre_crop
 from camdegrade.measures.critic import PATCH, repeated_critic_test
 from camdegrade.measures.fidelity import band_power
 from camdegrade.profile import CameraProfile
@@ -69,7 +68,7 @@ class Judgement:
 def set_statistics(images: Sequence[Tensor], captures: Sequence[Tensor]) -> dict[str, Any]:
     """``images`` against ``captures`` (other scenes allowed): the set means' log2 band power differences on centre
     crops of :data:`SPECTRUM_SIDE`, and the flat-noise ratio, each set's own flat pixels
-    (:func:`~camdegrade.fitting._unpaired_noise.flat_sums`)."""
+    (:func:`~camdegrade.fitting.unpaired.noise.flat_sums`)."""
 
     def bands(side: Sequence[Tensor]) -> Tensor:
         powers = [band_power(centre_crop(image, SPECTRUM_SIDE))[0] for image in side]
@@ -123,7 +122,7 @@ def judge_learned_stage(
     scenes = [f"{index:04d}" for index in range(len(cleans))]
     rows = {}
     for label, profile in (("without", named), ("with", named.with_effects(stage))):
-        sims = [image.mul(255).round().div(255) for image in simulate(profile, cleans, seed, stream="two-sample-gate")]
+        sims = profile.simulate(cleans, seed, stream="two-sample-gate", eight_bit=True)
         statistics = set_statistics(sims, captures)
         critic = repeated_critic_test((cleans, captures, sims), scenes, critic_seeds, image_only=True)
         rows[label] = {
