@@ -5,7 +5,7 @@ The unpaired split of ``examples/fit_city100_unpaired.py``: the fit sees the cle
 captures of 036–055 (no scene on both sides); the check uses the pairs of the 16 held-out scenes (056–070, 098),
 whole frames, each simulation with seed = scene index, stored as 8-bit values. Rows: the clean image, the built-in
 ``city100-iphonex`` (the paired fit), today's unpaired profile (:func:`~camdegrade.fitting.unpaired.fit_unpaired`),
-the same with the learned stage (:func:`~camdegrade.fitting.two_sample_gate.fit_learned_stage`: trained on each
+the same with the learned stage (:func:`~camdegrade.fitting.two_sample.gate.fit_learned_stage`: trained on each
 half of the fitting sets and judged on the other half; without ``--no-gate`` it is kept only where both halves say
 so) and, with ``--paired``, the built-in with a learned stage trained on its own training pairs 001–055 with an L2
 term (``pixel_weight``). Columns: :mod:`camdegrade.measures.fidelity` (band log2 power, flat-noise ratio, paired
@@ -34,8 +34,8 @@ from torch import Tensor
 from camdegrade import CameraProfile, load_profile
 from camdegrade._pixels import as_unit, unit_to_bytes
 from camdegrade.fitting import discover_pairs, filter_pairs, load_pair
-from camdegrade.fitting.two_sample import TwoSampleOptions, fit_two_sample
-from camdegrade.fitting.two_sample_gate import fit_learned_stage
+from camdegrade.fitting.two_sample.gate import fit_learned_stage
+from camdegrade.fitting.two_sample.train import TwoSampleOptions, fit_two_sample
 from camdegrade.fitting.unpaired import fit_unpaired
 from camdegrade.functional.analysis import flat_mask, gradient_energy
 from camdegrade.measures.critic import repeated_critic_test
@@ -86,9 +86,7 @@ def learned(scenes: dict, named: CameraProfile, args: argparse.Namespace) -> tup
         )
         evidence = {"kept": True, "gated": False, "trainings": [evidence]}
     else:
-        stage, evidence = fit_learned_stage(
-            named, cleans, captures, seed=args.seed, steps=args.steps, options=options, progress=True
-        )
+        stage, evidence = fit_learned_stage(named, cleans, captures, seed=args.seed, steps=args.steps, options=options)
     evidence["seconds"] = round(time.perf_counter() - started, 1)
     return (named.with_effects(stage) if stage is not None else named), evidence
 

@@ -4,7 +4,7 @@ learned texture stage.
 Captures: the noisy shots of the first 10 PolyU scenes (sorted by file name, one crop per scene), centre crops of
 128² saved as JPEG at quality 85 (so the fit reads the quantisation tables); clean images: the mean images of the
 next 10 scenes, centre crops of 128² (lossless). :func:`~camdegrade.fitting.unpaired.fit_unpaired` fits the profile,
-:func:`~camdegrade.fitting.two_sample_gate.fit_learned_stage` adds a learned stage where the held-out halves keep it,
+:func:`~camdegrade.fitting.two_sample.gate.fit_learned_stage` adds a learned stage where the held-out halves keep it,
 and the stage trained on all images without the gate is measured too. For each: a flat grey input (0.45, 0.55) →
 the output's std and mean per channel (8-bit levels), the captures' own flat-pixel noise beside it, and the set
 statistics of the clean images' simulation against the captures (band log2 differences, flat-noise ratio)::
@@ -27,8 +27,8 @@ from PIL import Image
 from camdegrade import CameraProfile
 from camdegrade._pixels import as_unit
 from camdegrade.fitting import Pair, discover_pairs, filter_pairs, load_pair
-from camdegrade.fitting.two_sample import TwoSampleOptions, fit_two_sample
-from camdegrade.fitting.two_sample_gate import fit_learned_stage, set_statistics
+from camdegrade.fitting.two_sample.gate import fit_learned_stage, set_statistics
+from camdegrade.fitting.two_sample.train import TwoSampleOptions, fit_two_sample
 from camdegrade.fitting.unpaired import fit_unpaired
 from camdegrade.fitting.unpaired.noise import flat_sums
 

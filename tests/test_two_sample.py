@@ -15,9 +15,9 @@ from camdegrade.effects import LearnedTexture, Noise
 from camdegrade.effects.learned_texture import layer_shapes
 from camdegrade.errors import CamdegradeError
 from camdegrade.fitting import FitInterrupted
-from camdegrade.fitting._patch_critic import low_pass
-from camdegrade.fitting.two_sample import TwoSampleOptions, _Sampler, fit_two_sample
-from camdegrade.fitting.two_sample_gate import judge_learned_stage, statistics_distance
+from camdegrade.fitting.two_sample.critic import low_pass
+from camdegrade.fitting.two_sample.gate import judge_learned_stage, statistics_distance
+from camdegrade.fitting.two_sample.train import TwoSampleOptions, _Sampler, fit_two_sample
 
 SMALL = TwoSampleOptions(patch=32, batch=4, width=4, critic_width=4)
 

@@ -68,7 +68,7 @@ class LearnedTexture(Effect):
 
     Not a diagnosis candidate (:attr:`Effect.candidate`): a free network can stand in for any stage, so it names
     nothing. It has no pair fitter (:meth:`Effect.fit`): it is trained by
-    :func:`camdegrade.fitting.two_sample.fit_two_sample`.
+    :func:`camdegrade.fitting.two_sample.train.fit_two_sample`.
 
     References:
         M. Fritsche, S. Gu, R. Timofte, "Frequency Separation for Real-World Super-Resolution", ICCV Workshops 2019.

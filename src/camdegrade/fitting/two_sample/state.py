@@ -16,8 +16,10 @@ from torch import Tensor
 from camdegrade._files import atomic_path
 from camdegrade.errors import CamdegradeError
 
+__all__ = ["TwoSampleState", "load_state", "save_state"]
+
 if TYPE_CHECKING:
-    from camdegrade.fitting.two_sample import _Game
+    from camdegrade.fitting.two_sample.train import _Game
 
 STATE_KEY = "camdegrade_two_sample"
 #: The state dicts and optimizers a checkpoint holds, by the prefix of their tensors' keys.

@@ -4,7 +4,7 @@ frequencies of what it was given.
 
 The game, on random patches (a few hundred to a few thousand fixed steps, seeded):
 
-- the critic (:class:`~camdegrade.fitting._patch_critic.PatchCritic`, spectral norm, high frequencies only) learns
+- the critic (:class:`~camdegrade.fitting.two_sample.critic.PatchCritic`, spectral norm, high frequencies only) learns
   to tell the camera's patches from the stage's output with a hinge loss;
 - the stage learns to fool it (``−critic``), held by a content term, the L1 distance between its output's low-pass
   and its input's (frequency separation: what the named stages fitted is kept, the texture is free), a spectrum
@@ -44,10 +44,10 @@ from tqdm.auto import tqdm
 from camdegrade._files import check_writable
 from camdegrade._seeds import derive_seed, derived_generator
 from camdegrade.effects import LearnedTexture
-from camdegrade.fitting._patch_critic import PatchCritic, low_pass
-from camdegrade.fitting._two_sample_state import TwoSampleState, load_state, save_state
 from camdegrade.fitting.network.checkpoint import pairs_fingerprint
 from camdegrade.fitting.network.training import FitInterrupted
+from camdegrade.fitting.two_sample.critic import PatchCritic, low_pass
+from camdegrade.fitting.two_sample.state import TwoSampleState, load_state, save_state
 from camdegrade.measures.fidelity import band_power
 from camdegrade.profile import CameraProfile
 

@@ -21,6 +21,8 @@ from torch.nn.utils.parametrizations import spectral_norm
 
 from camdegrade.functional.blur import blur_image
 
+__all__ = ["PatchCritic", "high_pass", "low_pass"]
+
 #: Slope of the critic's leaky ReLUs.
 SLOPE = 0.2
 
