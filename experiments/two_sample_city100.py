@@ -177,6 +177,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--no-gate", action="store_true", help="train once on all fitting images, keep the stage")
     parser.add_argument("--paired", action="store_true", help="also the built-in + a stage trained on its pairs")
     parser.add_argument("--critic-seeds", type=int, default=4)
+    parser.add_argument(
+        "--no-references", action="store_true", help="leave out the clean-image and built-in rows (measured before)"
+    )
     parser.add_argument("--out", type=Path, default=ROOT / "out" / "city100-unpaired-learned.safetensors")
     parser.add_argument("--png", type=Path, default=ROOT / "docs" / "two_sample_city100.png")
     parser.add_argument("--json", type=Path, default=ROOT / "out" / "results" / "two_sample_city100.json")
@@ -195,6 +198,8 @@ def main(argv: list[str] | None = None) -> int:
         "unpaired fit (today)": unpaired,
         "unpaired fit + learned texture stage": now,
     }
+    if args.no_references:
+        candidates = {key: value for key, value in candidates.items() if key.startswith("unpaired")}
     if args.paired:
         candidates["paired built-in + learned stage (trained paired)"], record["paired"] = learned_paired(scenes, args)
     table = rows(scenes, candidates, args.critic_seeds)
