@@ -146,5 +146,5 @@ def test_the_gate_keeps_grain_the_captures_have_and_refuses_far_too_much() -> No
     assert right.keep and right.with_stage["distance"] < right.without["distance"], right.to_dict()
     grainy = CameraProfile(None, [Noise(b=(6.0 / 255) ** 2, linear=False)])
     wrong = judge_learned_stage(grainy, _grain_stage(40.0), cleans, captures, critic_seeds=1)
-    assert not wrong.closer and not wrong.keep, wrong.to_dict()
+    assert not wrong.not_farther and not wrong.keep, wrong.to_dict()
     assert wrong.with_stage["noise_ratio"] > 3 * wrong.without["noise_ratio"]

@@ -1,16 +1,21 @@
 """The unpaired fit's last step: a learned texture stage (:func:`~camdegrade.fitting.two_sample.train.fit_two_sample`)
 after the named stages, trained on one half of the sets and judged on the other, both ways.
 
-A learned stage is kept only where, on images it was not trained on,
+Two measures judge a learned stage on images it was not trained on: a *fresh* image-only critic
+(:func:`~camdegrade.measures.critic.repeated_critic_test`, never the critic the stage was trained against, which it
+learned to fool), and the set statistics the named stages matched (the RMS over the five spectrum bands' log2 power
+differences and the log2 flat-noise ratio, :func:`statistics_distance`). It is kept where it makes neither worse and
+one better:
 
-- a *fresh* image-only critic (:func:`~camdegrade.measures.critic.repeated_critic_test`, never the critic the stage
-  was trained against, which it learned to fool) tells the simulation from the captures less easily than without
-  the stage: what the stage is trained for, judged by a critic that never saw it; and
-- the set statistics the named stages matched (the RMS over the five spectrum bands' log2 power differences and
-  the log2 flat-noise ratio, :func:`statistics_distance`) do not move farther from the captures' by more than the
-  content of the judging images alone moves that change (:data:`~camdegrade.fitting.unpaired.judges.SIGNIFICANCE`
-  split-half standard errors, :func:`~camdegrade.fitting.unpaired.judges.split_half_error`): the stage is not
-  trained to move them, so they are a guard, held to the named stages' own rule of what a change is.
+- the statistics move farther from the captures' by no more than the content of the judging images alone moves
+  that change (:data:`~camdegrade.fitting.unpaired.judges.SIGNIFICANCE` split-half standard errors,
+  :func:`~camdegrade.fitting.unpaired.judges.split_half_error`: the named stages' own rule of what a change is);
+- the fresh critic finds it no easier (by :data:`CRITIC_SLACK`);
+- and the critic falls, or the statistics move closer by more than that error.
+
+A rule of "closer" without the error refused City100's stage for 0.012 and 0.027 log2 (1.4 and 2.3 standard
+errors; the critic fell 0.68 → 0.62 and 0.77 → 0.66): the stage takes about 0.08 log2 off the 0.25–0.35
+cycles/pixel band, a change the named stages' judges would not call one (docs/results.md).
 
 Both directions are judged (trained on half A, judged on half B, and back; once one is refused the other is not
 trained); the stage kept is then trained on all images. :class:`LearnedTextureMatch` is the step,
@@ -39,6 +44,7 @@ from camdegrade.measures.fidelity import band_power
 from camdegrade.profile import CameraProfile
 
 __all__ = [
+    "CRITIC_SLACK",
     "JUDGE_IMAGES",
     "Judgement",
     "LearnedTextureMatch",
@@ -50,6 +56,9 @@ __all__ = [
     "statistics_distance",
 ]
 
+#: How much easier the fresh critic may find the simulation with the stage (accuracy; two critics on 8–10 held-out
+#: images spread by about 0.05, docs/results.md).
+CRITIC_SLACK = 0.02
 #: A judgement uses at most this many held-out clean images and as many captures (evenly spaced): its critics and
 #: simulations are most of the gate's time, and 16 City100 scenes already separate the rows of docs/results.md.
 JUDGE_IMAGES = 20
@@ -63,23 +72,27 @@ class Judgement:
     without: dict[str, Any]
     with_stage: dict[str, Any]
     change_error: float
-    closer: bool = field(init=False)
-    critic_falls: bool = field(init=False)
+    not_farther: bool = field(init=False)
+    not_easier: bool = field(init=False)
+    better: bool = field(init=False)
     keep: bool = field(init=False)
 
     def __post_init__(self) -> None:
         change = self.with_stage["distance"] - self.without["distance"]
-        self.closer = change <= SIGNIFICANCE * self.change_error
-        self.critic_falls = self.with_stage["critic"] < self.without["critic"]
-        self.keep = self.closer and self.critic_falls
+        critic_change = self.with_stage["critic"] - self.without["critic"]
+        self.not_farther = change <= SIGNIFICANCE * self.change_error
+        self.not_easier = critic_change <= CRITIC_SLACK
+        self.better = critic_change < 0 or change < -SIGNIFICANCE * self.change_error
+        self.keep = self.not_farther and self.not_easier and self.better
 
     def to_dict(self) -> dict[str, Any]:
         return {
             "without": self.without,
             "with": self.with_stage,
             "change_error": round(self.change_error, 4),
-            "not_farther": self.closer,
-            "critic_falls": self.critic_falls,
+            "not_farther": self.not_farther,
+            "not_easier": self.not_easier,
+            "better": self.better,
             "keep": self.keep,
         }
 

@@ -44,8 +44,8 @@ from tqdm.auto import tqdm
 from camdegrade._files import check_writable
 from camdegrade._seeds import derive_seed, derived_generator
 from camdegrade.effects import LearnedTexture
+from camdegrade.errors import FitInterrupted
 from camdegrade.fitting.network.checkpoint import pairs_fingerprint
-from camdegrade.fitting.network.training import FitInterrupted
 from camdegrade.fitting.two_sample.critic import PatchCritic, low_pass
 from camdegrade.fitting.two_sample.state import TwoSampleState, load_state, save_state
 from camdegrade.measures.fidelity import band_power
