@@ -264,6 +264,25 @@ BUILT_IN: dict[str, EffectFacts] = {
         },
         value_rules=(_weights_sum_to_one,),
     ),
+    "learned_texture": EffectFacts(
+        "codec",
+        {  # LearnedTexture: MAX_WIDTH, MAX_SIGMA
+            "width": Setting(int, 8, Bound(1, 64, integer=True)),
+            "noise": Setting(bool, True),
+            "sigma": Setting(float, 1.5, Bound(0.0, 8.0)),
+        },
+        {
+            key: Buffer(shape, bound=Bound(-64.0, 64.0))  # LearnedTexture.MAX_WEIGHT
+            for key, shape in (
+                ("conv1_weight", ("width", 4, 3, 3)),
+                ("conv1_bias", ("width",)),
+                ("conv2_weight", ("width", "width", 3, 3)),
+                ("conv2_bias", ("width",)),
+                ("conv3_weight", (3, "width", 3, 3)),
+                ("conv3_bias", (3,)),
+            )
+        },
+    ),
     "misalignment": EffectFacts(
         "optics",
         {"shift_std": Setting(float, 0.0, Bound(0.0, 64.0)), "angle_std": Setting(float, 0.0, Bound(0.0, 45.0))},

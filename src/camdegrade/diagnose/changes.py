@@ -188,7 +188,9 @@ class RefitStage(ChangeKind):
     simplicity = 2
 
     def plans(self, current: CameraProfile, adds: Sequence[str], axes: set[str]) -> list[Plan]:
-        return _stage_plans(self, current, axes)
+        """A plan for every stage the gap shows that can be fitted anew (a learned stage has no pair fitter)."""
+        plans = _stage_plans(self, current, axes)
+        return [plan for plan in plans if type(current.effects[plan.target]).has_pair_fitter()]
 
     def make(self, round_: Round, target: Any) -> Made:
         stage = round_.current.effects[target]

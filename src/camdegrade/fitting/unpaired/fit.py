@@ -46,6 +46,7 @@ from camdegrade.effects import (
     Distortion,
     Effect,
     FrequencyResponse,
+    LearnedTexture,
     Misalignment,
     Noise,
     Resolution,
@@ -59,6 +60,7 @@ from camdegrade.errors import CamdegradeError
 from camdegrade.fitting.record import machine_record
 from camdegrade.fitting.steps.base import Verdict, run_steps
 from camdegrade.fitting.steps.resolution import sensor_trace, sensor_verdict
+from camdegrade.fitting.two_sample.gate import LearnedTextureMatch
 from camdegrade.fitting.unpaired.bench import Measured, UnpairedFit, UnpairedStep
 from camdegrade.fitting.unpaired.color_tone import ColorToneMatch
 from camdegrade.fitting.unpaired.images import MIN_IMAGES, ImageSet, Source, check_count, load_images, load_sides
@@ -83,6 +85,7 @@ __all__ = [
     "MIN_IMAGES",
     "NOT_IDENTIFIABLE",
     "UNPAIRED_EFFECTS",
+    "UNPAIRED_OPTIONAL",
     "UNPAIRED_STEPS",
     "check_unpaired_effects",
     "fit_unpaired",
@@ -93,6 +96,9 @@ __all__ = [
 UNPAIRED_EFFECTS: tuple[str, ...] = tuple(
     kind.name for kind in (Resolution, JPEG, Color, Tone, Vignetting, Noise, Blur, Sharpen, FrequencyResponse)
 )
+#: Stages :func:`fit_unpaired` fits only when asked for (``effects``): the learned texture stage
+#: (:mod:`camdegrade.fitting.two_sample.gate`), three trainings of a network and their critics.
+UNPAIRED_OPTIONAL: tuple[str, ...] = (LearnedTexture.name,)
 #: Stages that need to know where each clean pixel landed in the capture: an unpaired set cannot show them.
 NOT_IDENTIFIABLE: dict[str, str] = {
     Misalignment.name: "a shift between clean image and capture is invisible without the same scene on both sides",
@@ -151,6 +157,7 @@ UNPAIRED_STEPS: tuple[tuple[str, UnpairedStep], ...] = (
     ("noise again", NoiseMatch()),
     ("detail response", DetailResponseMatch()),
     ("noise through the detail response", NoiseMatch(refit=True)),
+    ("learned texture", LearnedTextureMatch()),
 )
 
 
@@ -161,8 +168,8 @@ def check_unpaired_effects(effects: Sequence[str]) -> list[str]:
     for name in names:
         if name in NOT_IDENTIFIABLE:
             raise ValueError(f"effects: {name!r} cannot be fitted unpaired: {NOT_IDENTIFIABLE[name]}")
-        if name not in UNPAIRED_EFFECTS:
-            raise ValueError(f"effects must be names from {list(UNPAIRED_EFFECTS)}, got {name!r}")
+        if name not in UNPAIRED_EFFECTS + UNPAIRED_OPTIONAL:
+            raise ValueError(f"effects must be names from {[*UNPAIRED_EFFECTS, *UNPAIRED_OPTIONAL]}, got {name!r}")
     return names
 
 
