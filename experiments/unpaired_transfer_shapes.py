@@ -6,7 +6,8 @@ simulating a clean set of other scenes. Here, on its split (clean 001–035, cap
 shapes is searched on a grid and its best mismatch (mean squared log2 power difference) printed: a Gaussian PSF with
 an unsharp mask of radius 0.5–4 px (the fit's family has radius 1), a PSF whose MTF is ``exp(−(f/f₀)^p)`` (p 1, 1.5:
 heavier tails than a Gaussian's p = 2), and a sensor of 0.35–0.5 of the pixels upscaled (with blur and sharpening).
-Every chain ends in JPEG at quality 98 (what the fit estimates for these captures). Then the residual of the best
+Every chain ends in JPEG at quality 98 (what the fit estimated for these captures from their block-edge energy until
+issue 44; they hold no quantisation lattice, and the fit now gives them no codec stage). Then the residual of the best
 Gaussian-plus-unsharp chain per band, between the fitting sets and on the 16 held-out *pairs* (no content
 difference there): the same shape on both is the camera's, which a radial detail response fitted on the sets
 carries over. Run from the repo root (about 3 minutes on 2 cores)::

@@ -51,7 +51,10 @@ def test_the_cli_options_of_the_switches_map_onto_the_steps() -> None:
     none = fast.replace(texture="none", effects=(), sensor_scale=0.5)
     assert [step.name for step in none.steps] == ["resolution", "effects"]
     assert none.option("effects") == () and none.option("sensor_scale") == 0.5 and none.option("texture") == "none"
-    assert none.left_out() == {name: "texture='none'" for name in ("texture", "denoise", "response")}
+    assert none.left_out() == {
+        **{name: "texture='none'" for name in ("texture", "denoise", "response")},
+        "learned_texture": "learned_texture='none'",  # no recipe's default (issue 43)
+    }
     assert none.replace(texture="match") == fast.replace(effects=(), sensor_scale=0.5)  # back in their places
     paper = FitConfig.recipe("paper")
     assert [step.name for step in paper.steps] == ["resolution", "effects"] and paper.option("sensor_scale") == 1.0

@@ -21,6 +21,7 @@ from camdegrade.effects import (
     Distortion,
     Effect,
     FrequencyResponse,
+    LearnedTexture,
     Misalignment,
     Noise,
     Resolution,
@@ -47,6 +48,15 @@ VOCABULARY = {
 }
 
 
+def _learned_texture() -> LearnedTexture:
+    """A learned texture stage as training leaves one: random hidden layers and a residual of a few levels."""
+    stage = LearnedTexture.initial(8, seed=0)
+    generator = torch.Generator().manual_seed(1)
+    stage.conv3_weight.copy_(torch.randn(stage.conv3_weight.shape, generator=generator) * 0.005)
+    stage.conv3_bias.copy_(torch.tensor([0.004, -0.002, 0.001]))
+    return stage
+
+
 _MATRIX = torch.tensor([[1.1, 0.05, 0.0], [0.02, 0.95, 0.03], [0.0, 0.1, 0.85]])
 #: Each registered effect at a clearly visible strength, with every per-sample jitter option switched on. Every
 #: effect the package registers must have an entry (tested), so the contract tests below cover it.
@@ -55,7 +65,8 @@ STRONG = {
     "chromatic_aberration": lambda: ChromaticAberration(0.01, -0.01),
     "color": lambda: Color(_MATRIX, gain_jitter=0.1),
     "distortion": lambda: Distortion(0.1, 0.02),
-    "jpeg": lambda: JPEG(40, quality_jitter=10, probability=0.7),
+    "jpeg": lambda: JPEG(40, quality_jitter=10, probability=0.7, mixture={40: 0.5, 70: 0.3, 90: 0.2}),
+    "learned_texture": _learned_texture,
     "misalignment": lambda: Misalignment(0.5, -0.3, 0.4, shift_std=0.5, angle_std=0.2),
     "noise": lambda: Noise(0.01, 1e-4, 0.003, gain_jitter=0.3),
     "sharpen": lambda: Sharpen(1.2, 1.0, 0.01),

@@ -16,7 +16,7 @@ from bad_inputs import good_image, one_line_error, run_cli
 from camdegrade import CameraProfile
 from camdegrade.cli import fit as fit_command
 from camdegrade.cli import main_parser
-from camdegrade.fitting.unpaired import MIN_IMAGES
+from camdegrade.fitting.unpaired import MIN_IMAGES, UNPAIRED_EFFECTS
 
 #: A value for every option of ``fit`` (by option string); a new option must be added here, and to the command's
 #: table (``camdegrade.cli.fit.UNPAIRED_USES`` or ``UNPAIRED_REFUSES``).
@@ -39,6 +39,7 @@ SAMPLES: dict[str, list[str]] = {
     "--val-fraction": ["0.2"],
     "--effects": ["noise", "jpeg"],
     "--texture": ["none"],
+    "--learned-texture": ["critic"],
     "--sensor-scale": ["0.5"],
     "--no-effects": [],
     "--device": ["cpu"],
@@ -60,6 +61,7 @@ SAMPLES: dict[str, list[str]] = {
 PASSED: dict[str, tuple[str, Any]] = {
     "--seed": ("seed", 5),
     "--effects": ("effects", ["noise", "jpeg"]),
+    "--learned-texture": ("effects", [*UNPAIRED_EFFECTS, "learned_texture"]),
     "--sensor-scale": ("sensor_scale", 0.5),
     "--max-pairs": ("max_images", 9),
     "--strict": ("strict", True),

@@ -104,6 +104,9 @@ TRAIN_PRECISIONS: tuple[str, ...] = ("auto", "float32", "bfloat16")
 #: (:mod:`camdegrade.fitting.steps.texture`), then a noise reduction that matches its faint detail to theirs
 #: (:mod:`camdegrade.fitting.steps.denoise`), each where the validation pairs confirm it; ``none``: no such stages.
 TEXTURES: tuple[str, ...] = ("match", "none")
+#: ``critic``: a learned texture stage last, trained against a critic (:mod:`camdegrade.fitting.two_sample`), kept
+#: where held-out data confirm it; ``none``: not (every recipe's default).
+LEARNED_TEXTURES: tuple[str, ...] = ("critic", "none")
 #: The smallest sensor scale a recipe accepts (``camdegrade.effects.Resolution.MIN_SCALE``; a test keeps them equal).
 MIN_SENSOR_SCALE = 0.125
 
@@ -171,6 +174,15 @@ FIELDS: tuple[RecipeField, ...] = (
         "a camera that upscales: its sensor's resolution relative to its output (0.5: every other pixel "
         "sampled), the network trained through it; auto: found from the captures (1/2, 1/3, 1/4); 1: none",
         step="resolution.scale",
+    ),
+    RecipeField(
+        "learned_texture",
+        "choice",
+        "critic: last, a small network trained against a critic (and L2 on the pairs) for the texture no stage "
+        "names, kept where held-out data say a fresh critic tells it less easily (with --unpaired: where the "
+        "halves of the sets say so); minutes more",
+        LEARNED_TEXTURES,
+        toggles=("learned_texture",),
     ),
 )
 FIELD: dict[str, RecipeField] = {field.name: field for field in FIELDS}

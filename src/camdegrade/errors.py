@@ -5,6 +5,7 @@ from __future__ import annotations
 __all__ = [
     "BatchError",
     "CamdegradeError",
+    "FitInterrupted",
     "ImageError",
     "PairsError",
     "PlainTensorsWarning",
@@ -17,6 +18,11 @@ __all__ = [
 
 class CamdegradeError(Exception):
     """Base class of every error camdegrade raises on purpose."""
+
+
+class FitInterrupted(CamdegradeError):
+    """A fit was interrupted (Ctrl-C); the checkpoint of its last finished epoch (or step) is kept for ``resume``.
+    Here rather than with the network's training: the learned texture stage's trainer raises it too."""
 
 
 class ProfileError(CamdegradeError, ValueError):

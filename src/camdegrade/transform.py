@@ -132,6 +132,21 @@ class CameraDegrade(Transform):
         self._device_copies = DeviceCopies()
         self._warned_plain_tensors = False
 
+    # torch.compile runs the transform as it is, eagerly (same bytes as without it, at once, and a compiled model
+    # around it still compiles): it draws from a torch.Generator, encodes through libjpeg and branches on the input's
+    # type, none of which a graph holds (Inductor failed on it after a minute). torchvision's own forward is kept.
+    forward = torch.compiler.disable(Transform.forward)
+
+    def check_inputs(self, flat_inputs: list[Any]) -> None:
+        """Refuse ``torch.jit.trace`` at once: a trace would record this call's random draws and its type checks as
+        constants (``torch.jit.script`` is refused by torchvision's ``Transform``)."""
+        if torch.jit.is_tracing():
+            raise RuntimeError(
+                "CameraDegrade() cannot be traced with torch.jit.trace: a trace would replay one call's random draws "
+                "and libjpeg's output as constants; call the transform eagerly (under torch.compile it runs eagerly "
+                "by itself), or trace only the model after it"
+            )
+
     def _needs_transform_list(self, flat_inputs: list[Any]) -> list[bool]:
         # torchvision's rule for plain tensors, with numpy images counted as explicit images (as PIL images are),
         # and a warning (once) when it leaves image-shaped plain tensors undegraded beside the first.

@@ -205,6 +205,15 @@ def _odd_taps(config: Mapping[str, Any]) -> str | None:
     return None if taps == 0 or taps % 2 == 1 else f"taps must be 0 or odd, got taps={taps}"
 
 
+def _weights_sum_to_one(values: Mapping[str, Any]) -> str | None:
+    if "mixture_weights" not in values:
+        return None
+    total = float(values["mixture_weights"].astype("float64").sum())
+    if abs(total - 1.0) <= 1e-4:  # JPEG.WEIGHT_SUM_TOLERANCE
+        return None
+    return f"mixture_weights must sum to 1, got a sum of {total:.6g}"
+
+
 def _scalars(bound: Bound | None, *names: str) -> dict[str, Buffer]:
     return {name: Buffer((), bound=bound) for name in names}
 
@@ -243,8 +252,36 @@ BUILT_IN: dict[str, EffectFacts] = {
     "distortion": EffectFacts("optics", {}, _scalars(Bound(-2.0, 2.0), "k1", "k2")),
     "jpeg": EffectFacts(
         "codec",
-        {"quality_jitter": Setting(int, 0, Bound(0, 99)), "probability": Setting(float, 1.0, _UNIT)},
-        {"quality": Buffer(bound=Bound(1, 100, integer=True))},
+        {
+            "quality_jitter": Setting(int, 0, Bound(0, 99)),
+            "probability": Setting(float, 1.0, _UNIT),
+            "mixture": Setting(int, 0, Bound(0, 100)),  # JPEG.MAX_MIXTURE
+        },
+        {
+            "quality": Buffer(bound=Bound(1, 100, integer=True)),
+            "mixture_qualities": Buffer(("mixture",), when="mixture", bound=Bound(1, 100, integer=True)),
+            "mixture_weights": Buffer(("mixture",), when="mixture", bound=_UNIT),
+        },
+        value_rules=(_weights_sum_to_one,),
+    ),
+    "learned_texture": EffectFacts(
+        "codec",
+        {  # LearnedTexture: MAX_WIDTH, MAX_SIGMA
+            "width": Setting(int, 8, Bound(1, 64, integer=True)),
+            "noise": Setting(bool, True),
+            "sigma": Setting(float, 1.5, Bound(0.0, 8.0)),
+        },
+        {
+            key: Buffer(shape, bound=Bound(-64.0, 64.0))  # LearnedTexture.MAX_WEIGHT
+            for key, shape in (
+                ("conv1_weight", ("width", 4, 3, 3)),
+                ("conv1_bias", ("width",)),
+                ("conv2_weight", ("width", "width", 3, 3)),
+                ("conv2_bias", ("width",)),
+                ("conv3_weight", (3, "width", 3, 3)),
+                ("conv3_bias", (3,)),
+            )
+        },
     ),
     "misalignment": EffectFacts(
         "optics",

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from collections.abc import Sequence
 from pathlib import Path
 
 from camdegrade._recipes import FIELDS
@@ -37,6 +38,7 @@ UNPAIRED_USES: tuple[str, ...] = (
     "output",
     "seed",
     "effects",
+    "learned_texture",
     "sensor_scale",
     "max_pairs",
     "strict",
@@ -156,6 +158,16 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
+def _unpaired_effects(effects: Sequence[str], learned: str | None) -> Sequence[str]:
+    """``effects`` with the learned texture stage added (``--learned-texture critic``) or left out (``none``)."""
+    from camdegrade.effects import LearnedTexture
+
+    if learned is None:
+        return effects
+    names = [name for name in effects if name != LearnedTexture.name]
+    return [*names, LearnedTexture.name] if learned == "critic" else names
+
+
 def _run_unpaired(args: argparse.Namespace) -> int:
     """``fit --unpaired CAPTURED [--clean CLEAN]``: :func:`~camdegrade.fitting.unpaired.fit_unpaired`, written."""
     from camdegrade.fitting.unpaired import UNPAIRED_EFFECTS, fit_unpaired
@@ -166,7 +178,7 @@ def _run_unpaired(args: argparse.Namespace) -> int:
     profile = fit_unpaired(
         args.unpaired,
         args.clean,
-        effects=UNPAIRED_EFFECTS if args.effects is None else args.effects,
+        effects=_unpaired_effects(UNPAIRED_EFFECTS if args.effects is None else args.effects, args.learned_texture),
         seed=args.seed if args.seed is not None else 0,
         sensor_scale=args.sensor_scale if args.sensor_scale is not None else "auto",
         max_images=args.max_pairs,
@@ -215,7 +227,17 @@ def _write(profile, args: argparse.Namespace, checkpoint: Path) -> None:
     print(f"wrote {printable(args.output)}")
     for warning in warnings:
         print(f"camdegrade fit: warning: {warning}", file=sys.stderr)
+    _next_step(profile, args)
     fail_on_unreadable(profile.fitted.get("unreadable", []), "the profile was fitted on the other pairs")
+
+
+def _next_step(profile, args: argparse.Namespace) -> None:
+    """The exact diagnose command, quoted, when the fit's validation critic tells the profile from the captures."""
+    from camdegrade.fitting.critic_warning import critic_warning, diagnose_command
+
+    if args.pairs is not None and critic_warning(profile.quality.get("fidelity"), None):
+        command = diagnose_command(str(args.output), str(args.pairs))
+        print(f"camdegrade fit: to look for the cause: {printable(command)}", file=sys.stderr)
 
 
 def _checkpoint(args: argparse.Namespace) -> Path:

@@ -5,6 +5,7 @@ made and measured."""
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, ClassVar
@@ -46,6 +47,8 @@ class Change:
     effect: Effect | None
     gap_after: float
     reduction: float = 0.0
+    #: The bootstrap standard error of ``reduction``: NaN where it was not bootstrapped, because the reduction is
+    #: below ``reduction_needed`` (it cannot count whatever its error).
     reduction_se: float = float("nan")
     significant: bool = False
     families: dict[str, float] = field(default_factory=dict)
@@ -53,10 +56,20 @@ class Change:
     before: list[Change] = field(default_factory=list)
     error: str | None = None
     stats: StatisticSet | None = field(default=None, repr=False)
+    #: The smallest reduction that could count where this change was tried (NaN: not evaluated).
+    reduction_needed: float = float("nan")
 
     @property
     def label(self) -> str:
         return f"{self.kind} {self.name}"
+
+    def reduction_text(self) -> str:
+        """The reduction with its standard error, or why it has none (never a NaN)."""
+        if math.isfinite(self.reduction_se):
+            return f"{self.reduction:+.2f} ± {self.reduction_se:.2f}"
+        if math.isfinite(self.reduction_needed):
+            return f"{self.reduction:+.2f}; not bootstrapped: below the {self.reduction_needed:.2f} that can count"
+        return f"{self.reduction:+.2f}"
 
     @property
     def key(self) -> tuple[str, str]:
@@ -175,7 +188,9 @@ class RefitStage(ChangeKind):
     simplicity = 2
 
     def plans(self, current: CameraProfile, adds: Sequence[str], axes: set[str]) -> list[Plan]:
-        return _stage_plans(self, current, axes)
+        """A plan for every stage the gap shows that can be fitted anew (a learned stage has no pair fitter)."""
+        plans = _stage_plans(self, current, axes)
+        return [plan for plan in plans if type(current.effects[plan.target]).has_pair_fitter()]
 
     def make(self, round_: Round, target: Any) -> Made:
         stage = round_.current.effects[target]

@@ -351,6 +351,7 @@ def _change_rows(changes: list[Change]) -> list[dict]:
             "gap_after": round(c.gap_after, 4),
             "reduction": round(c.reduction, 4),
             "reduction_se": _finite(c.reduction_se),
+            "reduction_needed": _finite(c.reduction_needed),
             "significant": c.significant,
             "description": c.description,
             "after": [earlier.label for earlier in c.before],

@@ -246,8 +246,11 @@ def _plots(report: DiagnosisReport) -> list[tuple[str, str]]:
     return plots
 
 
-def _pm(value: float, error: float | None) -> str:
-    return f"{value:+.2f}" if error is None else f"{value:+.2f} ± {error:.2f}"
+def _pm(value: float, error: float | None, needed: float | None = None) -> str:
+    """A reduction with its standard error, or what it needed to count where it was not bootstrapped."""
+    if error is not None:
+        return f"{value:+.2f} ± {error:.2f}"
+    return f"{value:+.2f}" if needed is None else f"{value:+.2f} (below the {needed:.2f} that counts)"
 
 
 def _fallback_tables(report: DiagnosisReport) -> str:
@@ -358,7 +361,7 @@ def _changes(report: DiagnosisReport) -> str:
         (
             f"{c['kind']} {c['name']}",
             f"{c['gap_after']:.2f}",
-            _pm(c["reduction"], c.get("reduction_se")),
+            _pm(c["reduction"], c.get("reduction_se"), c.get("reduction_needed")),
             "yes" if c.get("significant") else "no",
             c.get("error") or c.get("description", ""),
         )
@@ -375,7 +378,7 @@ def _findings(report: DiagnosisReport) -> str:
         (
             f"{c['kind']} {c['name']}",
             f"{c['gap_after']:.2f}",
-            _pm(c["reduction"], c.get("reduction_se")),
+            _pm(c["reduction"], c.get("reduction_se"), c.get("reduction_needed")),
             "yes" if c.get("accepted") else "no",
         )
         for c in report.missing

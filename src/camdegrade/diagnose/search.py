@@ -131,10 +131,7 @@ class Round:
         change.description = description
         marker = " *" if change.significant else ""
         said = f" — {description}" if description else ""
-        self.say(
-            f"  {change.label}: gap {change.gap_after:.2f} (reduction {change.reduction:+.2f} ± "
-            f"{change.reduction_se:.2f}){marker}{said}"
-        )
+        self.say(f"  {change.label}: gap {change.gap_after:.2f} (reduction {change.reduction_text()}){marker}{said}")
         return change
 
     def measured(self, kind: str, name: str, profile: CameraProfile, effect: Effect | None) -> Change:
@@ -162,6 +159,7 @@ class Round:
             families,
             before=list(self.before),
             stats=stats,
+            reduction_needed=threshold,
         )
 
     def refined(self, effect: Effect, base: CameraProfile, *, explore: bool = False) -> tuple[Effect, float]:

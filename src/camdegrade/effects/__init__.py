@@ -19,6 +19,7 @@ from camdegrade.effects.codec import JPEG
 from camdegrade.effects.color import Color, Tone
 from camdegrade.effects.denoise import Denoise
 from camdegrade.effects.geometry import ChromaticAberration, Distortion, Misalignment, Vignetting
+from camdegrade.effects.learned_texture import LearnedTexture
 from camdegrade.effects.noise import Noise
 from camdegrade.effects.resolution import Resolution
 from camdegrade.effects.response import FrequencyResponse
@@ -35,6 +36,7 @@ __all__ = [
     "Distortion",
     "Effect",
     "FrequencyResponse",
+    "LearnedTexture",
     "Misalignment",
     "Noise",
     "Pairs",

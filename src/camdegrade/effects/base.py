@@ -185,6 +185,11 @@ class Effect(nn.Module):
         raise NotImplementedError(f"effect {cls.name!r} ({cls.__qualname__}) has no fitter")
 
     @classmethod
+    def has_pair_fitter(cls) -> bool:
+        """Whether :meth:`fit` is implemented (a stage trained otherwise, such as a learned one, has none)."""
+        return cls.fit.__func__ is not Effect.fit.__func__  # type: ignore[attr-defined]
+
+    @classmethod
     def fit_in_chain(
         cls,
         cleans: Sequence[Tensor],

@@ -24,6 +24,7 @@ import torch.distributed as dist
 from camdegrade._device import check_device
 from camdegrade._distributed import is_main_process
 from camdegrade._threads import torch_threads
+from camdegrade.fitting.critic_warning import critic_warning
 from camdegrade.fitting.network.training import EpochResult, training_dtype
 from camdegrade.fitting.quality import fit_warnings, validation_quality
 from camdegrade.fitting.recipe import FitConfig, resolve_recipe
@@ -84,11 +85,14 @@ def fit_profile(
         PSNR of the identity, the linear baseline, the network and the profile (strict JSON: a PSNR of identical
         images is ``null``), its fidelity (``quality['fidelity']``: grid, bands, flat noise, critic accuracy with and
         without the clean source) and ``fitted['warnings']`` when the network does worse than the identity or the
-        baseline on the validation pairs (also logged; see :func:`~camdegrade.fitting.quality.quality_warnings`). A
+        baseline on the validation pairs (also logged; see :func:`~camdegrade.fitting.quality.quality_warnings`) or
+        when its validation image-only critic tells the sampled profile from the captures
+        (:mod:`~camdegrade.fitting.critic_warning`: the statistics that differ most, the diagnose command). A
         network (or linear baseline) that beats the clean image passed through unchanged by less than
         :data:`~camdegrade.fitting.steps.network.NETWORK_MIN_GAIN_DB` on the validation pairs is dropped: the profile
-        then holds its effect stages only, fitted on the clean images (``fitted['network']`` records the gains it
-        was judged on).
+        then holds its effect stages only, fitted on the clean images, with a colour stage where the pairs show a
+        significant shift between the channels (:mod:`~camdegrade.fitting.colour_shift`, ``fitted['effects']
+        ['color']``); ``fitted['network']`` records the gains it was judged on.
     """
     say = log or _silent
     config = resolve_recipe(recipe)
@@ -137,8 +141,16 @@ def _recorded(fit: PairedFit, pair_set: PairSet, config: FitConfig, run: Network
     profile.fitted["trained_in"] = str(training_dtype(config.precision, torch.device(run.device))).split(".")[-1]
     scores = trained.scores
     quality = validation_quality(profile, scores, fit.val, fit.eight_bit, fit.say) if scores is not None else {}
-    record_quality(profile, quality, fit_warnings(quality, trained.history, config, trained.kept), fit.say)
+    warnings = fit_warnings(quality, trained.history, config, trained.kept)
+    warnings += critic_warning(quality.get("fidelity"), _pairs_path(pair_set))
+    record_quality(profile, quality, warnings, fit.say)
     return profile
+
+
+def _pairs_path(pair_set: PairSet) -> str | None:
+    """The folder or manifest the pairs were found in, as the user gave it (``None``: tensors or pairs in memory)."""
+    source = pair_set.report.source if pair_set.report is not None else None
+    return os.fspath(source) if isinstance(source, (str, os.PathLike)) else None
 
 
 def init_distributed_from_env(device: torch.device | str = "cpu") -> torch.device:

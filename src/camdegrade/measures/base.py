@@ -23,15 +23,12 @@ Adding a family is one class in one module of this package (imported by its ``__
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import TYPE_CHECKING, ClassVar, TypeVar
+from typing import ClassVar, Protocol, TypeVar
 
 from torch import Tensor
 
 from camdegrade.effects import EFFECTS
 from camdegrade.functional.analysis import flat_mask
-
-if TYPE_CHECKING:
-    from camdegrade.measures.statistics import StatisticSet
 
 __all__ = [
     "FAMILIES",
@@ -39,6 +36,7 @@ __all__ = [
     "Family",
     "FamilyClass",
     "MeasuredPair",
+    "MeasuredSums",
     "NoReferenceFamily",
     "PairedFamily",
     "check_explains",
@@ -70,6 +68,13 @@ class MeasuredPair:
         if compute not in self._shared:
             self._shared[compute] = compute(self)
         return self._shared[compute]  # type: ignore[return-value]
+
+
+class MeasuredSums(Protocol):
+    """The per-pair sums of every family over a set of images (what
+    :class:`~camdegrade.measures.statistics.StatisticSet` holds), as a family's description reads the counts."""
+
+    sums: dict[str, tuple[Tensor, Tensor]]
 
 
 class Family:
@@ -109,7 +114,7 @@ class PairedFamily(Family):
         """The scale real and simulated values are differenced on (default: as they are)."""
         return values
 
-    def describe(self, real: Tensor, sim: Tensor, real_set: StatisticSet) -> str:
+    def describe(self, real: Tensor, sim: Tensor, real_set: MeasuredSums) -> str:
         """How the real and the simulated values read to a person (``real_set`` for the counts behind them)."""
         raise NotImplementedError
 

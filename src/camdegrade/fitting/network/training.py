@@ -26,7 +26,7 @@ from camdegrade._pixels import as_unit
 from camdegrade._recipes import TRAIN_PRECISIONS
 from camdegrade._seeds import derive_seed, derived_generator
 from camdegrade.effects import Resolution
-from camdegrade.errors import CamdegradeError
+from camdegrade.errors import FitInterrupted
 from camdegrade.fitting.network.checkpoint import (
     TrainingState,
     capture_state,
@@ -50,10 +50,6 @@ __all__ = [
     "random_crop_batch",
     "training_dtype",
 ]
-
-
-class FitInterrupted(CamdegradeError):
-    """The fit was interrupted (Ctrl-C); the checkpoint of the last finished epoch is kept for ``resume``."""
 
 
 @dataclass(frozen=True)

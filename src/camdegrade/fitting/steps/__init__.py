@@ -7,6 +7,7 @@ every paired fit's, placed by the recipe after the steps it is trained through."
 from camdegrade.fitting.steps.base import FitStep, PairedFit, Verdict, run_steps
 from camdegrade.fitting.steps.denoise import DenoiseMatch
 from camdegrade.fitting.steps.effects import EffectStages
+from camdegrade.fitting.steps.learned import LearnedTexturePaired
 from camdegrade.fitting.steps.resolution import SensorResolution
 from camdegrade.fitting.steps.response import ResponseMatch
 from camdegrade.fitting.steps.texture import TextureMatch
@@ -18,6 +19,7 @@ STEPS: dict[str, type[FitStep]] = {
     TextureMatch.name: TextureMatch,
     DenoiseMatch.name: DenoiseMatch,
     ResponseMatch.name: ResponseMatch,
+    LearnedTexturePaired.name: LearnedTexturePaired,
 }
 
 __all__ = ["STEPS", "FitStep", "PairedFit", "Verdict", "run_steps"]

@@ -1,6 +1,7 @@
 """The effect stages after a fit's network: each fitted on the training pairs at its place in the chain, kept only
 where the validation pairs show that the camera has it (:mod:`camdegrade.fitting.steps.noise_evidence`), and
-recorded with that evidence (``fitted['effects'][name]``)."""
+recorded with that evidence (``fitted['effects'][name]``). Where the network was dropped, a colour shift between the
+channels that the pairs show comes first (:mod:`camdegrade.fitting.colour_shift`): the network held it."""
 
 from __future__ import annotations
 
@@ -8,7 +9,8 @@ from dataclasses import dataclass
 from typing import Any, ClassVar
 
 from camdegrade._recipes import DEFAULT_EFFECTS
-from camdegrade.effects import EFFECTS, STAGES, Effect, Resolution, check_effect_names
+from camdegrade.effects import EFFECTS, STAGES, Color, Effect, Resolution, check_effect_names
+from camdegrade.fitting.colour_shift import colour_shift
 from camdegrade.fitting.in_chain import CALIBRATION_PAIRS, fit_stage_in_chain
 from camdegrade.fitting.steps.base import FitStep, PairedFit, Verdict
 from camdegrade.fitting.steps.noise_evidence import noise_evidence, relative_gain
@@ -37,7 +39,20 @@ class EffectStages(FitStep):
 
     def run(self, fit: PairedFit) -> dict[str, Any]:
         ordered = sorted(self.names, key=lambda name: STAGES.index(EFFECTS[name].stage))
-        return {name: EffectStage(EFFECTS[name]).run(fit) for name in ordered}
+        records = {}
+        if fit.network is not None and not fit.network.kept and Color.name not in self.names:
+            records[Color.name] = self._colour_shift(fit)
+        return {**records, **{name: EffectStage(EFFECTS[name]).run(fit) for name in ordered}}
+
+    @staticmethod
+    def _colour_shift(fit: PairedFit) -> dict[str, Any]:
+        """The colour stage of a shift between the channels, kept where the pairs of every scene show one
+        (:func:`~camdegrade.fitting.colour_shift.colour_shift`), before the other stages are fitted through it."""
+        scenes = [*fit.train.scenes, *fit.val.scenes]
+        stage, record = colour_shift(fit.train_pairs, [*fit.train_pairs, *fit.val_pairs], scenes, fit.say)
+        if stage is not None:
+            fit.keep(True, stage)
+        return record
 
 
 @dataclass(frozen=True)

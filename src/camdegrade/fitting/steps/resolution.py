@@ -6,7 +6,8 @@ trained on such captures smooths it away (a simulated 2× camera: its top band, 
 short; a critic tells it from the camera at 0.70–0.75). The upscale's trace is read from the training captures
 (:func:`~camdegrade.measures.resampling.resampling_trace`); where one is found, the network is trained through a
 :class:`~camdegrade.effects.Resolution` stage of that scale, which the profile keeps after it. The unpaired fit asks
-the same question of its captures and clean set (:func:`sensor_trace`, :func:`sensor_verdict`).
+the same question of its captures and clean set (:func:`sensor_trace`, :func:`sensor_verdict`) and, having no
+network, fits every later stage through the stage it finds.
 """
 
 from __future__ import annotations
@@ -61,7 +62,7 @@ class SensorResolution(FitStep):
 
     def judge(self, fit: PairedFit, proposal: Resolution | ResamplingTrace) -> dict[str, Any]:
         if isinstance(proposal, ResamplingTrace):
-            fit.sensor, record = sensor_verdict(proposal, fit.say)
+            fit.sensor, record = sensor_verdict(proposal, fit.say, then="the network is trained through it")
             return record
         fit.say(
             f"resolution: the network is trained through a sensor at {self.scale:.4g}x (windows every "
@@ -79,10 +80,13 @@ def sensor_trace(cleans: Sequence[Tensor] | None, captures: Sequence[Tensor]) ->
     return resampling_trace(evenly_spaced(list(captures), SENSOR_CAPTURES), reference)
 
 
-def sensor_verdict(trace: ResamplingTrace, say: Callable[[str], None]) -> tuple[Resolution | None, dict[str, Any]]:
+def sensor_verdict(
+    trace: ResamplingTrace, say: Callable[[str], None], *, then: str
+) -> tuple[Resolution | None, dict[str, Any]]:
     """The sensor stage ``trace`` shows (``1/q`` of the captures' resolution where its coherence at period ``q``
     stands above its null and the codec's grid), or ``None``; and its record (``fitted['resolution']``, or an
-    unpaired fit's ``fitted['effects']['resolution']``)."""
+    unpaired fit's ``fitted['effects']['resolution']``). ``then`` ends the log's line: what the caller does with a
+    stage found (an unpaired fit trains no network through it)."""
     shown = ", ".join(f"1/{period} {value:.2f}" for period, value in trace.coherence.items())
     if trace.reference is not None:
         shown += "; clean images " + ", ".join(f"{value:.2f}" for value in trace.reference.values())
@@ -95,6 +99,6 @@ def sensor_verdict(trace: ResamplingTrace, say: Callable[[str], None]) -> tuple[
     sensor = Resolution(1.0 / trace.period)
     say(
         f"resolution: the captures are upscaled from 1/{trace.period} of their resolution (coherence {shown}; "
-        f"null {trace.null:.2f}, JPEG grid {trace.codec:.2f}): the network is trained through it"
+        f"null {trace.null:.2f}, JPEG grid {trace.codec:.2f}): {then}"
     )
     return sensor, {"kept": True, "scale": round(1.0 / trace.period, 4), **trace.to_dict()}

@@ -16,6 +16,7 @@ from camdegrade.effects import (
     Color,
     Effect,
     FrequencyResponse,
+    LearnedTexture,
     Noise,
     Resolution,
     Sharpen,
@@ -30,9 +31,11 @@ from camdegrade.profile import CameraProfile
 __all__ = ["CHAIN_ORDER", "NEEDS_CLEAN", "Log", "Measured", "UnpairedFit", "UnpairedStep"]
 
 #: The stages' order in the fitted chain (physical: optics, sensor, ISP, codec; the ISP's upscale last before the
-#: codec, so the sensor's noise and the ISP's sharpening are upsampled with the image).
+#: codec, so the sensor's noise and the ISP's sharpening are upsampled with the image; the learned texture after
+#: everything it was trained after).
 CHAIN_ORDER = tuple(
-    kind.name for kind in (Blur, Vignetting, Noise, Color, Tone, Sharpen, FrequencyResponse, Resolution, JPEG)
+    kind.name
+    for kind in (Blur, Vignetting, Noise, Color, Tone, Sharpen, FrequencyResponse, Resolution, JPEG, LearnedTexture)
 )
 #: Why a step that needs the clean set is not fitted without one.
 NEEDS_CLEAN = "needs a clean set (--clean)"
@@ -80,7 +83,6 @@ class UnpairedFit:
         self.records: dict[str, Any] = {}
         self.not_fitted: dict[str, str] = {}
         self.warnings: list[str] = []
-        self.block_ratio: float | None = None
 
     def chain(self, **replaced: Effect | None) -> list[Effect]:
         """The kept stages in the chain's order, with ``replaced`` ones in place (``None``: left out)."""

@@ -3,10 +3,10 @@ scenes of similar content — no screen rig, no correspondence between the two s
 
 Every stage is fitted by matching a distribution of the captures (an effects-only profile: no network):
 
-- ``jpeg``: the quality read from the captures' own quantisation tables, when they are JPEG files
-  (:mod:`camdegrade.fitting.unpaired.jpeg`); for lossless files that show 8×8 block
-  edges (JPEGs saved again: the tables are gone) a quality is estimated from their spectrum, with a
-  warning;
+- ``jpeg``: each capture's quality, read from its quantisation tables when it is a JPEG file, else from the
+  quantisation lattice its pixels still hold (a JPEG saved again losslessly, with a warning); a mixture of the
+  qualities found when they differ; kept only when the captures are compressed more than the clean images
+  (:mod:`camdegrade.fitting.unpaired.jpeg`);
 - ``color``, ``tone``: white-balance gains and a tone curve by quantile matching of the two sets;
 - ``vignetting``: the captures' mean radial luma profile over the clean set's (over a flat field without one);
 - ``blur``, ``sharpen``: the PSF and the unsharp mask whose simulation of the clean set has the captures' radial
@@ -46,6 +46,7 @@ from camdegrade.effects import (
     Distortion,
     Effect,
     FrequencyResponse,
+    LearnedTexture,
     Misalignment,
     Noise,
     Resolution,
@@ -59,10 +60,11 @@ from camdegrade.errors import CamdegradeError
 from camdegrade.fitting.record import machine_record
 from camdegrade.fitting.steps.base import Verdict, run_steps
 from camdegrade.fitting.steps.resolution import sensor_trace, sensor_verdict
+from camdegrade.fitting.two_sample.gate import LearnedTextureMatch
 from camdegrade.fitting.unpaired.bench import Measured, UnpairedFit, UnpairedStep
 from camdegrade.fitting.unpaired.color_tone import ColorToneMatch
 from camdegrade.fitting.unpaired.images import MIN_IMAGES, ImageSet, Source, check_count, load_images, load_sides
-from camdegrade.fitting.unpaired.jpeg import JpegFromBlocks, JpegTables
+from camdegrade.fitting.unpaired.jpeg import JpegQuality
 from camdegrade.fitting.unpaired.judges import self_check_warnings
 from camdegrade.fitting.unpaired.noise import NoiseMatch, flat_sums
 from camdegrade.fitting.unpaired.spectrum import (
@@ -83,6 +85,7 @@ __all__ = [
     "MIN_IMAGES",
     "NOT_IDENTIFIABLE",
     "UNPAIRED_EFFECTS",
+    "UNPAIRED_OPTIONAL",
     "UNPAIRED_STEPS",
     "check_unpaired_effects",
     "fit_unpaired",
@@ -93,6 +96,9 @@ __all__ = [
 UNPAIRED_EFFECTS: tuple[str, ...] = tuple(
     kind.name for kind in (Resolution, JPEG, Color, Tone, Vignetting, Noise, Blur, Sharpen, FrequencyResponse)
 )
+#: Stages :func:`fit_unpaired` fits only when asked for (``effects``): the learned texture stage
+#: (:mod:`camdegrade.fitting.two_sample.gate`), three trainings of a network and their critics.
+UNPAIRED_OPTIONAL: tuple[str, ...] = (LearnedTexture.name,)
 #: Stages that need to know where each clean pixel landed in the capture: an unpaired set cannot show them.
 NOT_IDENTIFIABLE: dict[str, str] = {
     Misalignment.name: "a shift between clean image and capture is invisible without the same scene on both sides",
@@ -130,7 +136,8 @@ class SensorStep(UnpairedStep):
         return sensor_trace(fit.cleans.images if fit.cleans else None, fit.captures.images)
 
     def judge(self, fit: UnpairedFit, trace: ResamplingTrace) -> dict[str, Any]:
-        stage, record = sensor_verdict(trace, fit.say)
+        then = "every later stage is fitted through it (the profile has no network)"
+        stage, record = sensor_verdict(trace, fit.say, then=then)
         fit.keep(stage)
         return record
 
@@ -139,20 +146,18 @@ class SensorStep(UnpairedStep):
 #: stage stands when it is fitted, so stages that depend on later ones are fitted again once those stand.
 UNPAIRED_STEPS: tuple[tuple[str, UnpairedStep], ...] = (
     ("resolution", SensorStep()),
-    ("jpeg", JpegTables()),
+    ("jpeg", JpegQuality()),
     ("vignetting", VignettingMatch()),
     ("colour and tone", ColorToneMatch(test=False)),
     ("vignetting again", VignettingMatch(simulated=True)),
     ("noise", NoiseMatch()),
     ("blur and sharpening", TransferMatch()),
-    ("jpeg quality without tables", JpegFromBlocks()),
-    ("blur and sharpening with it", TransferMatch(refit=True)),
-    ("jpeg quality again", JpegFromBlocks()),
     ("colour and tone through the blur", ColorToneMatch()),
     ("vignetting through the blur", VignettingMatch(simulated=True)),
     ("noise again", NoiseMatch()),
     ("detail response", DetailResponseMatch()),
     ("noise through the detail response", NoiseMatch(refit=True)),
+    ("learned texture", LearnedTextureMatch()),
 )
 
 
@@ -163,8 +168,8 @@ def check_unpaired_effects(effects: Sequence[str]) -> list[str]:
     for name in names:
         if name in NOT_IDENTIFIABLE:
             raise ValueError(f"effects: {name!r} cannot be fitted unpaired: {NOT_IDENTIFIABLE[name]}")
-        if name not in UNPAIRED_EFFECTS:
-            raise ValueError(f"effects must be names from {list(UNPAIRED_EFFECTS)}, got {name!r}")
+        if name not in UNPAIRED_EFFECTS + UNPAIRED_OPTIONAL:
+            raise ValueError(f"effects must be names from {[*UNPAIRED_EFFECTS, *UNPAIRED_OPTIONAL]}, got {name!r}")
     return names
 
 

@@ -1,114 +1,176 @@
-"""The JPEG stage from the camera's own photos: the quality read from the captures' quantisation tables, or, for
-lossless files that show 8×8 block edges (JPEGs saved again: the tables are gone), estimated from their spectrum
-with a warning."""
+"""The unpaired fit's codec step: the JPEG quality of each capture and each clean image, and the stage those give.
+
+A JPEG file's quality is read from its quantisation tables (exact for libjpeg's standard tables, the nearest
+standard quality for a camera's own). A lossless file (a JPEG saved again as PNG, a decoded tensor) is read from the
+quantisation lattice its pixels still hold (:mod:`camdegrade.measures.quantisation`): the steps found, matched to the
+nearest standard luma table; a file that holds none was never block-compressed or was resampled since, and gets no
+quality. The 8×8 block-edge energy is not used: a resize leaves as much of it (City100's PNGs shrunk to 256 px read
+1.18× the mean, above the 1.08 it took for JPEG blocks) and none of the lattice.
+
+The stage is the captures' qualities (a :class:`~camdegrade.effects.JPEG` mixture with each quality's share of the
+images when they differ, compressing the share of images that were compressed), kept only when the captures are
+compressed more than the clean images: clean images of the same quality compressed again would lose twice.
+"""
 
 from __future__ import annotations
 
 import io
 import math
+from collections import Counter
 from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import lru_cache
-from typing import ClassVar
-
-from torch import Tensor
+from typing import Any, ClassVar
 
 from camdegrade.effects import JPEG, Effect
-from camdegrade.effects.base import evenly_spaced
 from camdegrade.fitting.steps.base import Verdict
 from camdegrade.fitting.unpaired.bench import UnpairedFit, UnpairedStep
-from camdegrade.fitting.unpaired.spectrum import mean_spectrum
-from camdegrade.measures.blocks import block_phase_energy
+from camdegrade.fitting.unpaired.images import ImageSet
+from camdegrade.measures.quantisation import FREQUENCIES, read_lattice
 
-__all__ = ["JpegFromBlocks", "JpegTables", "block_edge_ratio", "quality_from_tables"]
+__all__ = [
+    "UNCOMPRESSED",
+    "JpegQuality",
+    "SideQualities",
+    "codec_stage",
+    "quality_from_steps",
+    "quality_from_tables",
+    "side_qualities",
+    "standard_tables",
+]
 
-#: Gradient energy on the 8×8 block edges, relative to the mean, above which files without a quantisation table
-#: look like JPEGs saved again in a lossless format.
-BLOCK_EDGE_RATIO = 1.08
-#: Qualities tried for captures that show JPEG blocks but carry no quantisation table, on this many crops.
-JPEG_QUALITIES = (*range(30, 100, 5), 98)
-QUALITY_IMAGES = 12
-BLOCKS_WARNING = "the captures show 8×8 block edges"
+#: An image without a table or a lattice counts as this quality when the two sides are compared (quality 97 and
+#: above leave steps of 1 at the frequencies read, which is no lattice: such images are as good as uncompressed).
+UNCOMPRESSED = 100
+LATTICE_WARNING = "the captures are not JPEG files but hold JPEG's quantisation lattice"
 
 
 @dataclass(frozen=True)
-class JpegTables(UnpairedStep):
-    """The JPEG step: the median quality of the captures' quantisation tables (their spread as its jitter, the share
-    of JPEG files as its probability); for captures that are no JPEG files, their 8×8 block edges: above
-    :data:`BLOCK_EDGE_RATIO` a quality is estimated later (:class:`JpegFromBlocks`), once the chain before the codec
-    stands."""
+class SideQualities:
+    """Each image's JPEG quality (``None``: not compressed; images whose pixels could not tell are left out and
+    counted as ``undetermined``), where they were read (``"tables"``: every image is a JPEG file; ``"lattice"``: the
+    pixels) and whether every table was one of libjpeg's exactly."""
+
+    qualities: list[int | None]
+    source: str
+    standard: bool
+    undetermined: int = 0
+
+    @property
+    def compressed(self) -> list[int]:
+        return [quality for quality in self.qualities if quality is not None]
+
+    def median(self) -> int | None:
+        """The median quality, an uncompressed image counting as :data:`UNCOMPRESSED` (``None``: no image told)."""
+        values = sorted(UNCOMPRESSED if quality is None else quality for quality in self.qualities)
+        return values[len(values) // 2] if values else None
+
+
+@dataclass(frozen=True)
+class JpegQuality(UnpairedStep):
+    """The JPEG step, before every stage fitted through the chain (its quality is read, not fitted): ``propose``
+    reads each capture's quality (:func:`side_qualities`), ``judge`` keeps the stage they give (:func:`codec_stage`)
+    unless the clean images are compressed as much."""
 
     name: ClassVar[str] = "jpeg"
     kinds: ClassVar[tuple[type[Effect], ...]] = (JPEG,)
 
-    def propose(self, fit: UnpairedFit) -> list[tuple[int, bool]] | Verdict:
-        tables = fit.captures.tables
-        if tables:
-            return [quality_from_tables(table) for table in tables]
-        ratio = block_edge_ratio(evenly_spaced(fit.captures.images, 32))
-        if ratio > BLOCK_EDGE_RATIO:
-            fit.block_ratio = ratio  # a quality is estimated from the blocks once the chain before it stands
-        else:
-            fit.not_fit([JPEG], "the captures are not JPEG files and show no 8×8 blocks")
-        return Verdict({"jpeg_files": 0, "block_edge_ratio": round(ratio, 3)})
+    def propose(self, fit: UnpairedFit) -> SideQualities | Verdict:
+        found = side_qualities(fit.captures)
+        if not found.compressed:
+            return self._not_fitted(
+                fit, _note(fit.captures, found), "the captures are not JPEG files and hold no JPEG quantisation lattice"
+            )
+        return found
 
-    def judge(self, fit: UnpairedFit, found: list[tuple[int, bool]]) -> dict:
-        tables, count = fit.captures.tables, len(fit.captures.images)
-        qualities = sorted(quality for quality, _ in found)
-        median = qualities[len(qualities) // 2]
-        jitter = max(abs(qualities[0] - median), abs(qualities[-1] - median))
-        fit.keep(JPEG(median, quality_jitter=jitter, probability=len(tables) / count))
-        fit.say(f"jpeg: quality {median} read from {len(tables)} files' quantisation tables")
-        return {
-            "jpeg_files": len(tables),
-            "quality": median,
-            "qualities": [qualities[0], qualities[-1]],
-            "standard_tables": all(exact for _, exact in found),
-        }
+    def judge(self, fit: UnpairedFit, found: SideQualities) -> dict[str, Any]:
+        note = _note(fit.captures, found)
+        if fit.cleans is not None:
+            clean = side_qualities(fit.cleans).median()
+            note["clean_median_quality"] = clean
+            if clean is not None and found.median() >= clean:
+                reason = (
+                    f"the captures (median quality {found.median()}) are compressed no more than the clean images "
+                    f"({clean}), which a codec stage would compress again"
+                )
+                return self._not_fitted(fit, note, reason).record
+        counts = Counter(found.compressed)
+        stage = codec_stage(counts, len(found.qualities))
+        fit.keep(stage)
+        shown = ", ".join(f"{quality} ({count} image{'s' * (count > 1)})" for quality, count in sorted(counts.items()))
+        where = "files' quantisation tables" if found.source == "tables" else "images' quantisation lattice"
+        line = f"jpeg: {'qualities' if len(counts) > 1 else 'quality'} {shown} read from {sum(counts.values())} {where}"
+        if len(counts) > 1:
+            line += f"; each simulated image draws its quality from them (centre {int(stage.quality)})"
+        fit.say(line)
+        if found.source == "lattice":
+            fit.warnings.append(
+                f"{LATTICE_WARNING} ({len(found.compressed)} of {len(found.qualities)} images: JPEGs saved again "
+                "losslessly?): the jpeg stage's qualities are the nearest standard tables to the steps read from "
+                "their pixels; fit from the camera's original JPEG files for its exact tables"
+            )
+        return {**note, "kept": True, "quality": int(stage.quality)}
+
+    @staticmethod
+    def _not_fitted(fit: UnpairedFit, note: dict[str, Any], reason: str) -> Verdict:
+        fit.not_fit([JPEG], reason)
+        fit.say(f"jpeg: not fitted: {reason}")
+        return Verdict({**note, "kept": False, "reason": reason})
 
 
-@dataclass(frozen=True)
-class JpegFromBlocks(UnpairedStep):
-    """Captures that were JPEGs once but carry no table: the quality whose simulation has the captures' mean
-    spectrum (:data:`JPEG_QUALITIES`; the codec acts on the top bands), with a warning that it is an estimate.
+def _note(captures: ImageSet, found: SideQualities) -> dict[str, Any]:
+    """The record's account of what was read: where, how many images at each quality, and how many told none."""
+    note: dict[str, Any] = {
+        "read_from": found.source,
+        "jpeg_files": len(captures.tables),
+        "images_per_quality": {str(quality): count for quality, count in sorted(Counter(found.compressed).items())},
+        "uncompressed_images": len(found.qualities) - len(found.compressed),
+        "undetermined_images": found.undetermined,
+    }
+    if found.source == "tables":
+        note["standard_tables"] = found.standard
+    return note
 
-    The block-edge ratio only says *that* there was a codec: as a measure of its quality it is the content's
-    (City100's captures range 0.87–2.10 per image, their clean images 0.88–1.52; 20 captures' mean 1.20, 16
-    other captures' 1.10), and matching it chose quality 90, whose block edges put +0.77 log2 too much power
-    into the held-out top band."""
 
-    name: ClassVar[str] = "jpeg"
-    kinds: ClassVar[tuple[type[Effect], ...]] = (JPEG,)
+def codec_stage(counts: Counter[int], images: int) -> JPEG:
+    """A JPEG stage compressing the share of ``images`` that were compressed, at each quality with its share
+    (``counts``: images per quality); one quality is a plain stage, several a mixture centred on their median."""
+    qualities = sorted(counts.elements())
+    median = qualities[len(qualities) // 2]
+    probability = len(qualities) / images
+    if len(counts) == 1:
+        return JPEG(median, probability=probability)
+    mixture = {quality: count / len(qualities) for quality, count in sorted(counts.items())}
+    return JPEG(median, probability=probability, mixture=mixture)
 
-    def applies(self, fit: UnpairedFit) -> bool:
-        return fit.block_ratio is not None
 
-    def propose(self, fit: UnpairedFit) -> dict[int, float]:
-        crops = evenly_spaced(fit.sets.spectrum_crops, QUALITY_IMAGES)
-        chain, real = fit.chain(jpeg=None), fit.sets.real_spectrum
+def side_qualities(images: ImageSet) -> SideQualities:
+    """Each image's quality: from the tables when every image is a JPEG file, else from each image's lattice."""
+    if images.tables and len(images.tables) == len(images.images):
+        found = [quality_from_tables(table) for table in images.tables]
+        return SideQualities([quality for quality, _ in found], "tables", all(exact for _, exact in found))
+    readings = [read_lattice(image) for image in images.images]
+    qualities = [quality_from_steps(reading.steps) if reading.compressed else None for reading in readings]
+    told = [quality for quality, reading in zip(qualities, readings, strict=True) if reading.determined]
+    return SideQualities(told, "lattice", False, undetermined=len(readings) - len(told))
 
-        def mismatch(quality: int) -> float:
-            simulated = fit.simulate([*chain, JPEG(quality)], crops, "unpaired-blocks")
-            return float((mean_spectrum(simulated) - real).pow(2).mean())
 
-        return {quality: mismatch(quality) for quality in JPEG_QUALITIES}
+def quality_from_steps(steps: Sequence[int | None]) -> int:
+    """The libjpeg quality whose luma table is nearest (log ratio, summed) to the steps found at
+    :data:`~camdegrade.measures.quantisation.FREQUENCIES`. Only steps of 2 or more count: a frequency read as off
+    the lattice may be one whose few coefficients sit in smooth blocks, where the decoder's rounding moves them by
+    more than a step of 1 or 2 allows. Qualities 49–51 and 74–75 have the same steps there: a tie goes to the
+    multiple of 5 (what software offers), then to the highest."""
 
-    def judge(self, fit: UnpairedFit, mismatch: dict[int, float]) -> dict:
-        quality = min(mismatch, key=mismatch.__getitem__)
-        fit.keep(JPEG(quality))
-        fit.warnings = [warning for warning in fit.warnings if not warning.startswith(BLOCKS_WARNING)]
-        fit.warnings.append(
-            f"{BLOCKS_WARNING} ({fit.block_ratio:.2f}× the mean gradient energy; above "
-            f"{BLOCK_EDGE_RATIO} means JPEG blocks) but are not JPEG files, so their quantisation tables are gone "
-            f"(JPEGs saved again as PNG?): the jpeg stage's quality {quality} is estimated from the captures' "
-            "spectrum; fit from the camera's original JPEG files for the exact one"
+    def distance(quality: int) -> float:
+        table = standard_tables()[quality][0]
+        return sum(
+            abs(math.log(step) - math.log(max(table[u * 8 + v], 1)))
+            for step, (u, v) in zip(steps, FREQUENCIES, strict=True)
+            if step is not None and step >= 2
         )
-        fit.say(f"jpeg: quality {quality} estimated from the spectrum (no quantisation table)")
-        return {
-            **fit.records[self.name],
-            "quality_from_spectrum": quality,
-            "spectrum_mismatch": round(mismatch[quality], 4),
-        }
+
+    return min(range(100, 0, -1), key=lambda quality: (distance(quality), quality % 5 != 0))
 
 
 @lru_cache(maxsize=1)
@@ -139,12 +201,3 @@ def quality_from_tables(tables: dict[int, Sequence[int]]) -> tuple[int, bool]:
 
     best = min(range(1, 101), key=distance)
     return best, distance(best) == 0.0
-
-
-def block_edge_ratio(images: Sequence[Tensor]) -> float:
-    """Mean gradient energy on the 8×8 block edges relative to the mean over the grid's phases (1: no blocks)."""
-    ratios = []
-    for image in images:
-        num, den = block_phase_energy(image)
-        ratios.append(float(((num[7] + num[15]) / 2) / den[0].clamp_min(1e-12)))
-    return sum(ratios) / len(ratios)

@@ -233,16 +233,11 @@ def radial_response(log2_gains: Tensor) -> FrequencyResponse:
 @dataclass(frozen=True)
 class TransferMatch(UnpairedStep):
     """The blur and sharpening step (it needs the clean set): the PSF and unsharp mask whose simulation of the
-    clean set has the captures' mean spectrum; ``refit``: once more where a JPEG quality was estimated from the
-    captures' blocks after it (the codec changes the spectrum)."""
+    clean set has the captures' mean spectrum (the codec stage, read before it, simulated too)."""
 
     name: ClassVar[str] = "transfer"
     kinds: ClassVar[tuple[type[Effect], ...]] = (Blur, Sharpen)
     needs_clean: ClassVar[bool] = True
-    refit: bool = False
-
-    def applies(self, fit: UnpairedFit) -> bool:
-        return not self.refit or fit.block_ratio is not None
 
     def propose(self, fit: UnpairedFit) -> dict[tuple[float, float], float]:
         use_blur, use_sharpen = fit.wants(Blur), fit.wants(Sharpen)
