@@ -50,11 +50,17 @@ def load_script(relative_path: str, module_name: str) -> ModuleType:
     ``module_name``.
 
     Tests import it as ``from conftest import load_script``. The module is put in ``sys.modules`` before it runs,
-    because dataclasses and pickling look a class's module up by name.
+    because dataclasses and pickling look a class's module up by name. While it runs, its folder is first on
+    ``sys.path``, as when Python runs the script, so that it imports its sibling modules (``bench/residual_cnn.py``).
     """
-    spec = importlib.util.spec_from_file_location(module_name, REPOSITORY / relative_path)
+    path = REPOSITORY / relative_path
+    spec = importlib.util.spec_from_file_location(module_name, path)
     assert spec is not None and spec.loader is not None, relative_path
     module = importlib.util.module_from_spec(spec)
     sys.modules[module_name] = module
-    spec.loader.exec_module(module)
+    sys.path.insert(0, str(path.parent))
+    try:
+        spec.loader.exec_module(module)
+    finally:
+        sys.path.remove(str(path.parent))
     return module
