@@ -9,7 +9,8 @@ import torch
 from skimage import data
 
 from camdegrade import load_profile
-from camdegrade.inference import LocalAffineInference, cpu_inference, run_network, upsampled_field
+from camdegrade.inference import cpu_inference, run_network
+from camdegrade.inference_local_affine import LocalAffineInference, upsampled_field
 from camdegrade.network import FIELD_UPSAMPLING, LocalAffineNet, smoothed
 
 #: Largest difference from the module: the plan only sums in another order.
