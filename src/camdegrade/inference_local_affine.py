@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import functools
+from collections import OrderedDict
 
 import torch
 import torch.nn.functional as F
@@ -57,6 +58,7 @@ class LocalAffineInference:
         self.smooth = network.upsample == "smooth"
         self.curve = network.curve.detach().clone() if network.curves else None
         self._byte_curve = None if self.curve is None else byte_curve(self.curve[0])
+        self._output_curve = None if self.curve is None else CurveTable(self.curve[1])
         self._fused = use_fused_kernels(dtype)
         channels_last = torch.channels_last
         with torch.no_grad():
@@ -71,12 +73,7 @@ class LocalAffineInference:
                 (layer.weight.detach().flatten(1).to(dtype, copy=True), layer.bias.detach().to(dtype, copy=True))
                 for layer in (network.decode1, network.decode2)
             ]
-            weight, bias = network.linear.weight.detach(), network.linear.bias.detach()
-            padded_weight = weight.new_zeros(FILTER_OUTPUTS, *weight.shape[1:])
-            padded_weight[:3] = weight
-            padded_bias = bias.new_zeros(FILTER_OUTPUTS)
-            padded_bias[:3] = bias
-            self.linear = (padded_weight.contiguous(memory_format=channels_last), padded_bias)
+            self.filter = ColourFilter(network.linear.weight.detach(), network.linear.bias.detach())
 
     def run(self, image: Tensor) -> Tensor:
         """``(N, 3, H, W)`` float in [0, 1] or uint8 → the network's float32 output, contiguous, same shape."""
@@ -102,8 +99,11 @@ class LocalAffineInference:
         if self.curve is None:
             return unit
         if image.dtype == torch.uint8:
-            offsets = torch.arange(0, 3 * 256, 256).view(1, 3, 1, 1)
-            return torch.take(self._byte_curve, image.long().add_(offsets))
+            # int32 indices: index_select reads them directly, where take needs int64 (0.11 against 0.27 ms for a
+            # 224² image, AMD EPYC Zen 4, 1 thread); the same table, so the same values
+            offsets = torch.arange(0, 3 * 256, 256, dtype=torch.int32).view(1, 3, 1, 1)
+            index = image.to(torch.int32).add_(offsets).view(-1)
+            return torch.index_select(self._byte_curve, 0, index).view(image.shape)
         return piecewise_linear(unit, self.curve[0])
 
     def _run_aligned(self, image: Tensor, curved: Tensor) -> Tensor:
@@ -117,15 +117,13 @@ class LocalAffineInference:
         second, second_bias = self.decode[1]
         field = torch.addmm(second_bias, self._decode1(pixels), second.t()).float()
         field = upsampled_field(field.t().reshape(1, -1, rows, cols), self.smooth)
-        half = self.linear[0].shape[-1] // 2
-        padded = F.pad(curved, (half, half, half, half), mode="replicate").contiguous(memory_format=torch.channels_last)
-        filtered = F.conv2d(padded, *self.linear)[:, :3].contiguous()
+        filtered = self.filter(curved)
         out = filtered + field[:, 9:]
         for row in range(3):
             for column in range(3):
                 out[:, row].addcmul_(field[:, 3 * row + column], filtered[:, column])
-        if self.curve is not None:
-            out = piecewise_linear(out, self.curve[1])
+        if self._output_curve is not None:
+            out = self._output_curve(out)
         return out.clamp_(0.0, 1.0)
 
     def _decode1(self, pixels: Tensor) -> Tensor:
@@ -140,10 +138,99 @@ class LocalAffineInference:
         return torch.addmm(bias, pixels, weight.t()).relu_()
 
 
-#: The local-affine plan's 7×7 filter computes this many outputs (3, then zeros): oneDNN's channels-last kernel is
-#: faster with 8 than with 3 on an AMD EPYC Zen 3 (1.3–1.6 ms against 1.6–2.3 ms for a 224² image, 2 threads); on a
-#: Xeon with AVX-512 both take 1.4 ms.
+#: The local-affine plan's 7×7 filter computes this many outputs (3, then zeros) where it convolves directly:
+#: oneDNN's channels-last kernel is faster with 8 than with 3 on an AMD EPYC Zen 3 (1.3–1.6 ms against 1.6–2.3 ms for
+#: a 224² image, 2 threads); on a Xeon with AVX-512 both take 1.4 ms.
 FILTER_OUTPUTS = 8
+#: From this many pixels up (the image padded by the filter's border) the 7×7 filter is one product of spectra
+#: instead of a convolution: oneDNN's convolution costs about the same with 3 or 16 outputs, its time set by 3 inputs
+#: × 49 taps per pixel. For a 224² image 1.04 against 2.24 ms, at 64² 0.12 against 0.22, at 32² 0.07 against 0.08
+#: (AMD EPYC Zen 4, 1 thread, a busy machine; ``/tmp``-free numbers in docs/performance.md).
+FOURIER_MIN_PIXELS = 48 * 48
+#: Spectra of the filter kept per plan, the most recently used last (a transform sees few sizes).
+SPECTRA_KEPT = 4
+
+
+class ColourFilter:
+    """The network's full-resolution 7×7 filter ``K ∗ x`` (3 outputs from 3 inputs) with the border replicated, as
+    :meth:`LocalAffineNet.filtered` computes it: a direct convolution for small images, else one product of spectra
+    (the image padded by its replicated border, then by zeros to a size the FFT handles fast; no output reads the
+    zeros, so the result is the convolution's up to float32 rounding, about 2·10⁻⁶)."""
+
+    def __init__(self, weight: Tensor, bias: Tensor) -> None:
+        self.weight, self.bias = weight.float().clone(), bias.float().clone()
+        padded_weight = weight.new_zeros(FILTER_OUTPUTS, *weight.shape[1:])
+        padded_weight[:3] = weight
+        padded_bias = bias.new_zeros(FILTER_OUTPUTS)
+        padded_bias[:3] = bias
+        self.direct = (padded_weight.float().contiguous(memory_format=torch.channels_last), padded_bias.float())
+        self._spectra: OrderedDict[tuple[int, int], Tensor] = OrderedDict()
+
+    def __call__(self, image: Tensor) -> Tensor:
+        """``(1, 3, H, W)`` float32 → ``K ∗ image + bias``, ``(1, 3, H, W)`` float32, contiguous."""
+        half = self.weight.shape[-1] // 2
+        height, width = image.shape[-2:]
+        padded = F.pad(image, (half, half, half, half), mode="replicate")
+        if padded.shape[-2] * padded.shape[-1] < FOURIER_MIN_PIXELS:
+            padded = padded.contiguous(memory_format=torch.channels_last)
+            return F.conv2d(padded, *self.direct)[:, :3].contiguous()
+        size = (fft_size(padded.shape[-2]), fft_size(padded.shape[-1]))
+        spectra = self._spectra_for(size)
+        planes = torch.fft.rfft2(padded[0], s=size)
+        mixed = spectra[:, 0] * planes[0]
+        mixed.addcmul_(spectra[:, 1], planes[1]).addcmul_(spectra[:, 2], planes[2])
+        mixed[:, 0, 0] += self.bias * (size[0] * size[1])  # the bias, as the spectrum's constant term
+        return torch.fft.irfft2(mixed, s=size)[None, :, :height, :width].contiguous()
+
+    def _spectra_for(self, size: tuple[int, int]) -> Tensor:
+        """``(3, 3, H, W // 2 + 1)``: the spectrum of each (output, input) kernel of the correlation on an ``H × W``
+        grid (tap ``(dy, dx)`` at ``(−dy, −dx)`` modulo the size), computed in float64; kept per size."""
+        if size in self._spectra:
+            self._spectra.move_to_end(size)
+            return self._spectra[size]
+        taps = self.weight.shape[-1]
+        grid = torch.zeros(3, 3, *size, dtype=torch.float64)
+        rows = [(-offset) % size[0] for offset in range(taps)]
+        cols = [(-offset) % size[1] for offset in range(taps)]
+        grid[:, :, torch.tensor(rows)[:, None], torch.tensor(cols)[None, :]] = self.weight.double()
+        spectra = self._spectra[size] = torch.fft.rfft2(grid).to(torch.complex64)
+        if len(self._spectra) > SPECTRA_KEPT:
+            self._spectra.popitem(last=False)
+        return spectra
+
+
+def fft_size(length: int) -> int:
+    """The smallest ``2^a · 3^b · 5^c`` of at least ``length``: a size the FFT handles fast."""
+    size = length
+    while True:
+        rest = size
+        for factor in (2, 3, 5):
+            while rest % factor == 0:
+                rest //= factor
+        if rest == 1:
+            return size
+        size += 1
+
+
+class CurveTable:
+    """:func:`~camdegrade.network.piecewise_linear` through one set of knots ``(3, K)`` for inference: the same
+    arithmetic on the same floats (each segment's low knot and its rise, precomputed, read with int32 indices:
+    0.32 against 0.80 ms for a 224² image, AMD EPYC Zen 4, 1 thread), so the same values."""
+
+    def __init__(self, knots: Tensor) -> None:
+        self.segments = knots.shape[-1] - 1
+        self.low = knots[:, :-1].contiguous().view(-1)
+        self.rise = (knots[:, 1:] - knots[:, :-1]).contiguous().view(-1)
+
+    def __call__(self, image: Tensor) -> Tensor:
+        """``(1, 3, H, W)`` float32 → each channel through its curve (a new tensor)."""
+        position = image.clamp(0.0, 1.0).mul_(self.segments)
+        index = position.floor().clamp_(max=self.segments - 1)
+        weight = position.sub_(index)
+        offsets = torch.arange(0, 3 * self.segments, self.segments, dtype=torch.int32).view(1, 3, 1, 1)
+        flat = index.to(torch.int32).add_(offsets).view(-1)
+        rise = torch.index_select(self.rise, 0, flat).view(image.shape)
+        return rise.mul_(weight).add_(torch.index_select(self.low, 0, flat).view(image.shape))
 
 
 #: Fields of at most this many rows and columns (images up to 256²) are upsampled by two small matrix products;
@@ -162,15 +249,52 @@ def byte_curve(knots: Tensor) -> Tensor:
     return piecewise_linear(values, knots).reshape(-1)
 
 
+#: Bilinear fields of more than this many rows or columns are upsampled by interpolating between neighbours
+#: (:func:`bilinear_upsampled`), smaller ones by the matrix products: 0.32 against 1.17 ms for a 224² image's
+#: field, equal at 24 rows (AMD EPYC Zen 4, 1 thread).
+MATRIX_UPSAMPLING_BILINEAR_MAX = 24
+
+
 def upsampled_field(field: Tensor, smooth: bool) -> Tensor:
     """The colour field ``(1, C, rows, cols)`` (contiguous) at full resolution, as :class:`LocalAffineNet` makes it:
     bilinear by :data:`~camdegrade.network.SIZE_MULTIPLE`, then with ``smooth`` its smoothing."""
     rows, cols = field.shape[-2:]
+    if not smooth and max(rows, cols) > MATRIX_UPSAMPLING_BILINEAR_MAX:
+        return bilinear_upsampled(field)
     if max(rows, cols) <= MATRIX_UPSAMPLING_MAX:
         down, across = upsampling_matrix(rows, smooth), upsampling_matrix(cols, smooth)
         return torch.matmul(down, torch.matmul(field[0], across.t()))[None]
     field = F.interpolate(field, scale_factor=SIZE_MULTIPLE, mode="bilinear", align_corners=False)
     return smoothed(field) if smooth else field
+
+
+#: Output ``4i + k`` of a bilinear upsampling by 4 (half-pixel centres) lies between sources ``i − 1`` and ``i``
+#: (k = 0, 1) or ``i`` and ``i + 1`` (k = 2, 3): per phase, where the first of the two sits in the border-replicated
+#: line (0 or 1 past ``i``) and the weight of the second.
+BILINEAR_PHASES = ((0, 0.625), (0, 0.875), (1, 0.125), (1, 0.375))
+
+
+def bilinear_upsampled(field: Tensor) -> Tensor:
+    """``field`` ``(1, C, rows, cols)`` upsampled bilinearly by 4 (half-pixel centres, the border replicated), as
+    ``F.interpolate(..., mode="bilinear", align_corners=False)`` does, up to float32 rounding: each of the four
+    phases of each axis is one interpolation between neighbours, written in place (columns first, so that the larger
+    pass writes whole rows)."""
+    planes = field[0]
+    channels, rows, cols = planes.shape
+    border = torch.cat((planes[..., :1], planes, planes[..., -1:]), dim=-1)
+    across = planes.new_empty(channels, rows, cols, len(BILINEAR_PHASES))
+    for phase, (start, weight) in enumerate(BILINEAR_PHASES):
+        torch.lerp(
+            border[..., start : start + cols], border[..., start + 1 : start + 1 + cols], weight, out=across[..., phase]
+        )
+    across = across.view(channels, rows, -1)
+    border = torch.cat((across[:, :1], across, across[:, -1:]), dim=1)
+    out = planes.new_empty(channels, rows, len(BILINEAR_PHASES), across.shape[-1])
+    for phase, (start, weight) in enumerate(BILINEAR_PHASES):
+        torch.lerp(
+            border[:, start : start + rows], border[:, start + 1 : start + 1 + rows], weight, out=out[:, :, phase]
+        )
+    return out.view(1, channels, -1, across.shape[-1])
 
 
 @functools.lru_cache(maxsize=2 * MATRIX_UPSAMPLING_MAX)
