@@ -13,7 +13,8 @@ from torch import Tensor
 
 from camdegrade.functional._utils import ParamLike, apply_float, as_channel_view, check_image, per_sample
 from camdegrade.functional.analysis import luma as luma_of
-from camdegrade.functional.blur import blur_image
+from camdegrade.functional.blur import blur_image, gaussian_taps
+from camdegrade.functional.filtering import convolve_terms, luma_plane
 
 
 def coring(detail: Tensor, threshold: Tensor) -> Tensor:
@@ -93,6 +94,27 @@ def faint_part(detail: Tensor, threshold: Tensor) -> Tensor:
     """The part of ``detail`` that :func:`coring` removes: ``detail · t² / (d² + t²)`` (all of it well below the
     threshold, none well above it)."""
     return detail - coring(detail, threshold)
+
+
+def luma_detail(image: Tensor, sigma: float) -> Tensor:
+    """``Y − G_σ ⊛ Y``, ``(N, 1, H, W)``, of the Rec. 601 luma ``Y`` of float ``image`` ``(N, 3, H, W)`` (no autograd;
+    the border mirrored, sigma's radius below H and W): the detail :func:`unsharp_mask_image` and
+    :func:`denoise_image` take with ``luma``, its luma taken first, so that one plane is blurred instead of three
+    (the same Gaussian taps; equal up to float rounding)."""
+    taps = gaussian_taps(sigma)
+    return convolve_terms(luma_plane(image), 1.0, [(-1.0, taps, taps)])
+
+
+def cored_(detail: Tensor, threshold: float) -> Tensor:
+    """:func:`coring` of ``detail`` with a positive ``threshold``, in place: ``d³ / (d² + t²)``."""
+    square = detail * detail
+    return detail.mul_(square).div_(square.add_(threshold * threshold))
+
+
+def faint_part_(detail: Tensor, threshold: float) -> Tensor:
+    """:func:`faint_part` of ``detail`` with a positive ``threshold``, in place: ``d · t² / (d² + t²)``."""
+    square = (detail * detail).add_(threshold * threshold)
+    return detail.mul_(threshold * threshold).div_(square)
 
 
 def _checked_threshold(threshold: ParamLike, image: Tensor) -> Tensor:
