@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import functools
-from collections import OrderedDict
 
 import torch
 import torch.nn.functional as F
@@ -33,7 +32,7 @@ class LocalAffineInference:
     - From the colour field on, everything is float32 whatever ``dtype`` (it carries the image's detail to the
       output): the field is upsampled by :func:`upsampled_field` (small matrix products up to 256² images) and
       applied in place, one plane product at a time, with no ``(3, 3, H, W)`` temporary; the 7×7 filter ``K`` runs
-      with its 3 outputs padded by zeros to :data:`FILTER_OUTPUTS`.
+      as one convolution computing :data:`FILTER_UNROLL` adjacent pixels per position (:class:`ColourFilter`).
     - Images are computed one at a time, so each gets the same bytes alone as in any batch or chunk.
 
     Measured with 2 threads, one 224² photograph, the built-in ``city100-iphonex``'s network: on an AMD EPYC (Zen 3,
@@ -91,7 +90,9 @@ class LocalAffineInference:
                     padded = F.pad(unit, pad, mode="replicate")
                     curved = padded if curved is unit else F.pad(curved, pad, mode="replicate")
                     unit = padded
-                output[index] = self._run_aligned(unit, curved)[0, :, :height, :width]
+                    output[index] = self._run_aligned(unit, curved)[0, :, :height, :width]
+                else:
+                    self._run_aligned(unit, curved, output[index : index + 1])
         return output
 
     def _input_curve(self, image: Tensor, unit: Tensor) -> Tensor:
@@ -106,9 +107,10 @@ class LocalAffineInference:
             return torch.index_select(self._byte_curve, 0, index).view(image.shape)
         return piecewise_linear(unit, self.curve[0])
 
-    def _run_aligned(self, image: Tensor, curved: Tensor) -> Tensor:
+    def _run_aligned(self, image: Tensor, curved: Tensor, out: Tensor | None = None) -> Tensor:
         """``clamp(g(A(x) · (K ∗ f(x)) + b(x)), 0, 1)`` for one ``(1, 3, H, W)`` image with H and W multiples of 4
-        and ``curved`` = ``f(image)`` (``f`` and ``g`` the network's curves, or none: ``curved`` is ``image``)."""
+        and ``curved`` = ``f(image)`` (``f`` and ``g`` the network's curves, or none: ``curved`` is ``image``),
+        written into ``out`` (``(1, 3, H, W)`` float32, contiguous) when given."""
         hidden = image.to(self.dtype)
         for weight, bias in self.encode:
             hidden = conv_relu(hidden, weight, bias, self._fused)
@@ -118,13 +120,14 @@ class LocalAffineInference:
         field = torch.addmm(second_bias, self._decode1(pixels), second.t()).float()
         field = upsampled_field(field.t().reshape(1, -1, rows, cols), self.smooth)
         filtered = self.filter(curved)
-        out = filtered + field[:, 9:]
+        mixed = torch.add(filtered, field[:, 9:], out=out if self._output_curve is None else None)
+        planes, weights, inputs = mixed[0].unbind(0), field[0].unbind(0), filtered[0].unbind(0)
         for row in range(3):
             for column in range(3):
-                out[:, row].addcmul_(field[:, 3 * row + column], filtered[:, column])
+                planes[row].addcmul_(weights[3 * row + column], inputs[column])
         if self._output_curve is not None:
-            out = self._output_curve(out)
-        return out.clamp_(0.0, 1.0)
+            mixed = self._output_curve(mixed, out)
+        return mixed.clamp_(0.0, 1.0)
 
     def _decode1(self, pixels: Tensor) -> Tensor:
         """ReLU of the first decoder product for one image's encoder ``pixels`` ``(M, C)``: in float32 without the
@@ -138,78 +141,39 @@ class LocalAffineInference:
         return torch.addmm(bias, pixels, weight.t()).relu_()
 
 
-#: The local-affine plan's 7×7 filter computes this many outputs (3, then zeros) where it convolves directly:
-#: oneDNN's channels-last kernel is faster with 8 than with 3 on an AMD EPYC Zen 3 (1.3–1.6 ms against 1.6–2.3 ms for
-#: a 224² image, 2 threads); on a Xeon with AVX-512 both take 1.4 ms.
-FILTER_OUTPUTS = 8
-#: From this many pixels up (the image padded by the filter's border) the 7×7 filter is one product of spectra
-#: instead of a convolution: oneDNN's convolution costs about the same with 3 or 16 outputs, its time set by 3 inputs
-#: × 49 taps per pixel. For a 224² image 1.04 against 2.24 ms, at 64² 0.12 against 0.22, at 32² 0.07 against 0.08
-#: (AMD EPYC Zen 4, 1 thread, a busy machine; ``/tmp``-free numbers in docs/performance.md).
-FOURIER_MIN_PIXELS = 48 * 48
-#: Spectra of the filter kept per plan, the most recently used last (a transform sees few sizes).
-SPECTRA_KEPT = 4
+#: The local-affine plan's 7×7 filter computes this many horizontally adjacent pixels of its 3 outputs at each
+#: position of a convolution with a column stride of as many (15 output channels, 7 × 11 taps): oneDNN's float32
+#: convolution costs about the same for 3 or 16 output channels, its time set by inputs × taps per position, so
+#: this does the same arithmetic in 0.93 against 2.51 ms for a 224² image (0.42 against 0.84 at 128², 9.1 against 24
+#: ms at 840 × 600; a product of spectra took 1.19, 0.68 and 16 ms; AMD EPYC Zen 4, 1 thread, a busy machine).
+FILTER_UNROLL = 5
 
 
 class ColourFilter:
-    """The network's full-resolution 7×7 filter ``K ∗ x`` (3 outputs from 3 inputs) with the border replicated, as
-    :meth:`LocalAffineNet.filtered` computes it: a direct convolution for small images, else one product of spectra
-    (the image padded by its replicated border, then by zeros to a size the FFT handles fast; no output reads the
-    zeros, so the result is the convolution's up to float32 rounding, about 2·10⁻⁶)."""
+    """The network's full-resolution 7×7 filter ``K ∗ x`` (3 outputs from 3 inputs), the border replicated, as
+    :meth:`LocalAffineNet.filtered` computes it: one convolution that computes :data:`FILTER_UNROLL` adjacent
+    pixels per position (each output channel the filter shifted by one column), laid out as an image by one copy.
+    The same products and sums as the plain convolution, so the same values (tested)."""
 
     def __init__(self, weight: Tensor, bias: Tensor) -> None:
-        self.weight, self.bias = weight.float().clone(), bias.float().clone()
-        padded_weight = weight.new_zeros(FILTER_OUTPUTS, *weight.shape[1:])
-        padded_weight[:3] = weight
-        padded_bias = bias.new_zeros(FILTER_OUTPUTS)
-        padded_bias[:3] = bias
-        self.direct = (padded_weight.float().contiguous(memory_format=torch.channels_last), padded_bias.float())
-        self._spectra: OrderedDict[tuple[int, int], Tensor] = OrderedDict()
+        outputs, inputs, rows, cols = weight.shape
+        unrolled = weight.new_zeros(outputs, FILTER_UNROLL, inputs, rows, cols + FILTER_UNROLL - 1)
+        for shift in range(FILTER_UNROLL):
+            unrolled[:, shift, :, :, shift : shift + cols] = weight
+        self.half = cols // 2
+        self.weight = unrolled.reshape(outputs * FILTER_UNROLL, inputs, rows, -1).float().contiguous()
+        self.bias = bias.float().repeat_interleave(FILTER_UNROLL)
 
     def __call__(self, image: Tensor) -> Tensor:
-        """``(1, 3, H, W)`` float32 → ``K ∗ image + bias``, ``(1, 3, H, W)`` float32, contiguous."""
-        half = self.weight.shape[-1] // 2
+        """``(1, 3, H, W)`` float32 → ``K ∗ image + bias``, ``(1, 3, H, W)`` float32 (a view into a frame as wide as
+        the next multiple of :data:`FILTER_UNROLL`)."""
         height, width = image.shape[-2:]
-        padded = F.pad(image, (half, half, half, half), mode="replicate")
-        if padded.shape[-2] * padded.shape[-1] < FOURIER_MIN_PIXELS:
-            padded = padded.contiguous(memory_format=torch.channels_last)
-            return F.conv2d(padded, *self.direct)[:, :3].contiguous()
-        size = (fft_size(padded.shape[-2]), fft_size(padded.shape[-1]))
-        spectra = self._spectra_for(size)
-        planes = torch.fft.rfft2(padded[0], s=size)
-        mixed = spectra[:, 0] * planes[0]
-        mixed.addcmul_(spectra[:, 1], planes[1]).addcmul_(spectra[:, 2], planes[2])
-        mixed[:, 0, 0] += self.bias * (size[0] * size[1])  # the bias, as the spectrum's constant term
-        return torch.fft.irfft2(mixed, s=size)[None, :, :height, :width].contiguous()
-
-    def _spectra_for(self, size: tuple[int, int]) -> Tensor:
-        """``(3, 3, H, W // 2 + 1)``: the spectrum of each (output, input) kernel of the correlation on an ``H × W``
-        grid (tap ``(dy, dx)`` at ``(−dy, −dx)`` modulo the size), computed in float64; kept per size."""
-        if size in self._spectra:
-            self._spectra.move_to_end(size)
-            return self._spectra[size]
-        taps = self.weight.shape[-1]
-        grid = torch.zeros(3, 3, *size, dtype=torch.float64)
-        rows = [(-offset) % size[0] for offset in range(taps)]
-        cols = [(-offset) % size[1] for offset in range(taps)]
-        grid[:, :, torch.tensor(rows)[:, None], torch.tensor(cols)[None, :]] = self.weight.double()
-        spectra = self._spectra[size] = torch.fft.rfft2(grid).to(torch.complex64)
-        if len(self._spectra) > SPECTRA_KEPT:
-            self._spectra.popitem(last=False)
-        return spectra
-
-
-def fft_size(length: int) -> int:
-    """The smallest ``2^a · 3^b · 5^c`` of at least ``length``: a size the FFT handles fast."""
-    size = length
-    while True:
-        rest = size
-        for factor in (2, 3, 5):
-            while rest % factor == 0:
-                rest //= factor
-        if rest == 1:
-            return size
-        size += 1
+        wide = -(-width // FILTER_UNROLL) * FILTER_UNROLL
+        half = self.half
+        padded = F.pad(image, (half, half + wide - width, half, half), mode="replicate")
+        out = F.conv2d(padded, self.weight, self.bias, stride=(1, FILTER_UNROLL))
+        out = out.reshape(1, 3, FILTER_UNROLL, height, wide // FILTER_UNROLL).permute(0, 1, 3, 4, 2)
+        return out.reshape(1, 3, height, wide)[..., :width]
 
 
 class CurveTable:
@@ -222,15 +186,15 @@ class CurveTable:
         self.low = knots[:, :-1].contiguous().view(-1)
         self.rise = (knots[:, 1:] - knots[:, :-1]).contiguous().view(-1)
 
-    def __call__(self, image: Tensor) -> Tensor:
-        """``(1, 3, H, W)`` float32 → each channel through its curve (a new tensor)."""
+    def __call__(self, image: Tensor, out: Tensor | None = None) -> Tensor:
+        """``(1, 3, H, W)`` float32 → each channel through its curve (a new tensor, or written into ``out``)."""
         position = image.clamp(0.0, 1.0).mul_(self.segments)
         index = position.floor().clamp_(max=self.segments - 1)
         weight = position.sub_(index)
         offsets = torch.arange(0, 3 * self.segments, self.segments, dtype=torch.int32).view(1, 3, 1, 1)
-        flat = index.to(torch.int32).add_(offsets).view(-1)
-        rise = torch.index_select(self.rise, 0, flat).view(image.shape)
-        return rise.mul_(weight).add_(torch.index_select(self.low, 0, flat).view(image.shape))
+        flat = index.to(torch.int32).add_(offsets).reshape(-1)
+        rise = torch.index_select(self.rise, 0, flat).view(image.shape).mul_(weight)
+        return torch.add(rise, torch.index_select(self.low, 0, flat).view(image.shape), out=out)
 
 
 #: Fields of at most this many rows and columns (images up to 256²) are upsampled by two small matrix products;
