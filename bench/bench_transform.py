@@ -55,6 +55,7 @@ import torch.nn.functional as F
 
 from camdegrade import CameraDegrade, list_profiles, load_profile
 from camdegrade.effects.chain import apply_effects
+from camdegrade.effects.plan import FilterRun, chain_plan
 from camdegrade.inference import native_bfloat16, resolve_precision, run_network
 
 SIZE = 224
@@ -234,23 +235,31 @@ def albumentations_chain() -> Callable[[Any], Any] | None:
 
 
 def time_split(degrade: CameraDegrade, image: torch.Tensor, repeats: int) -> dict[str, float]:
-    """Milliseconds (medians) of the parts of one single-image call: drawing the params, the network, the effect
-    stages, and the whole call (the rest is conversion and the transform's own work). Needs a network."""
+    """Milliseconds (medians) of the parts of one single-image call: drawing the params, the network (on the uint8
+    image, as the transform runs it), the effect stages together and each step of the chain's plan (a composed
+    filter of adjacent linear stages, ``blur+sharpen``, or a stage), and the whole call (the rest is conversion and
+    the transform's own work). Needs a network."""
     profile = degrade.profile
-    unit = image[None].float() / 255.0
+    batch = image[None]
     generator = torch.Generator().manual_seed(0)
     with torch.no_grad():
-        output = run_network(profile.network, unit, degrade.precision)
-        params = profile.make_params(unit.shape, generator)
+        output = run_network(profile.network, batch, degrade.precision)
+        params = profile.make_params(batch.shape, generator)
         parts = {
             "draw_params": lambda: degrade.make_params([image]),
-            "network": lambda: run_network(profile.network, unit, degrade.precision),
+            "network": lambda: run_network(profile.network, batch, degrade.precision),
             "effects": lambda: apply_effects(profile.effects, params, output),
-            "whole_call": lambda: degrade(image),
         }
+        for step in chain_plan(profile.effects).steps:
+            indices = step.indices if isinstance(step, FilterRun) else (step,)
+            effects, drawn = [profile.effects[i] for i in indices], [params[i] for i in indices]
+            label = "+".join(effect.name for effect in effects)
+            parts[label] = lambda effects=effects, drawn=drawn: apply_effects(effects, drawn, output)
+        parts["whole_call"] = lambda: degrade(image)
         rates = interleaved_rates({name: Case(step) for name, step in parts.items()}, repeats)
         split = {name: round(1000.0 / rate, 3) for name, rate in rates.items()}
-    print("time split (ms per single-image call): " + ", ".join(f"{k} {v:.2f}" for k, v in split.items()))
+    shown = ", ".join(f"{name} {ms:.2f}" for name, ms in split.items())
+    print(f"time split of {profile.name} (ms per single-image call): {shown}")
     return split
 
 
@@ -414,6 +423,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             flush=True,
         )
     split = time_split(degrade, image, repeats) if degrade.profile.network is not None else None
+    fast = CameraDegrade(FAST_PROFILE, seed=0) if FAST_PROFILE in list_profiles() else None
+    fast_split = time_split(fast, image, repeats) if fast is not None else None
     diagnose_seconds = None if args.skip_diagnose else diagnose_time(args.threads)
     checks = targets(rates, rounds, lines, diagnose_seconds)
     print(f"\ntargets (issues 46 and 18; ratios measured in this run, on {cpu_description()}; {load_text()}):")
@@ -448,6 +459,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         "load_average_1_5_15": list(os.getloadavg()),
         "diagnose_seconds_100_pairs_256": diagnose_seconds,
         "single_call_split_ms": split,
+        "fast_single_call_split_ms": fast_split,
         "network_gflop_per_image": round(network_gflop(), 3),
         "ratios": {k: round(v, 3) for k, v in ratios.items()},
         "profile": args.profile,

@@ -23,11 +23,14 @@ from torch import Tensor
 
 from camdegrade._pixels import as_unit
 from camdegrade._seeds import derived_generator
+from camdegrade.effects.chain import apply_effects, check_params
 from camdegrade.errors import PairsError
+from camdegrade.fitting._outputs import OUTPUTS, content_key, image_key
 from camdegrade.fitting.align import AlignmentResult, align_pair, format_shifts
 from camdegrade.fitting.pairs import UNREADABLE, Pair, PairReport, discover_pairs, size_text
+from camdegrade.inference import run_network
 from camdegrade.io import read_image
-from camdegrade.profile import CameraProfile
+from camdegrade.profile import CameraProfile, EffectParams
 
 Log = Callable[[str], None]
 
@@ -269,14 +272,58 @@ def simulate(
     """The profile applied to each clean image ``(3, H, W)``; image ``i`` draws from ``(seed, stream, i)``.
 
     ``deterministic`` runs the profile's deterministic part (:meth:`CameraProfile.without_randomness`): the
-    conditional mean that candidate effects are fitted against.
+    conditional mean that candidate effects are fitted against. Outputs that were computed before are taken from
+    :mod:`camdegrade.fitting._outputs` (the same bytes): a profile that draws nothing gives an image the same output
+    whatever the seed or stream, and every profile with one network gives it the same network output.
     """
     if deterministic:
         profile = profile.without_randomness()
+    keys = _Keys(profile)
     out = []
     with torch.no_grad():
         for index, clean in enumerate(cleans):
-            batch = clean[None]
-            params = profile.make_params(batch.shape, derived_generator(seed, stream, index))
-            out.append(profile(batch, params)[0])
+            params = profile.make_params(clean[None].shape, derived_generator(seed, stream, index))
+            out.append(_simulated(profile, clean, params, keys))
     return out
+
+
+class _Keys:
+    """The cache keys of one profile's network and of the whole profile, computed when first needed."""
+
+    def __init__(self, profile: CameraProfile) -> None:
+        self.profile = profile
+        self._network: str | None = None
+        self._whole: str | None = None
+
+    def network(self) -> str:
+        network = self.profile.network
+        if self._network is None and network is not None:
+            self._network = content_key(network, (type(network).__name__, network.config()))
+        return self._network or ""
+
+    def whole(self) -> str:
+        if self._whole is None:
+            stages = [(effect.name, effect.config()) for effect in self.profile.effects]
+            self._whole = self.network() + content_key(self.profile.effects, stages)
+        return self._whole
+
+
+def _simulated(profile: CameraProfile, clean: Tensor, params: EffectParams, keys: _Keys) -> Tensor:
+    """``profile(clean[None], params)[0]``, from the cache where it can be: the whole output when the profile draws
+    nothing, else its network's output with the stages run after it as :meth:`CameraProfile.forward` runs them."""
+    if profile.network is None or clean.requires_grad:
+        return profile(clean[None], params)[0]
+    if not any(params):
+        key = ("profile", keys.whole(), image_key(clean))
+        output = OUTPUTS.get(key)
+        if output is None:
+            output = profile(clean[None], params)[0]
+            OUTPUTS.put(key, clean, output)
+        return output
+    key = ("network", keys.network(), image_key(clean))
+    network_output = OUTPUTS.get(key)
+    if network_output is None:
+        network_output = run_network(profile.network, clean[None])
+        OUTPUTS.put(key, clean, network_output)
+    check_params(profile.effects, params)
+    return apply_effects(profile.effects, params, network_output, overwrite=True).clamp_(0.0, 1.0)[0]
