@@ -8,6 +8,7 @@ import pytest
 import torch
 import torch.nn.functional as F
 
+import camdegrade.fitting.stages as stages_module
 from bad_inputs import run_cli
 from camdegrade import CameraProfile
 from camdegrade._pixels import bytes_to_unit, unit_to_bytes
@@ -15,7 +16,7 @@ from camdegrade.cli._quality import quality_lines
 from camdegrade.effects import Blur, Noise, Tone
 from camdegrade.fitting import FitConfig, fit_profile
 from camdegrade.fitting.evidence import noise_evidence
-from camdegrade.fitting.stages import _judge
+from camdegrade.fitting.stages import _judge, fit_effects
 from camdegrade.io import write_image
 from camdegrade.measures.critic import repeated_critic_test, split_critic_test
 from camdegrade.sim import VirtualCamera
@@ -123,6 +124,21 @@ def test_noise_is_kept_only_where_it_brings_the_flat_noise_closer() -> None:
     kept, evidence = _evidence(Noise(a=0.002, b=1e-5), Noise(a=0.002, b=1e-5).scaled(100.0), clean_noise=5.0)
     assert kept is None and evidence["present"] and 0.3 < evidence["noise_ratio_without"] < 0.8
     assert evidence["noise_ratio_with"] > 5 and evidence["reason"] == "no closer to the capture with it"
+
+
+def test_noise_the_validation_pairs_do_not_show_is_not_fitted_and_noted_as_if_it_were(monkeypatch) -> None:
+    """Whether the captures hold noise above the profile's is decided without the stage: where they do not, the
+    fit by simulation is skipped (the costliest step of a City100 fit) and the note is what judging a fitted stage
+    gives."""
+    pairs = [(bytes_to_unit(clean), bytes_to_unit(captured)) for clean, captured in _pairs(_camera(None), count=8)]
+    profile = CameraProfile(None, [Blur(0.7), Tone(**TONE)])
+    _, judged, judged_line = _judge(profile, Noise(a=0.004, b=2e-5), pairs[4:], pairs[:4], eight_bit=True)
+    fitted: list[str] = []
+    monkeypatch.setattr(stages_module, "fit_stage_in_chain", lambda *args, **kwargs: fitted.append("fit"))
+    lines: list[str] = []
+    kept, notes = fit_effects(profile, pairs[:4], pairs[4:], ["noise"], lines.append, eight_bit=True)
+    assert not fitted and kept.effect_names == profile.effect_names
+    assert notes["noise"] == judged and not judged["present"] and lines == [f"effect noise: {judged_line}"]
 
 
 def test_evidence_on_pairs_without_flat_pixels_says_so() -> None:

@@ -38,6 +38,11 @@ def fit_effects(
     captured = [target for _, target in fit_pairs]
     for name in sorted(names, key=lambda n: STAGES.index(EFFECTS[n].stage)):
         kind = EFFECTS[name]
+        absent = _absent_noise(profile, kind, held_out, eight_bit)
+        if absent is not None:  # dropped whatever it would be fitted to: not fitted (the same note)
+            notes[name], line = absent
+            say(f"effect {name}: {line}")
+            continue
         simulated = simulate(profile, cleans, seed=0, deterministic=True)
         try:
             effect = fit_stage_in_chain(
@@ -52,6 +57,21 @@ def fit_effects(
         if kept is not None:
             profile = profile.with_effects(kept)
     return profile, notes
+
+
+def _absent_noise(
+    profile: CameraProfile, kind: type[Effect], held_out: Sequence[ImagePair], eight_bit: bool
+) -> tuple[dict[str, Any], str] | None:
+    """For a stage that draws only noise, judged on the validation pairs: the note and log line :func:`_judge`
+    would give when those pairs show no noise above the profile's, which do not depend on the stage fitted (its
+    evidence without the stage decides), so the costly fit by simulation is skipped; ``None`` otherwise (noise
+    measurably present, too few flat pixels to tell, or no validation pairs: then the stage is fitted and judged)."""
+    if not kind.draws_only_noise() or not held_out:
+        return None
+    _, evidence = noise_evidence(profile, None, *zip(*held_out, strict=True), eight_bit=eight_bit)
+    if evidence.present or evidence.capture_noise is None or evidence.capture_over_simulation_low is None:
+        return None
+    return {**evidence.to_dict(), "evidence": "validation"}, f"{evidence.describe()} [evidence: validation]"
 
 
 def _judge(
