@@ -11,7 +11,15 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from camdegrade.functional._utils import ParamLike, apply_float, as_channel_view, check_image, per_sample
+from camdegrade.functional._utils import (
+    ParamLike,
+    apply_float,
+    as_channel_view,
+    check_image,
+    per_sample,
+    restore,
+    to_float,
+)
 from camdegrade.functional.analysis import luma as luma_of
 from camdegrade.functional.blur import blur_image, gaussian_taps
 from camdegrade.functional.filtering import convolve_terms, luma_plane
@@ -88,6 +96,22 @@ def denoise_image(image: Tensor, sigma: ParamLike, threshold: ParamLike, *, luma
         return (x - faint_part(_detail(x, sigma, luma), threshold_t.to(x.dtype))).clamp(0.0, 1.0)
 
     return apply_float(image, kernel)
+
+
+def image_detail(image: Tensor, sigma: ParamLike, *, luma: bool = True) -> Tensor:
+    """The detail :func:`denoise_image` cores, ``x − G_σ ⊛ x`` of float ``image`` ``[..., 3, H, W]`` (of its luma,
+    ``[..., 1, H, W]``, with ``luma``), for :func:`denoised_with_detail`: a fit trying many thresholds at one sigma
+    takes it once."""
+    check_image(image)
+    return _detail(to_float(image), sigma, luma)
+
+
+def denoised_with_detail(image: Tensor, detail: Tensor, threshold: ParamLike) -> Tensor:
+    """:func:`denoise_image` of ``image`` given its :func:`image_detail` at the sigma wanted: the same values."""
+    check_image(image)
+    x = to_float(image)
+    threshold_t = _checked_threshold(threshold, image)
+    return restore((x - faint_part(detail, threshold_t.to(x.dtype))).clamp(0.0, 1.0), image)
 
 
 def faint_part(detail: Tensor, threshold: Tensor) -> Tensor:
