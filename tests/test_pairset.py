@@ -8,13 +8,13 @@ import pytest
 import torch
 
 from camdegrade import CameraProfile
+from camdegrade._outputs import OUTPUTS
 from camdegrade._seeds import derived_generator
 from camdegrade.effects import Noise, Tone
 from camdegrade.errors import PairsError
-from camdegrade.fitting._outputs import OUTPUTS
-from camdegrade.fitting.pairset import PairSet, simulate
 from camdegrade.io import write_image
 from camdegrade.network import LocalAffineNet
+from camdegrade.pairs.pairset import PairSet
 
 
 def _image(seed: int, size: int = 24) -> torch.Tensor:
@@ -81,12 +81,12 @@ def test_split_keeps_every_scene_on_one_side(tmp_path: Path) -> None:
 def test_simulation_is_seeded_per_image_and_stream() -> None:
     profile = CameraProfile(None, [Noise(a=0.01, b=1e-4), Tone(gamma=1.2)])
     cleans = [torch.rand(3, 16, 16, generator=torch.Generator().manual_seed(i)) for i in range(3)]
-    first = simulate(profile, cleans, seed=1)
-    assert all(torch.equal(a, b) for a, b in zip(first, simulate(profile, cleans, seed=1), strict=True))
-    assert torch.equal(simulate(profile, cleans[:1], seed=1)[0], first[0])  # an image's draw ignores the others
-    assert not torch.equal(simulate(profile, cleans, seed=1, stream="other")[0], first[0])
-    assert not torch.equal(simulate(profile, cleans, seed=2)[0], first[0])
-    mean = simulate(profile, cleans, seed=1, deterministic=True)
+    first = profile.simulate(cleans, seed=1)
+    assert all(torch.equal(a, b) for a, b in zip(first, profile.simulate(cleans, seed=1), strict=True))
+    assert torch.equal(profile.simulate(cleans[:1], seed=1)[0], first[0])  # an image's draw ignores the others
+    assert not torch.equal(profile.simulate(cleans, seed=1, stream="other")[0], first[0])
+    assert not torch.equal(profile.simulate(cleans, seed=2)[0], first[0])
+    mean = profile.simulate(cleans, seed=1, deterministic=True)
     assert torch.allclose(mean[0], Tone(gamma=1.2)(cleans[0][None])[0], atol=1e-6)
 
 
@@ -105,7 +105,7 @@ def _profile_with_network(noise: bool) -> CameraProfile:
 
 
 def _direct(profile: CameraProfile, cleans: list[torch.Tensor], seed: int, stream: str) -> list[torch.Tensor]:
-    """What the profile itself gives each image, seeded as :func:`simulate` seeds it."""
+    """What the profile itself gives each image, seeded as :meth:`CameraProfile.simulate` seeds it."""
     with torch.no_grad():
         return [
             profile(clean[None], profile.make_params((1, *clean.shape), derived_generator(seed, stream, index)))[0]
@@ -126,12 +126,12 @@ def test_simulations_taken_again_are_the_bytes_computed_once(noise: bool) -> Non
     cleans = [torch.rand(3, 20, 28, generator=torch.Generator().manual_seed(i)) for i in range(3)]
     OUTPUTS.clear()
     for seed, stream in ((0, "simulate"), (0, "simulate"), (3, "other"), (0, "simulate")):
-        assert _same(simulate(profile, cleans, seed, stream=stream), _direct(profile, cleans, seed, stream))
+        assert _same(profile.simulate(cleans, seed, stream=stream), _direct(profile, cleans, seed, stream))
     assert len(OUTPUTS) == 3  # one entry per image: the network's output, or the whole profile's
     cleans[1].mul_(0.5)
     with torch.no_grad():
         profile.network.linear.bias.add_(0.02)
-    assert _same(simulate(profile, cleans, 0), _direct(profile, cleans, 0, "simulate"))
+    assert _same(profile.simulate(cleans, 0), _direct(profile, cleans, 0, "simulate"))
     assert len(OUTPUTS) == 6
     cleans.clear()
     assert len(OUTPUTS) == 0

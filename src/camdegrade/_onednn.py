@@ -9,6 +9,18 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
+__all__ = [
+    "FUSED_CONV",
+    "FUSED_LINEAR",
+    "SPARSE_MAX_LIVE",
+    "SPARSE_MIN_PIXELS",
+    "conv_relu",
+    "cpu_native_bfloat16",
+    "live_linear_relu",
+    "onednn_op",
+    "use_fused_kernels",
+]
+
 #: Images with at least this many encoder pixels (a 128² image has 1024) have their first decoder product skip the
 #: encoder channels that are zero over the whole image; below it, the product's fixed cost outweighs the saving.
 SPARSE_MIN_PIXELS = 1024
@@ -48,7 +60,7 @@ def use_fused_kernels(dtype: torch.dtype) -> bool:
     """Whether to call oneDNN's fused kernels (private torch ops that torch.compile uses): for native bfloat16 only.
 
     They raise for bfloat16 on CPUs without it, and in float32 they are no faster than the plain ops at 224² and
-    cost about 0.1 ms more per call on small images (measured on an AVX2 CPU)."""
+    cost more per call on small images (docs/performance.md, *The CPU plans' choices*)."""
     return dtype == torch.bfloat16 and FUSED_CONV is not None and FUSED_LINEAR is not None and cpu_native_bfloat16()
 
 

@@ -25,6 +25,21 @@ from camdegrade.inference_local_affine import LocalAffineInference
 from camdegrade.network import SIZE_MULTIPLE, DomainShiftNet, LocalAffineNet, ShiftNetwork, check_batch
 from camdegrade.synthetic import dead_leaves_images
 
+__all__ = [
+    "PRECISIONS",
+    "SPARSE_MAX_LIVE",
+    "SPARSE_MIN_PIXELS",
+    "CpuInference",
+    "CpuPlan",
+    "LocalAffineInference",
+    "Precision",
+    "cpu_inference",
+    "native_bfloat16",
+    "probe_channel_order",
+    "resolve_precision",
+    "run_network",
+]
+
 #: How the network runs at inference: ``"float32"`` is the reference; ``"bfloat16"`` runs the convolutions and
 #: products in bfloat16; ``"auto"`` picks bfloat16 where the device computes it natively, else float32.
 Precision = Literal["auto", "float32", "bfloat16"]
@@ -128,8 +143,8 @@ class CpuInference:
     - ReLU leaves many encoder channels at zero over a whole image (about half of them for the built-in profiles
       on natural photos). In float32, from :data:`SPARSE_MIN_PIXELS` encoder pixels up, the first decoder product
       leaves those out; they contribute exact zeros, so only the rounding order changes. In native bfloat16, where
-      gathering the live columns costs more than the half product it saves (0.57 ms against 0.53 ms for a 224²
-      image on an AMD EPYC with AVX-512 BF16), the channels are ordered once by a probe
+      gathering the live columns costs more than the half product it saves (docs/performance.md, *The CPU plans'
+      choices*), the channels are ordered once by a probe
       (:func:`probe_channel_order`) and the product runs over the prefix that ends at the last live one.
     - The pointwise curves (``curves=True``) run in float32; a byte image's input curve is a table lookup
       (:func:`byte_curve`, the same values).

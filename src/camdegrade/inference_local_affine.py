@@ -19,6 +19,20 @@ from camdegrade.network import (
     smoothed,
 )
 
+__all__ = [
+    "BILINEAR_PHASES",
+    "FILTER_UNROLL",
+    "MATRIX_UPSAMPLING_BILINEAR_MAX",
+    "MATRIX_UPSAMPLING_MAX",
+    "ColourFilter",
+    "CurveTable",
+    "LocalAffineInference",
+    "bilinear_upsampled",
+    "byte_curve",
+    "upsampled_field",
+    "upsampling_matrix",
+]
+
 
 class LocalAffineInference:
     """:class:`~camdegrade.network.LocalAffineNet` for CPU inference: the module's arithmetic up to rounding, in
@@ -35,10 +49,8 @@ class LocalAffineInference:
       as one convolution computing :data:`FILTER_UNROLL` adjacent pixels per position (:class:`ColourFilter`).
     - Images are computed one at a time, so each gets the same bytes alone as in any batch or chunk.
 
-    Measured with 2 threads, one 224² photograph, the built-in ``city100-iphonex``'s network: on an AMD EPYC (Zen 3,
-    AVX2) in float32 10.1 ms against the module's 17.9 ms on channels-last input (the paper network's plan of the
-    same width: 7.3–8.1 ms); on a Xeon with AMX in bfloat16 3.7 ms (the paper network's plan: 2.4 ms), of which the
-    float32 filter takes 1.4 ms and the field's upsampling 0.6 ms.
+    About half the module's time in float32; measured against it and the paper network's plan in
+    docs/performance.md, *The CPU plans' choices*.
 
     Args:
         network: the module; its weights are copied once (see :func:`cpu_inference`, which rebuilds the plan when
@@ -100,8 +112,8 @@ class LocalAffineInference:
         if self.curve is None:
             return unit
         if image.dtype == torch.uint8:
-            # int32 indices: index_select reads them directly, where take needs int64 (0.11 against 0.27 ms for a
-            # 224² image, AMD EPYC Zen 4, 1 thread); the same table, so the same values
+            # int32 indices: index_select reads them directly, where take needs int64 (docs/performance.md, *The
+            # CPU plans' choices*); the same table, so the same values
             offsets = torch.arange(0, 3 * 256, 256, dtype=torch.int32).view(1, 3, 1, 1)
             index = image.to(torch.int32).add_(offsets).view(-1)
             return torch.index_select(self._byte_curve, 0, index).view(image.shape)
@@ -132,7 +144,7 @@ class LocalAffineInference:
     def _decode1(self, pixels: Tensor) -> Tensor:
         """ReLU of the first decoder product for one image's encoder ``pixels`` ``(M, C)``: in float32 without the
         channels that are zero over the image; in bfloat16 whole (a column gather costs more than it saves there:
-        see :meth:`CpuInference._decode1`; 0.87 ms against 0.22 ms for a 224² image on a Xeon with AMX, 2 threads)."""
+        see :meth:`CpuInference._decode1` and docs/performance.md, *The CPU plans' choices*)."""
         weight, bias = self.decode[0]
         if self.dtype == torch.float32:
             return live_linear_relu(pixels, weight, bias)
@@ -144,8 +156,8 @@ class LocalAffineInference:
 #: The local-affine plan's 7×7 filter computes this many horizontally adjacent pixels of its 3 outputs at each
 #: position of a convolution with a column stride of as many (15 output channels, 7 × 11 taps): oneDNN's float32
 #: convolution costs about the same for 3 or 16 output channels, its time set by inputs × taps per position, so
-#: this does the same arithmetic in 0.93 against 2.51 ms for a 224² image (0.42 against 0.84 at 128², 9.1 against 24
-#: ms at 840 × 600; a product of spectra took 1.19, 0.68 and 16 ms; AMD EPYC Zen 4, 1 thread, a busy machine).
+#: this does the same arithmetic in about a third of the plain convolution's time, and faster than a product of
+#: spectra (docs/performance.md, *The CPU plans' choices*).
 FILTER_UNROLL = 5
 
 
@@ -178,8 +190,8 @@ class ColourFilter:
 
 class CurveTable:
     """:func:`~camdegrade.network.piecewise_linear` through one set of knots ``(3, K)`` for inference: the same
-    arithmetic on the same floats (each segment's low knot and its rise, precomputed, read with int32 indices:
-    0.32 against 0.80 ms for a 224² image, AMD EPYC Zen 4, 1 thread), so the same values."""
+    arithmetic on the same floats (each segment's low knot and its rise, precomputed, read with int32 indices: in
+    about 40 % of its time, docs/performance.md, *The CPU plans' choices*), so the same values."""
 
     def __init__(self, knots: Tensor) -> None:
         self.segments = knots.shape[-1] - 1
@@ -198,24 +210,22 @@ class CurveTable:
 
 
 #: Fields of at most this many rows and columns (images up to 256²) are upsampled by two small matrix products;
-#: larger ones by interpolation, whose cost grows with the pixels alone. For a 224² image's 12-channel field: 0.38 ms
-#: against 0.96 ms on a Xeon with AMX, 0.82 against 0.94 on an AMD EPYC Zen 3; at 128 rows the interpolation is
-#: already as fast (2 threads).
+#: larger ones by interpolation, whose cost grows with the pixels alone: the products are faster up to here, and the
+#: interpolation as fast from 128 rows (docs/performance.md, *The CPU plans' choices*).
 MATRIX_UPSAMPLING_MAX = 64
 
 
 def byte_curve(knots: Tensor) -> Tensor:
     """The curve through ``knots`` ``(3, K)`` at every byte value, per channel, flattened ``(3 · 256,)``: exactly what
     :func:`~camdegrade.network.piecewise_linear` gives a byte image read as ``value / 255`` (the same arithmetic on
-    the same floats), in a lookup of about half its time (0.55 against 0.97–1.27 ms for a 224² image, AMD EPYC Zen 3,
-    2 threads)."""
+    the same floats), in a lookup of about half its time (docs/performance.md, *The CPU plans' choices*)."""
     values = bytes_to_unit(torch.arange(256, dtype=torch.uint8)).expand(1, 3, 1, 256)
     return piecewise_linear(values, knots).reshape(-1)
 
 
 #: Bilinear fields of more than this many rows or columns are upsampled by interpolating between neighbours
-#: (:func:`bilinear_upsampled`), smaller ones by the matrix products: 0.32 against 1.17 ms for a 224² image's
-#: field, equal at 24 rows (AMD EPYC Zen 4, 1 thread).
+#: (:func:`bilinear_upsampled`), smaller ones by the matrix products: equal at 24 rows, the interpolation a quarter
+#: of the products' time at 224² (docs/performance.md, *The CPU plans' choices*).
 MATRIX_UPSAMPLING_BILINEAR_MAX = 24
 
 

@@ -15,7 +15,8 @@ from safetensors.torch import save_file
 from torch import Tensor, nn
 
 from camdegrade._files import atomic_path
-from camdegrade._pixels import bytes_to_unit
+from camdegrade._outputs import OUTPUTS, ProfileKeys, image_key
+from camdegrade._pixels import bytes_to_unit, unit_to_bytes
 from camdegrade._profile_format.check import listing, network_class, network_config
 from camdegrade._profile_format.header import FORMAT_NAME as FORMAT_NAME
 from camdegrade._profile_format.header import FORMAT_VERSION as FORMAT_VERSION
@@ -26,12 +27,15 @@ from camdegrade._profile_format.header import list_profiles as list_profiles
 from camdegrade._profile_format.header import read_header
 from camdegrade._profile_format.header import resolve_profile_path as resolve_profile_path
 from camdegrade._profile_format.header import serialize_metadata as serialize_metadata
+from camdegrade._seeds import derived_generator
 from camdegrade._version import __version__
 from camdegrade.effects import STAGES, Effect, build_effect
 from camdegrade.effects.chain import apply_effects, check_chain, check_params
 from camdegrade.errors import ProfileError
 from camdegrade.inference import Precision, run_network
 from camdegrade.network import ARCHITECTURES, ShiftNetwork
+
+__all__ = ["CameraProfile", "EffectParams", "as_profile", "check_profile_values", "load_profile"]
 
 EffectParams = list[dict[str, Tensor]]
 
@@ -113,9 +117,64 @@ class CameraProfile(nn.Module):
             image, owned = run_network(self.network, image, precision), True
         elif image.dtype == torch.uint8:
             image, owned = bytes_to_unit(image), True
+        return self._stages(image, params, owned)
+
+    def _stages(self, image: Tensor, params: EffectParams, owned: bool) -> Tensor:
+        """The effect stages and the final clamp on ``image`` (the network's output, or the input without one),
+        overwritten when ``owned``."""
         if self.effects:
             image, owned = apply_effects(self.effects, params, image, overwrite=owned), True
         return image.clamp_(0.0, 1.0) if owned and not image.requires_grad else image.clamp(0.0, 1.0)
+
+    def simulate(
+        self,
+        images: Sequence[Tensor],
+        seed: int,
+        *,
+        stream: str = "simulate",
+        deterministic: bool = False,
+        eight_bit: bool = False,
+    ) -> list[Tensor]:
+        """This profile applied to each image ``(3, H, W)``, image ``i`` drawing from ``(seed, stream, i)``
+        (:func:`~camdegrade._seeds.derived_generator`): the same images for the same seed in any process, whatever
+        else is simulated around them. The one seeded simulation of fitting, diagnosis and the unpaired fit.
+
+        ``deterministic`` runs the deterministic part (:meth:`without_randomness`): the conditional mean that
+        candidate stages are fitted against. ``eight_bit`` rounds each output to 8-bit values, as a file stores it.
+
+        Outputs computed before come from :mod:`camdegrade._outputs` (the same bytes): a profile that draws nothing
+        gives an image one output whatever the seed or stream, and every profile with one network gives it one
+        network output.
+        """
+        profile = self.without_randomness() if deterministic else self
+        keys = ProfileKeys(profile)
+        out = []
+        with torch.no_grad():
+            for index, image in enumerate(images):
+                params = profile.make_params(image[None].shape, derived_generator(seed, stream, index))
+                output = profile._simulated(image, params, keys)
+                out.append(bytes_to_unit(unit_to_bytes(output)) if eight_bit else output)
+        return out
+
+    def _simulated(self, image: Tensor, params: EffectParams, keys: ProfileKeys) -> Tensor:
+        """``self(image[None], params)[0]``, from the cache where it can be: the whole output when the profile draws
+        nothing, else its network's output with the stages run after it as :meth:`forward` runs them."""
+        if self.network is None or image.requires_grad or image.numel() == 0:
+            return self(image[None], params)[0]
+        if not any(params):
+            key = ("profile", keys.whole(), image_key(image))
+            output = OUTPUTS.get(key)
+            if output is None:
+                output = self(image[None], params)[0]
+                OUTPUTS.put(key, image, output)
+            return output
+        key = ("network", keys.network(), image_key(image))
+        network_output = OUTPUTS.get(key)
+        if network_output is None:
+            network_output = run_network(self.network, image[None])
+            OUTPUTS.put(key, image, network_output)
+        check_params(self.effects, params)
+        return self._stages(network_output, params, owned=True)[0]
 
     def with_effects(self, *effects: Effect) -> CameraProfile:
         """A copy of this profile with ``effects`` added, each inserted after the last stage of its kind or earlier."""

@@ -18,6 +18,8 @@ from camdegrade.effects.base import Effect, Encoding, Pairs, check_range, regist
 from camdegrade.effects.linear import Kernel, LinearFilter, taps_kernel
 from camdegrade.functional import blur_image, convolve_separable, psf_kernel, separable_taps
 
+__all__ = ["Blur", "fit_margin"]
+
 
 @register_effect
 class Blur(Effect):

@@ -28,6 +28,18 @@ from camdegrade.effects.base import Encoding
 from camdegrade.functional.analysis import LUMA_WEIGHTS
 from camdegrade.functional.filtering import SeparableTerm, convolve_spectrum, convolve_terms, luma_plane, terms_radius
 
+__all__ = [
+    "DELTA",
+    "NEGLIGIBLE_TAP",
+    "SPECTRUM_PAD",
+    "ZERO",
+    "Gains",
+    "Kernel",
+    "LinearFilter",
+    "gaussian_term",
+    "taps_kernel",
+]
+
 #: Gains of a kernel on the ``rfft2`` grid of an ``h × w`` frame (complex128 ``(h, w // 2 + 1)``).
 Gains = Callable[[int, int], Tensor]
 #: Rows and columns of mirrored border before a product of spectra (as :mod:`camdegrade.functional.response`).

@@ -19,6 +19,14 @@ from camdegrade.effects.base import Effect, Encoding
 from camdegrade.effects.linear import LinearFilter
 from camdegrade.functional.color import linear_to_srgb_, srgb_to_linear_
 
+__all__ = [
+    "PLANS_KEPT",
+    "ChainPlan",
+    "FilterRun",
+    "chain_plan",
+    "encoded",
+]
+
 
 @dataclass
 class FilterRun:

@@ -20,6 +20,8 @@ from camdegrade.effects.linear import DELTA, Kernel, LinearFilter
 from camdegrade.functional.blur import gaussian_taps
 from camdegrade.functional.sharpen import cored_, coring, luma_detail, unsharp_mask_image
 
+__all__ = ["Sharpen"]
+
 #: Where :meth:`Sharpen.fit` starts: every sigma × amount (threshold 0), then every threshold at the best of those.
 _GRID_SIGMAS = (0.5, 0.8, 1.2, 1.8, 2.7, 4.0)
 _GRID_AMOUNTS = (0.0, 0.25, 0.5, 1.0, 2.0)

@@ -16,6 +16,8 @@ from torch import Tensor
 
 from camdegrade.functional.analysis import LUMA_WEIGHTS
 
+__all__ = ["SeparableTerm", "convolve_spectrum", "convolve_terms", "luma_plane", "terms_radius"]
+
 #: One separable term of a kernel: its weight, its taps down (rows) and across (columns), odd counts, centred.
 SeparableTerm = tuple[float, tuple[float, ...], tuple[float, ...]]
 

@@ -24,6 +24,8 @@ from camdegrade.functional.analysis import luma as luma_of
 from camdegrade.functional.blur import blur_image, gaussian_taps
 from camdegrade.functional.filtering import convolve_terms, luma_plane
 
+__all__ = ["coring", "denoise_image", "faint_part", "unsharp_mask_image"]
+
 
 def coring(detail: Tensor, threshold: Tensor) -> Tensor:
     """``detail · d² / (d² + threshold²)``: detail well above ``threshold`` passes, detail well below it is zeroed,
