@@ -52,6 +52,7 @@ os.environ.setdefault("NO_ALBUMENTATIONS_UPDATE", "1")  # albumentations would l
 
 import torch
 import torch.nn.functional as F
+from machine import cpu_description, load_text
 
 from camdegrade import CameraDegrade, list_profiles, load_profile
 from camdegrade.effects.chain import apply_effects
@@ -155,23 +156,6 @@ def fit_step_cases() -> dict[str, Case]:
         "fit_step_before": Case(before, images_per_call=32, calls=2),
         "fit_step": Case(lambda: step(clean, captured, 32), images_per_call=32, calls=2),
     }
-
-
-def cpu_description() -> str:
-    """The CPU's model name (Linux), the vector ISA torch dispatches to, and whether bfloat16 is native."""
-    model = platform.processor() or platform.machine()
-    cpuinfo = Path("/proc/cpuinfo")
-    if cpuinfo.exists():
-        names = [line.split(":", 1)[1].strip() for line in cpuinfo.read_text().splitlines() if "model name" in line]
-        model = names[0] if names else model
-    native = "native bfloat16" if native_bfloat16(torch.device("cpu")) else "no native bfloat16"
-    return f"{model}, {torch.backends.cpu.get_cpu_capability()}, {native}"
-
-
-def load_text() -> str:
-    """The machine's load averages (1, 5, 15 min; Linux), which say how busy it was while timing."""
-    one, five, fifteen = os.getloadavg()
-    return f"load average {one:.2f} {five:.2f} {fifteen:.2f} on {os.cpu_count()} CPUs"
 
 
 def reference_network(profile_name: str) -> Callable[[torch.Tensor], torch.Tensor]:
