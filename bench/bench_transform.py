@@ -23,7 +23,9 @@ all cases alike and the ratios compare like with like. Cases (uint8 224² RGB in
   the module in float32 on NCHW crops (how fits ran before) and the fit's own step (channels-last crops, bfloat16
   autocast where native).
 
-The end of the output is a table of targets (issue 18), each a ratio measured in this run, with PASS or FAIL.
+The end of the output is a table of targets (issues 46 and 18), each measured in this run, with PASS or FAIL, the
+CPU and the machine's load averages (a shared machine's speed drifts: read the ratios, each the median of the
+per-round ratios of two cases timed in the same round, with their range over the rounds).
 
 Peer libraries come from the ``bench`` extra and are skipped when missing. Run from the repo root::
 
@@ -50,9 +52,11 @@ os.environ.setdefault("NO_ALBUMENTATIONS_UPDATE", "1")  # albumentations would l
 
 import torch
 import torch.nn.functional as F
+from machine import cpu_description, load_text
 
 from camdegrade import CameraDegrade, list_profiles, load_profile
 from camdegrade.effects.chain import apply_effects
+from camdegrade.effects.plan import FilterRun, chain_plan
 from camdegrade.inference import native_bfloat16, resolve_precision, run_network
 
 SIZE = 224
@@ -86,6 +90,12 @@ def interleaved_rates(cases: dict[str, Case], repeats: int, warmup: int = 2) -> 
     repeats would compare a fast spell with a slow one. Each case's turn starts with ``warmup`` untimed calls, so
     it is not charged for refilling the caches and the heap that the previous case left.
     """
+    rounds = interleaved_round_rates(cases, repeats, warmup)
+    return {name: statistics.median(values) for name, values in rounds.items()}
+
+
+def interleaved_round_rates(cases: dict[str, Case], repeats: int, warmup: int = 2) -> dict[str, list[float]]:
+    """Images/s of every case in each of ``repeats`` interleaved rounds (see :func:`interleaved_rates`)."""
     rates: dict[str, list[float]] = {name: [] for name in cases}
     for _ in range(repeats):
         for name, case in cases.items():
@@ -95,7 +105,15 @@ def interleaved_rates(cases: dict[str, Case], repeats: int, warmup: int = 2) -> 
             for _ in range(case.calls):
                 case.step()
             rates[name].append(case.calls * case.images_per_call / (time.perf_counter() - started))
-    return {name: statistics.median(values) for name, values in rates.items()}
+    return rates
+
+
+def round_ratios(rounds: dict[str, list[float]], case: str, reference: str) -> list[float] | None:
+    """``case``'s rate over ``reference``'s, round by round (both timed in the same round: a ratio a slow spell of
+    the machine moves least); ``None`` when either was not measured."""
+    if case not in rounds or reference not in rounds:
+        return None
+    return [ours / theirs for ours, theirs in zip(rounds[case], rounds[reference], strict=True)]
 
 
 def network_gflop(size: int = SIZE) -> float:
@@ -138,17 +156,6 @@ def fit_step_cases() -> dict[str, Case]:
         "fit_step_before": Case(before, images_per_call=32, calls=2),
         "fit_step": Case(lambda: step(clean, captured, 32), images_per_call=32, calls=2),
     }
-
-
-def cpu_description() -> str:
-    """The CPU's model name (Linux), the vector ISA torch dispatches to, and whether bfloat16 is native."""
-    model = platform.processor() or platform.machine()
-    cpuinfo = Path("/proc/cpuinfo")
-    if cpuinfo.exists():
-        names = [line.split(":", 1)[1].strip() for line in cpuinfo.read_text().splitlines() if "model name" in line]
-        model = names[0] if names else model
-    native = "native bfloat16" if native_bfloat16(torch.device("cpu")) else "no native bfloat16"
-    return f"{model}, {torch.backends.cpu.get_cpu_capability()}, {native}"
 
 
 def reference_network(profile_name: str) -> Callable[[torch.Tensor], torch.Tensor]:
@@ -213,23 +220,31 @@ def albumentations_chain() -> Callable[[Any], Any] | None:
 
 
 def time_split(degrade: CameraDegrade, image: torch.Tensor, repeats: int) -> dict[str, float]:
-    """Milliseconds (medians) of the parts of one single-image call: drawing the params, the network, the effect
-    stages, and the whole call (the rest is conversion and the transform's own work). Needs a network."""
+    """Milliseconds (medians) of the parts of one single-image call: drawing the params, the network (on the uint8
+    image, as the transform runs it), the effect stages together and each step of the chain's plan (a composed
+    filter of adjacent linear stages, ``blur+sharpen``, or a stage), and the whole call (the rest is conversion and
+    the transform's own work). Needs a network."""
     profile = degrade.profile
-    unit = image[None].float() / 255.0
+    batch = image[None]
     generator = torch.Generator().manual_seed(0)
     with torch.no_grad():
-        output = run_network(profile.network, unit, degrade.precision)
-        params = profile.make_params(unit.shape, generator)
+        output = run_network(profile.network, batch, degrade.precision)
+        params = profile.make_params(batch.shape, generator)
         parts = {
             "draw_params": lambda: degrade.make_params([image]),
-            "network": lambda: run_network(profile.network, unit, degrade.precision),
+            "network": lambda: run_network(profile.network, batch, degrade.precision),
             "effects": lambda: apply_effects(profile.effects, params, output),
-            "whole_call": lambda: degrade(image),
         }
+        for step in chain_plan(profile.effects).steps:
+            indices = step.indices if isinstance(step, FilterRun) else (step,)
+            effects, drawn = [profile.effects[i] for i in indices], [params[i] for i in indices]
+            label = "+".join(effect.name for effect in effects)
+            parts[label] = lambda effects=effects, drawn=drawn: apply_effects(effects, drawn, output)
+        parts["whole_call"] = lambda: degrade(image)
         rates = interleaved_rates({name: Case(step) for name, step in parts.items()}, repeats)
         split = {name: round(1000.0 / rate, 3) for name, rate in rates.items()}
-    print("time split (ms per single-image call): " + ", ".join(f"{k} {v:.2f}" for k, v in split.items()))
+    shown = ", ".join(f"{name} {ms:.2f}" for name, ms in split.items())
+    print(f"time split of {profile.name} (ms per single-image call): {shown}")
     return split
 
 
@@ -252,12 +267,20 @@ FAST_PROFILE = "city100-iphonex-fast"
 
 @dataclass
 class Target:
-    """One target of issue 18: a ratio measured in this run against its bound."""
+    """One target (issues 18 and 46): a value measured in this run against its bound; for a ratio of rates, the
+    median of its per-round ratios and their range (``spread``)."""
 
     name: str
     measured: float | None
     bound: float
     at_most: bool = False  # the measured value must not exceed the bound (else: reach it)
+    spread: tuple[float, float] | None = None
+
+    @classmethod
+    def of_rounds(cls, name: str, ratios: list[float] | None, bound: float) -> Target:
+        if not ratios:
+            return cls(name, None, bound)
+        return cls(name, statistics.median(ratios), bound, spread=(min(ratios), max(ratios)))
 
     @property
     def passed(self) -> bool | None:
@@ -268,7 +291,8 @@ class Target:
     def row(self) -> str:
         verdict = {True: "PASS", False: "FAIL", None: "n/a"}[self.passed]
         shown = "not measured" if self.measured is None else f"{self.measured:.3f}"
-        return f"{self.name:64s} {shown:>12s}   {'<=' if self.at_most else '>='} {self.bound:<6g} {verdict}"
+        spread = "" if self.spread is None else f"  (rounds {self.spread[0]:.2f}–{self.spread[1]:.2f})"
+        return f"{self.name:64s} {shown:>12s}   {'<=' if self.at_most else '>='} {self.bound:<6g} {verdict}{spread}"
 
 
 def transform_cases(args: argparse.Namespace, image: torch.Tensor, calls: int) -> tuple[dict[str, Case], Any]:
@@ -322,21 +346,35 @@ def fast_profile_quality() -> float | None:
     return quality["full_profile_psnr_mean_db"] - quality["profile_psnr_mean_db"]
 
 
-def targets(rates: dict[str, float], lines: dict[str, float], diagnose_seconds: float | None) -> list[Target]:
-    """Issue 18's targets from this run's rates (images/s, crops/s) and lines (GFLOP/s)."""
+def targets(
+    rates: dict[str, float], rounds: dict[str, list[float]], lines: dict[str, float], diagnose_seconds: float | None
+) -> list[Target]:
+    """Issue 46's targets (the built-ins against the torchvision and albumentations chains, medians of the per-round
+    ratios) and issue 18's, from this run's rates (images/s, crops/s), their rounds and lines (GFLOP/s)."""
     network_ms, call_ms = 1000 / rates["network_plan"], 1000 / rates["camdegrade_single"]
     line = lines.get("bfloat16_gemm", lines["float32_gemm"])
     plan_share = rates["network_plan"] / (line / network_gflop())
-    fast = rates.get("camdegrade_fast_single")
-    tv = rates["torchvision_chain"]
     return [
-        Target("1. everything beyond the network, share of a single 224² call", 1 - network_ms / call_ms, 0.20, True),
-        Target("1. network plan, share of its matrix-product line", plan_share, 0.85),
-        Target("1. CameraDegrade single 224² / torchvision chain", rates["camdegrade_single"] / tv, 1.0),
-        Target("2. fast profile single 224² / torchvision chain", None if fast is None else fast / tv, 2.0),
-        Target("2. fast profile held-out City100 mean PSNR below the full (dB)", fast_profile_quality(), 0.3, True),
+        Target.of_rounds(
+            "46. city100-iphonex single 224² / torchvision chain",
+            round_ratios(rounds, "camdegrade_single", "torchvision_chain"),
+            1.0,
+        ),
+        Target.of_rounds(
+            "46. city100-iphonex-fast single 224² / torchvision chain",
+            round_ratios(rounds, "camdegrade_fast_single", "torchvision_chain"),
+            2.0,
+        ),
+        Target.of_rounds(
+            "46. city100-iphonex-fast single 224² / albumentations chain",
+            round_ratios(rounds, "camdegrade_fast_single", "albumentations_chain"),
+            1.0,
+        ),
+        Target("18.1 everything beyond the network, share of a single 224² call", 1 - network_ms / call_ms, 0.20, True),
+        Target("18.1 network plan, share of its matrix-product line", plan_share, 0.85),
+        Target("18.2 fast profile held-out City100 mean PSNR below the full (dB)", fast_profile_quality(), 0.3, True),
         Target(
-            "3. training crops/s at 128²: the fit's step / before", rates["fit_step"] / rates["fit_step_before"], 2.0
+            "18.3 training crops/s at 128²: the fit's step / before", rates["fit_step"] / rates["fit_step_before"], 2.0
         ),
         Target("diagnose, 100 pairs of 256² (s)", diagnose_seconds, 120.0, True),
     ]
@@ -352,12 +390,13 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     args = parser.parse_args(argv)
     warnings.filterwarnings("ignore")  # peer libraries' deprecation notices are not what is measured
     torch.set_num_threads(args.threads)
-    print(f"cpu: {cpu_description()}; {args.threads} torch threads", flush=True)
+    print(f"cpu: {cpu_description()}; {args.threads} torch threads; {load_text()}", flush=True)
     repeats, calls = (3, 5) if args.quick else (11, 30)
     image = natural_image()
     cases, degrade = transform_cases(args, image, calls)
     gemms, gemm_gflop = line_cases()
-    rates = interleaved_rates({**cases, **gemms, **fit_step_cases()}, repeats)
+    rounds = interleaved_round_rates({**cases, **gemms, **fit_step_cases()}, repeats)
+    rates = {name: statistics.median(values) for name, values in rounds.items()}
     lines = {name: rates.pop(name) * gemm_gflop[name] for name in gemms}
     for name, rate in rates.items():
         unit = "crops/s" if name.startswith("fit_step") else "images/s"
@@ -369,9 +408,11 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             flush=True,
         )
     split = time_split(degrade, image, repeats) if degrade.profile.network is not None else None
+    fast = CameraDegrade(FAST_PROFILE, seed=0) if FAST_PROFILE in list_profiles() else None
+    fast_split = time_split(fast, image, repeats) if fast is not None else None
     diagnose_seconds = None if args.skip_diagnose else diagnose_time(args.threads)
-    checks = targets(rates, lines, diagnose_seconds)
-    print("\ntargets (issue 18; ratios measured in this run):")
+    checks = targets(rates, rounds, lines, diagnose_seconds)
+    print(f"\ntargets (issues 46 and 18; ratios measured in this run, on {cpu_description()}; {load_text()}):")
     for check in checks:
         print("  " + check.row())
     single = rates["camdegrade_single"]
@@ -383,16 +424,27 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     for peer in ("albumentations_chain", "kornia_chain"):
         if peer in rates:
             ratios[f"single_vs_{peer}"] = single / rates[peer]
+            if "camdegrade_fast_single" in rates:
+                ratios[f"fast_single_vs_{peer}"] = rates["camdegrade_fast_single"] / rates[peer]
     print("ratios: " + ", ".join(f"{k} {v:.2f}x" for k, v in ratios.items()))
     record = {
         "images_per_s": {name: round(rate, 1) for name, rate in rates.items()},
         "gemm_gflops": {name: round(value, 1) for name, value in lines.items()},
         "targets": [
-            {"name": c.name, "measured": c.measured, "bound": c.bound, "at_most": c.at_most, "passed": c.passed}
+            {
+                "name": c.name,
+                "measured": c.measured,
+                "bound": c.bound,
+                "at_most": c.at_most,
+                "passed": c.passed,
+                "rounds_range": c.spread,
+            }
             for c in checks
         ],
+        "load_average_1_5_15": list(os.getloadavg()),
         "diagnose_seconds_100_pairs_256": diagnose_seconds,
         "single_call_split_ms": split,
+        "fast_single_call_split_ms": fast_split,
         "network_gflop_per_image": round(network_gflop(), 3),
         "ratios": {k: round(v, 3) for k, v in ratios.items()},
         "profile": args.profile,

@@ -9,7 +9,7 @@ import pytest
 import torch
 from torch import Tensor
 
-import camdegrade.effects.chain as chain_module
+import camdegrade.effects.plan as plan_module
 from camdegrade.effects import (
     EFFECTS,
     JPEG,
@@ -31,6 +31,7 @@ from camdegrade.effects import (
     build_effect,
 )
 from camdegrade.effects.chain import apply_effects
+from camdegrade.functional import srgb_to_linear
 from effects_images import photo_batch
 
 VOCABULARY = {
@@ -247,7 +248,52 @@ def _encoded_variants() -> list[Effect]:
         Noise(0.004, 0.0, 0.0),
         Color(torch.eye(3) * 0.9, linear=False),
         Tone(1.3, 0.02, 0.9),
+        *[effect for examples in LINEAR_EXAMPLES.values() for effect in examples],
     ]
+
+
+#: Forms of the effects that are linear shift-invariant filters (a chain's plan composes them): besides the strong
+#: forms above (coring, jitter), which are not.
+LINEAR_EXAMPLES = {
+    "blur": [Blur(1.4, 0.6, 30.0, 3.0, 20.0), Blur(0.9, linear=False)],
+    "sharpen": [Sharpen(1.0, 0.8), Sharpen(0.8, 1.5, luma=False), Sharpen(1.0, 0.0, 0.02)],
+    "denoise": [Denoise(1.0, 0.0)],
+    "frequency_response": [FrequencyResponse(torch.linspace(0.5, 2.0, 121).reshape(11, 11))],
+}
+
+
+def _linear_candidates(name: str) -> list[Effect]:
+    centre = strong(name).without_randomness()
+    return [
+        strong(name),
+        EFFECTS[name].neutral(),
+        *([centre] if centre is not None else []),
+        *LINEAR_EXAMPLES.get(name, []),
+    ]
+
+
+@pytest.mark.parametrize("name", REGISTERED)
+def test_a_stated_linear_filter_is_the_stage(name: str) -> None:
+    """What :meth:`Effect.linear_filter` states is the stage: it draws nothing, works in the stage's encoding, and
+    running the filter gives the stage's output (within float rounding)."""
+    image = photo_batch()
+    for effect in _linear_candidates(name):
+        stated = effect.linear_filter()
+        if stated is None:
+            continue
+        assert effect.make_params(image.shape, torch.Generator().manual_seed(0)) == {}
+        assert effect.encodings() == (stated.encoding, stated.encoding)
+        encoded = srgb_to_linear(image) if stated.encoding == "linear" else image.clone()
+        with torch.no_grad():
+            expected = effect.forward_encoded(encoded.clone(), {})
+            assert (stated.run_(encoded.clone()) - expected).abs().max() < 2e-6, effect
+
+
+def test_the_linear_stages_state_their_filters_and_the_others_none() -> None:
+    stating = {name for name in REGISTERED if any(e.linear_filter() is not None for e in _linear_candidates(name))}
+    assert stating == {"blur", "sharpen", "denoise", "frequency_response"}
+    assert strong("sharpen").linear_filter() is None and strong("denoise").linear_filter() is None  # coring
+    assert strong("blur").linear_filter() is None  # a PSF of its own for every sample
 
 
 @pytest.mark.parametrize("effect", _encoded_variants(), ids=lambda effect: f"{effect.name}({effect.extra_repr()[:40]})")
@@ -272,13 +318,13 @@ def test_chain_shares_one_srgb_decode_and_matches_stage_by_stage() -> None:
     for stage, stage_params in zip(stages, params, strict=True):
         expected = stage(expected, stage_params)
     decodes = []
-    original = chain_module.srgb_to_linear_
-    chain_module.srgb_to_linear_ = lambda x: decodes.append(1) or original(x)  # type: ignore[assignment]
+    original = plan_module.srgb_to_linear_
+    plan_module.srgb_to_linear_ = lambda x: decodes.append(1) or original(x)  # type: ignore[assignment]
     try:
         with torch.no_grad():
             chained = apply_effects(stages, params, image)
     finally:
-        chain_module.srgb_to_linear_ = original  # type: ignore[assignment]
+        plan_module.srgb_to_linear_ = original  # type: ignore[assignment]
     assert len(decodes) == 1
     assert (chained - expected).abs().max() <= 2e-6
     with_graph = apply_effects(stages, params, image.clone().requires_grad_())

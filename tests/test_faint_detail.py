@@ -9,6 +9,7 @@ from camdegrade import CameraProfile
 from camdegrade.effects import Blur, Denoise, Sharpen
 from camdegrade.fitting import FitConfig, fit_profile
 from camdegrade.fitting.steps.denoise import DenoiseMatch
+from camdegrade.functional.sharpen import denoise_image, denoised_with_detail, image_detail
 from camdegrade.synthetic import dead_leaves_images
 from steps_for_tests import run_step
 
@@ -70,3 +71,14 @@ def test_a_fit_records_its_denoise_step_and_the_paper_recipe_skips_it() -> None:
     assert set(matched) >= {"kept", "sigma", "threshold_levels", "val_psnr_before", "val_psnr_after"}, matched
     skipped = fit_profile(pairs, quick.replace(texture="none")).fitted["denoise"]
     assert skipped == {"kept": False, "reason": "texture='none'"}
+
+
+def test_a_detail_taken_once_denoises_as_the_kernel_does_at_every_threshold() -> None:
+    """The step tries every threshold of a sigma on one detail (:func:`image_detail`): the kernel's very values."""
+    images = [torch.rand(3, 37, 52, generator=torch.Generator().manual_seed(seed)) for seed in range(2)]
+    for image in images:
+        for sigma in (0.7, 1.5):
+            detail = image_detail(image, sigma)
+            for level in (1.0, 4.0):
+                expected = denoise_image(image, sigma, level / 255)
+                assert torch.equal(denoised_with_detail(image, detail, level / 255), expected)

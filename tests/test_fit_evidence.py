@@ -8,6 +8,7 @@ import pytest
 import torch
 import torch.nn.functional as F
 
+import camdegrade.fitting.steps.effects as effects_step
 from bad_inputs import run_cli
 from camdegrade import CameraProfile
 from camdegrade._pixels import bytes_to_unit, unit_to_bytes
@@ -22,6 +23,7 @@ from camdegrade.pairs import PairSet
 from camdegrade.sim import VirtualCamera
 from camdegrade.summary import quality_lines
 from camdegrade.synthetic import dead_leaves_images
+from steps_for_tests import paired_fit, run_step
 
 torch.set_num_threads(1)
 TONE = {"gamma": 0.8, "black": 0.02, "white": 0.95}
@@ -127,6 +129,22 @@ def test_noise_is_kept_only_where_it_brings_the_flat_noise_closer() -> None:
     kept, evidence = _evidence(Noise(a=0.002, b=1e-5), Noise(a=0.002, b=1e-5).scaled(100.0), clean_noise=5.0)
     assert kept is None and evidence["present"] and 0.3 < evidence["noise_ratio_without"] < 0.8
     assert evidence["noise_ratio_with"] > 5 and evidence["reason"] == "no closer to the capture with it"
+
+
+def test_noise_the_validation_pairs_do_not_show_is_not_fitted_and_noted_as_if_it_were(monkeypatch) -> None:
+    """Whether the captures hold noise above the profile's is decided without the stage: where they do not, the
+    fit by simulation is skipped (the costliest step of a City100 fit) and the record is what judging a fitted stage
+    gives."""
+    pairs = [(bytes_to_unit(clean), bytes_to_unit(captured)) for clean, captured in _pairs(_camera(None), count=8)]
+    profile = CameraProfile(None, [Blur(0.7), Tone(**TONE)])
+    judged_lines: list[str] = []
+    judged = EffectStage(Noise).judge(paired_fit(profile, pairs[:4], pairs[4:], judged_lines.append), Noise(a=0.004))
+    fitted: list[str] = []
+    monkeypatch.setattr(effects_step, "fit_stage_in_chain", lambda *args, **kwargs: fitted.append("fit"))
+    lines: list[str] = []
+    kept, record = run_step(EffectStage(Noise), profile, pairs[:4], pairs[4:], lines.append)
+    assert not fitted and kept.effect_names == profile.effect_names
+    assert record == judged and not judged["present"] and not judged["kept"] and lines == judged_lines
 
 
 def test_evidence_on_pairs_without_flat_pixels_says_so() -> None:

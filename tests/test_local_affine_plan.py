@@ -9,8 +9,15 @@ import torch
 from skimage import data
 
 from camdegrade import load_profile
-from camdegrade.inference import LocalAffineInference, cpu_inference, run_network, upsampled_field
-from camdegrade.network import FIELD_UPSAMPLING, LocalAffineNet, smoothed
+from camdegrade.inference import cpu_inference, run_network
+from camdegrade.inference_local_affine import (
+    BILINEAR_PHASES,
+    ColourFilter,
+    CurveTable,
+    LocalAffineInference,
+    upsampled_field,
+)
+from camdegrade.network import FIELD_UPSAMPLING, SIZE_MULTIPLE, LocalAffineNet, piecewise_linear, smoothed
 
 #: Largest difference from the module: the plan only sums in another order.
 TOLERANCE = 2e-6
@@ -137,3 +144,24 @@ def test_the_field_is_upsampled_as_the_module_does_it(size, smooth):
     exact = smoothed(exact) if smooth else exact
     ours = upsampled_field(field, smooth)
     assert ours.shape == exact.shape and (ours - exact).abs().max() < 1e-5
+
+
+@pytest.mark.parametrize("size", [(1, 1), (5, 7), (44, 44), (61, 37), (132, 128)])  # widths 7, 44 and 37 padded
+def test_the_filter_is_the_modules_convolution(size):
+    """The unrolled convolution does the plain one's products and sums: the same values."""
+    network = _network(seed=4)
+    image = _image((1, 3, *size), seed=5)
+    with torch.no_grad():
+        exact = network.filtered(image)
+    ours = ColourFilter(network.linear.weight, network.linear.bias)(image)
+    assert ours.shape == exact.shape and torch.equal(ours, exact)
+
+
+def test_the_curve_table_gives_the_curves_values_exactly():
+    knots = torch.rand(3, 17, generator=torch.Generator().manual_seed(2)) * 1.2 - 0.1
+    values = torch.rand(1, 3, 37, 41, generator=torch.Generator().manual_seed(3)) * 1.4 - 0.2  # some outside [0, 1]
+    assert torch.equal(CurveTable(knots)(values), piecewise_linear(values, knots))
+
+
+def test_the_bilinear_phases_are_those_of_the_networks_upsampling():
+    assert len(BILINEAR_PHASES) == SIZE_MULTIPLE

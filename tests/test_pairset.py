@@ -8,9 +8,12 @@ import pytest
 import torch
 
 from camdegrade import CameraProfile
+from camdegrade._outputs import OUTPUTS
+from camdegrade._seeds import derived_generator
 from camdegrade.effects import Noise, Tone
 from camdegrade.errors import PairsError
 from camdegrade.io import write_image
+from camdegrade.network import LocalAffineNet
 from camdegrade.pairs.pairset import PairSet
 
 
@@ -91,3 +94,44 @@ def test_deterministic_part_keeps_the_metadata() -> None:
     profile = CameraProfile(None, [Noise(a=0.01), Tone(gamma=1.2)], fitted={"pairs": 3}, quality={"psnr": 30.0})
     centre = profile.without_randomness()
     assert centre.effect_names == ["tone"] and centre.fitted == {"pairs": 3} and centre.quality == {"psnr": 30.0}
+
+
+def _profile_with_network(noise: bool) -> CameraProfile:
+    network = LocalAffineNet(8)
+    with torch.no_grad():
+        for parameter in network.parameters():
+            parameter.add_(torch.randn(parameter.shape, generator=torch.Generator().manual_seed(5)) * 0.05)
+    return CameraProfile(network, [*([Noise(a=0.01)] if noise else []), Tone(gamma=1.2)])
+
+
+def _direct(profile: CameraProfile, cleans: list[torch.Tensor], seed: int, stream: str) -> list[torch.Tensor]:
+    """What the profile itself gives each image, seeded as :meth:`CameraProfile.simulate` seeds it."""
+    with torch.no_grad():
+        return [
+            profile(clean[None], profile.make_params((1, *clean.shape), derived_generator(seed, stream, index)))[0]
+            for index, clean in enumerate(cleans)
+        ]
+
+
+def _same(first: list[torch.Tensor], second: list[torch.Tensor]) -> bool:
+    return all(torch.equal(a, b) for a, b in zip(first, second, strict=True))
+
+
+@pytest.mark.parametrize("noise", [False, True])
+def test_simulations_taken_again_are_the_bytes_computed_once(noise: bool) -> None:
+    """A profile that draws nothing is simulated once per image; one that draws reuses its network's output. Either
+    way every call gives what the profile itself gives, for any seed and stream; an image or a weight changed in
+    place is simulated anew, and nothing outlives the images it was computed for."""
+    profile = _profile_with_network(noise)
+    cleans = [torch.rand(3, 20, 28, generator=torch.Generator().manual_seed(i)) for i in range(3)]
+    OUTPUTS.clear()
+    for seed, stream in ((0, "simulate"), (0, "simulate"), (3, "other"), (0, "simulate")):
+        assert _same(profile.simulate(cleans, seed, stream=stream), _direct(profile, cleans, seed, stream))
+    assert len(OUTPUTS) == 3  # one entry per image: the network's output, or the whole profile's
+    cleans[1].mul_(0.5)
+    with torch.no_grad():
+        profile.network.linear.bias.add_(0.02)
+    assert _same(profile.simulate(cleans, 0), _direct(profile, cleans, 0, "simulate"))
+    assert len(OUTPUTS) == 6
+    cleans.clear()
+    assert len(OUTPUTS) == 0

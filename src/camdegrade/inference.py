@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import functools
 import threading
 import weakref
 from typing import Any, Literal
@@ -12,22 +11,21 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from camdegrade._fingerprint import module_tensors, tensors_fingerprint
-from camdegrade._pixels import bytes_to_unit
-from camdegrade.network import (
-    FIELD_SMOOTHING,
-    SIZE_MULTIPLE,
-    DomainShiftNet,
-    LocalAffineNet,
-    ShiftNetwork,
-    check_batch,
-    piecewise_linear,
-    smoothed,
+from camdegrade._onednn import (
+    FUSED_LINEAR,
+    SPARSE_MAX_LIVE,
+    SPARSE_MIN_PIXELS,
+    conv_relu,
+    cpu_native_bfloat16,
+    live_linear_relu,
+    use_fused_kernels,
 )
+from camdegrade._pixels import bytes_to_unit
+from camdegrade.inference_local_affine import LocalAffineInference
+from camdegrade.network import SIZE_MULTIPLE, DomainShiftNet, LocalAffineNet, ShiftNetwork, check_batch
 from camdegrade.synthetic import dead_leaves_images
 
 __all__ = [
-    "FILTER_OUTPUTS",
-    "MATRIX_UPSAMPLING_MAX",
     "PRECISIONS",
     "SPARSE_MAX_LIVE",
     "SPARSE_MIN_PIXELS",
@@ -35,14 +33,11 @@ __all__ = [
     "CpuPlan",
     "LocalAffineInference",
     "Precision",
-    "byte_curve",
     "cpu_inference",
     "native_bfloat16",
     "probe_channel_order",
     "resolve_precision",
     "run_network",
-    "upsampled_field",
-    "upsampling_matrix",
 ]
 
 #: How the network runs at inference: ``"float32"`` is the reference; ``"bfloat16"`` runs the convolutions and
@@ -51,25 +46,14 @@ Precision = Literal["auto", "float32", "bfloat16"]
 PRECISIONS: tuple[str, ...] = ("auto", "float32", "bfloat16")
 _DTYPES = {"float32": torch.float32, "bfloat16": torch.bfloat16}
 
-#: Images with at least this many encoder pixels (a 128² image has 1024) have their first decoder product skip the
-#: encoder channels that are zero over the whole image; below it, the product's fixed cost outweighs the saving.
-SPARSE_MIN_PIXELS = 1024
-#: Channels are skipped only when at most this share of them is non-zero: gathering the live ones costs a copy.
-SPARSE_MAX_LIVE = 0.75
-
 
 def native_bfloat16(device: torch.device) -> bool:
     """Whether ``device`` computes bfloat16 convolutions natively (CUDA with bf16, or a CPU with AVX-512 BF16/AMX)."""
     if device.type == "cuda":  # emulated bfloat16 (before Ampere) is slower and less accurate than float32
         return torch.cuda.is_bf16_supported(including_emulation=False)
     if device.type == "cpu":
-        return _cpu_native_bfloat16()
+        return cpu_native_bfloat16()
     return False
-
-
-@functools.cache
-def _cpu_native_bfloat16() -> bool:
-    return bool(torch.backends.mkldnn.is_available() and torch.ops.mkldnn._is_mkldnn_bf16_supported())
 
 
 def resolve_precision(precision: Precision, device: torch.device) -> str:
@@ -180,7 +164,7 @@ class CpuInference:
             raise ValueError(f"dtype must be torch.float32 or torch.bfloat16, got dtype={dtype}")
         self.dtype = dtype
         self.fingerprint = fingerprint
-        self._fused = _use_fused_kernels(dtype)
+        self._fused = use_fused_kernels(dtype)
         channels_last = torch.channels_last
         with torch.no_grad():
             # Native bfloat16 orders the encoder's output channels so that those a photograph leaves at zero come
@@ -268,215 +252,22 @@ class CpuInference:
             if prefix > SPARSE_MAX_LIVE * channels:
                 return self._linear_relu(pixels)
             weight = self.decode1_weight[:, :prefix].contiguous()
-            return _FUSED_LINEAR(pixels[:, :prefix].contiguous(), weight, self.decode1_bias, "relu", [], "")
-        return _live_linear_relu(pixels, self.decode1_weight, self.decode1_bias, live)
+            return FUSED_LINEAR(pixels[:, :prefix].contiguous(), weight, self.decode1_bias, "relu", [], "")
+        return live_linear_relu(pixels, self.decode1_weight, self.decode1_bias, live)
 
     def _conv_relu(self, image: Tensor, weight: Tensor, bias: Tensor) -> Tensor:
         """ReLU(conv 3×3, stride 2, padding 1)."""
-        return _conv_relu(image, weight, bias, self._fused)
+        return conv_relu(image, weight, bias, self._fused)
 
     def _linear_relu(self, rows: Tensor) -> Tensor:
         """ReLU(rows @ decode1_weightᵀ + decode1_bias)."""
         if self._fused:
-            return _FUSED_LINEAR(rows, self.decode1_weight, self.decode1_bias, "relu", [], "")
+            return FUSED_LINEAR(rows, self.decode1_weight, self.decode1_bias, "relu", [], "")
         return torch.addmm(self.decode1_bias, rows, self.decode1_weight.t()).relu_()
-
-
-class LocalAffineInference:
-    """:class:`~camdegrade.network.LocalAffineNet` for CPU inference: the module's arithmetic up to rounding, in
-    about half its time.
-
-    - The encoder runs as :class:`CpuInference`'s: plain NCHW input, channels-last weights, in ``dtype`` (in native
-      bfloat16 with oneDNN's fused convolution + ReLU).
-    - The two 1×1 decoder convolutions are matrix products over the encoder's pixels, in ``dtype``; the first leaves
-      out the channels that ReLU left at zero over the whole image (most of them for a fitted profile on a
-      photograph).
-    - From the colour field on, everything is float32 whatever ``dtype`` (it carries the image's detail to the
-      output): the field is upsampled by :func:`upsampled_field` (small matrix products up to 256² images) and
-      applied in place, one plane product at a time, with no ``(3, 3, H, W)`` temporary; the 7×7 filter ``K`` runs
-      with its 3 outputs padded by zeros to :data:`FILTER_OUTPUTS`.
-    - Images are computed one at a time, so each gets the same bytes alone as in any batch or chunk.
-
-    About half the module's time in float32; measured against it and the paper network's plan in
-    docs/performance.md, *The CPU plans' choices*.
-
-    Args:
-        network: the module; its weights are copied once (see :func:`cpu_inference`, which rebuilds the plan when
-            they change).
-        dtype: ``torch.float32`` or ``torch.bfloat16`` (the encoder and decoder's).
-        fingerprint: the cache key of ``network``'s tensors the plan was built from.
-    """
-
-    def __init__(
-        self, network: LocalAffineNet, dtype: torch.dtype = torch.float32, fingerprint: tuple[int, ...] = ()
-    ) -> None:
-        if dtype not in (torch.float32, torch.bfloat16):
-            raise ValueError(f"dtype must be torch.float32 or torch.bfloat16, got dtype={dtype}")
-        self.dtype = dtype
-        self.fingerprint = fingerprint
-        self.smooth = network.upsample == "smooth"
-        self.curve = network.curve.detach().clone() if network.curves else None
-        self._byte_curve = None if self.curve is None else byte_curve(self.curve[0])
-        self._fused = _use_fused_kernels(dtype)
-        channels_last = torch.channels_last
-        with torch.no_grad():
-            self.encode = [
-                (
-                    layer.weight.detach().to(dtype, copy=True).contiguous(memory_format=channels_last),
-                    layer.bias.detach().to(dtype, copy=True),
-                )
-                for layer in (network.encode1, network.encode2)
-            ]
-            self.decode = [
-                (layer.weight.detach().flatten(1).to(dtype, copy=True), layer.bias.detach().to(dtype, copy=True))
-                for layer in (network.decode1, network.decode2)
-            ]
-            weight, bias = network.linear.weight.detach(), network.linear.bias.detach()
-            padded_weight = weight.new_zeros(FILTER_OUTPUTS, *weight.shape[1:])
-            padded_weight[:3] = weight
-            padded_bias = bias.new_zeros(FILTER_OUTPUTS)
-            padded_bias[:3] = bias
-            self.linear = (padded_weight.contiguous(memory_format=channels_last), padded_bias)
-
-    def run(self, image: Tensor) -> Tensor:
-        """``(N, 3, H, W)`` float in [0, 1] or uint8 → the network's float32 output, contiguous, same shape."""
-        check_batch(image)
-        n, _, height, width = image.shape
-        pad_bottom, pad_right = -height % SIZE_MULTIPLE, -width % SIZE_MULTIPLE
-        output = torch.empty(n, 3, height, width)
-        with torch.no_grad():
-            for index in range(n):
-                one = image[index : index + 1]
-                unit = bytes_to_unit(one) if one.dtype == torch.uint8 else one.float()
-                curved = self._input_curve(one, unit)
-                if pad_bottom or pad_right:
-                    pad = (0, pad_right, 0, pad_bottom)
-                    padded = F.pad(unit, pad, mode="replicate")
-                    curved = padded if curved is unit else F.pad(curved, pad, mode="replicate")
-                    unit = padded
-                output[index] = self._run_aligned(unit, curved)[0, :, :height, :width]
-        return output
-
-    def _input_curve(self, image: Tensor, unit: Tensor) -> Tensor:
-        """``f(x)`` of one image (``unit`` itself without curves): a byte image by table lookup, the same values."""
-        if self.curve is None:
-            return unit
-        if image.dtype == torch.uint8:
-            offsets = torch.arange(0, 3 * 256, 256).view(1, 3, 1, 1)
-            return torch.take(self._byte_curve, image.long().add_(offsets))
-        return piecewise_linear(unit, self.curve[0])
-
-    def _run_aligned(self, image: Tensor, curved: Tensor) -> Tensor:
-        """``clamp(g(A(x) · (K ∗ f(x)) + b(x)), 0, 1)`` for one ``(1, 3, H, W)`` image with H and W multiples of 4
-        and ``curved`` = ``f(image)`` (``f`` and ``g`` the network's curves, or none: ``curved`` is ``image``)."""
-        hidden = image.to(self.dtype)
-        for weight, bias in self.encode:
-            hidden = _conv_relu(hidden, weight, bias, self._fused)
-        rows, cols = hidden.shape[-2:]
-        pixels = hidden.permute(0, 2, 3, 1).reshape(rows * cols, -1)
-        second, second_bias = self.decode[1]
-        field = torch.addmm(second_bias, self._decode1(pixels), second.t()).float()
-        field = upsampled_field(field.t().reshape(1, -1, rows, cols), self.smooth)
-        half = self.linear[0].shape[-1] // 2
-        padded = F.pad(curved, (half, half, half, half), mode="replicate").contiguous(memory_format=torch.channels_last)
-        filtered = F.conv2d(padded, *self.linear)[:, :3].contiguous()
-        out = filtered + field[:, 9:]
-        for row in range(3):
-            for column in range(3):
-                out[:, row].addcmul_(field[:, 3 * row + column], filtered[:, column])
-        if self.curve is not None:
-            out = piecewise_linear(out, self.curve[1])
-        return out.clamp_(0.0, 1.0)
-
-    def _decode1(self, pixels: Tensor) -> Tensor:
-        """ReLU of the first decoder product for one image's encoder ``pixels`` ``(M, C)``: in float32 without the
-        channels that are zero over the image; in bfloat16 whole (a column gather costs more than it saves there:
-        see :meth:`CpuInference._decode1` and docs/performance.md, *The CPU plans' choices*)."""
-        weight, bias = self.decode[0]
-        if self.dtype == torch.float32:
-            return _live_linear_relu(pixels, weight, bias)
-        if self._fused:
-            return _FUSED_LINEAR(pixels.contiguous(), weight, bias, "relu", [], "")
-        return torch.addmm(bias, pixels, weight.t()).relu_()
-
-
-#: The local-affine plan's 7×7 filter computes this many outputs (3, then zeros): oneDNN's channels-last kernel is
-#: faster with 8 than with 3 on AVX2, and as fast on AVX-512 (docs/performance.md, *The CPU plans' choices*).
-FILTER_OUTPUTS = 8
-
-
-#: Fields of at most this many rows and columns (images up to 256²) are upsampled by two small matrix products;
-#: larger ones by interpolation, whose cost grows with the pixels alone: the products are faster up to here, and the
-#: interpolation as fast from 128 rows (docs/performance.md, *The CPU plans' choices*).
-MATRIX_UPSAMPLING_MAX = 64
-
-
-def byte_curve(knots: Tensor) -> Tensor:
-    """The curve through ``knots`` ``(3, K)`` at every byte value, per channel, flattened ``(3 · 256,)``: exactly what
-    :func:`~camdegrade.network.piecewise_linear` gives a byte image read as ``value / 255`` (the same arithmetic on
-    the same floats), in a lookup of about half its time (docs/performance.md, *The CPU plans' choices*)."""
-    values = bytes_to_unit(torch.arange(256, dtype=torch.uint8)).expand(1, 3, 1, 256)
-    return piecewise_linear(values, knots).reshape(-1)
-
-
-def upsampled_field(field: Tensor, smooth: bool) -> Tensor:
-    """The colour field ``(1, C, rows, cols)`` (contiguous) at full resolution, as :class:`LocalAffineNet` makes it:
-    bilinear by :data:`~camdegrade.network.SIZE_MULTIPLE`, then with ``smooth`` its smoothing."""
-    rows, cols = field.shape[-2:]
-    if max(rows, cols) <= MATRIX_UPSAMPLING_MAX:
-        down, across = upsampling_matrix(rows, smooth), upsampling_matrix(cols, smooth)
-        return torch.matmul(down, torch.matmul(field[0], across.t()))[None]
-    field = F.interpolate(field, scale_factor=SIZE_MULTIPLE, mode="bilinear", align_corners=False)
-    return smoothed(field) if smooth else field
-
-
-@functools.lru_cache(maxsize=2 * MATRIX_UPSAMPLING_MAX)
-def upsampling_matrix(size: int, smooth: bool) -> Tensor:
-    """The ``(4·size, size)`` matrix of :func:`upsampled_field` along one axis: bilinear with half-pixel centres (the
-    source index clamped at the borders), then, with ``smooth``, :data:`~camdegrade.network.FIELD_SMOOTHING` with the
-    border replicated (folded in, so it costs nothing more). Built in float64; cached (treat it as read-only)."""
-    out = size * SIZE_MULTIPLE
-    source = ((torch.arange(out, dtype=torch.float64) + 0.5) / SIZE_MULTIPLE - 0.5).clamp(min=0.0)
-    low = source.floor().long().clamp(max=size - 1)
-    fraction = source - low
-    rows = torch.arange(out)
-    matrix = torch.zeros(out, size, dtype=torch.float64)
-    matrix.index_put_((rows, low), 1.0 - fraction, accumulate=True)
-    matrix.index_put_((rows, (low + 1).clamp(max=size - 1)), fraction, accumulate=True)
-    if smooth:
-        taps = torch.tensor(FIELD_SMOOTHING, dtype=torch.float64) / sum(FIELD_SMOOTHING)
-        half = len(FIELD_SMOOTHING) // 2
-        smoothing = torch.zeros(out, out, dtype=torch.float64)
-        for offset, tap in zip(range(-half, half + 1), taps, strict=True):
-            smoothing.index_put_((rows, (rows + offset).clamp(0, out - 1)), tap, accumulate=True)
-        matrix = smoothing @ matrix
-    return matrix.float()
 
 
 #: A CPU plan of a network: what :func:`cpu_inference` returns.
 CpuPlan = CpuInference | LocalAffineInference
-
-
-def _conv_relu(image: Tensor, weight: Tensor, bias: Tensor, fused: bool) -> Tensor:
-    """ReLU(conv 3×3, stride 2, padding 1); ``fused``: oneDNN's fused kernel (native bfloat16)."""
-    if fused:
-        return _FUSED_CONV(image, weight, bias, [1, 1], [2, 2], [1, 1], 1, "relu", [], "")
-    return F.conv2d(image, weight, bias, stride=2, padding=1).relu_()
-
-
-def _live_linear_relu(pixels: Tensor, weight: Tensor, bias: Tensor, live: Tensor | None = None) -> Tensor:
-    """``ReLU(pixels @ weightᵀ + bias)`` (in their dtype) for ReLU outputs ``pixels`` ``(M, C)``.
-
-    From :data:`SPARSE_MIN_PIXELS` rows up, the columns that are zero in every row (``live``: the others, found
-    when not given) are left out where at most :data:`SPARSE_MAX_LIVE` of them are live: they add exact zeros, so
-    only the rounding order changes."""
-    count, channels = pixels.shape
-    if count >= SPARSE_MIN_PIXELS:
-        if live is None:
-            live = pixels.amax(dim=0).nonzero().squeeze(1)  # a ReLU output's maximum is 0 only if all are
-        if live.numel() <= SPARSE_MAX_LIVE * channels:
-            return torch.addmm(bias, pixels.index_select(1, live), weight.index_select(1, live).t()).relu_()
-    return torch.addmm(bias, pixels, weight.t()).relu_()
 
 
 #: The probe that orders a network's hidden channels for the bfloat16 plan: a few generated dead-leaves images.
@@ -496,21 +287,3 @@ def probe_channel_order(network: DomainShiftNet) -> Tensor:
         hidden = F.conv2d(images, *first, stride=2, padding=1).relu_()
         highest = F.conv2d(hidden, *second, stride=2, padding=1).amax(dim=(0, 2, 3))
     return torch.argsort(highest, descending=True, stable=True)
-
-
-def _use_fused_kernels(dtype: torch.dtype) -> bool:
-    """Whether to call oneDNN's fused kernels (private torch ops that torch.compile uses): for native bfloat16 only.
-
-    They raise for bfloat16 on CPUs without it, and in float32 they are no faster than the plain ops and cost more
-    per call on small images (docs/performance.md, *The CPU plans' choices*)."""
-    return dtype == torch.bfloat16 and _FUSED_CONV is not None and _FUSED_LINEAR is not None and _cpu_native_bfloat16()
-
-
-def _onednn_op(name: str) -> Any:
-    if not torch.backends.mkldnn.is_available():
-        return None
-    return getattr(torch.ops.mkldnn, name, None)
-
-
-_FUSED_CONV = _onednn_op("_convolution_pointwise")
-_FUSED_LINEAR = _onednn_op("_linear_pointwise")

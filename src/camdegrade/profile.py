@@ -15,6 +15,7 @@ from safetensors.torch import save_file
 from torch import Tensor, nn
 
 from camdegrade._files import atomic_path
+from camdegrade._outputs import OUTPUTS, ProfileKeys, image_key
 from camdegrade._pixels import bytes_to_unit, unit_to_bytes
 from camdegrade._profile_format.check import listing, network_class, network_config
 from camdegrade._profile_format.header import FORMAT_NAME as FORMAT_NAME
@@ -116,6 +117,11 @@ class CameraProfile(nn.Module):
             image, owned = run_network(self.network, image, precision), True
         elif image.dtype == torch.uint8:
             image, owned = bytes_to_unit(image), True
+        return self._stages(image, params, owned)
+
+    def _stages(self, image: Tensor, params: EffectParams, owned: bool) -> Tensor:
+        """The effect stages and the final clamp on ``image`` (the network's output, or the input without one),
+        overwritten when ``owned``."""
         if self.effects:
             image, owned = apply_effects(self.effects, params, image, overwrite=owned), True
         return image.clamp_(0.0, 1.0) if owned and not image.requires_grad else image.clamp(0.0, 1.0)
@@ -135,16 +141,40 @@ class CameraProfile(nn.Module):
 
         ``deterministic`` runs the deterministic part (:meth:`without_randomness`): the conditional mean that
         candidate stages are fitted against. ``eight_bit`` rounds each output to 8-bit values, as a file stores it.
+
+        Outputs computed before come from :mod:`camdegrade._outputs` (the same bytes): a profile that draws nothing
+        gives an image one output whatever the seed or stream, and every profile with one network gives it one
+        network output.
         """
         profile = self.without_randomness() if deterministic else self
+        keys = ProfileKeys(profile)
         out = []
         with torch.no_grad():
             for index, image in enumerate(images):
-                batch = image[None]
-                params = profile.make_params(batch.shape, derived_generator(seed, stream, index))
-                output = profile(batch, params)[0]
+                params = profile.make_params(image[None].shape, derived_generator(seed, stream, index))
+                output = profile._simulated(image, params, keys)
                 out.append(bytes_to_unit(unit_to_bytes(output)) if eight_bit else output)
         return out
+
+    def _simulated(self, image: Tensor, params: EffectParams, keys: ProfileKeys) -> Tensor:
+        """``self(image[None], params)[0]``, from the cache where it can be: the whole output when the profile draws
+        nothing, else its network's output with the stages run after it as :meth:`forward` runs them."""
+        if self.network is None or image.requires_grad or image.numel() == 0:
+            return self(image[None], params)[0]
+        if not any(params):
+            key = ("profile", keys.whole(), image_key(image))
+            output = OUTPUTS.get(key)
+            if output is None:
+                output = self(image[None], params)[0]
+                OUTPUTS.put(key, image, output)
+            return output
+        key = ("network", keys.network(), image_key(image))
+        network_output = OUTPUTS.get(key)
+        if network_output is None:
+            network_output = run_network(self.network, image[None])
+            OUTPUTS.put(key, image, network_output)
+        check_params(self.effects, params)
+        return self._stages(network_output, params, owned=True)[0]
 
     def with_effects(self, *effects: Effect) -> CameraProfile:
         """A copy of this profile with ``effects`` added, each inserted after the last stage of its kind or earlier."""

@@ -4,10 +4,13 @@ from __future__ import annotations
 
 import copy
 from collections.abc import Callable, Iterable, Mapping, Sequence
-from typing import Any, ClassVar, Literal, TypeAlias
+from typing import TYPE_CHECKING, Any, ClassVar, Literal, TypeAlias
 
 import torch
 from torch import Tensor, nn
+
+if TYPE_CHECKING:
+    from camdegrade.effects.linear import LinearFilter
 
 __all__ = [
     "EFFECTS",
@@ -57,7 +60,8 @@ class Effect(nn.Module):
     Everything the rest of the package needs to know about an effect is asked of its class, never looked up by
     name elsewhere: :meth:`neutral` (the identity), :meth:`without_randomness` (its deterministic centre, or
     ``None`` for pure noise), :meth:`scaled` (its strength), :attr:`fit_budget` and :meth:`fit_options` (what its
-    fitter affords), :meth:`fit_in_chain` (how it is fitted at its place in a profile), :attr:`explains` (the gap
+    fitter affords), :meth:`fit_in_chain` (how it is fitted at its place in a profile), :meth:`linear_filter`
+    (whether it is a linear shift-invariant filter, and which), :attr:`explains` (the gap
     signatures it can cause), :attr:`candidate` (whether the diagnosis tries it unasked), :attr:`position_dependent`,
     :attr:`moves_pixels` with :meth:`source_points` and :meth:`moved_points` (how it moves positions, so targets
     move with the image) and :meth:`check_values` (the valid ranges of its values, checked when a profile is loaded
@@ -166,6 +170,14 @@ class Effect(nn.Module):
         equals :meth:`forward` up to float rounding (tested for every effect). Default: :meth:`forward`.
         """
         return self.forward(image, params)
+
+    def linear_filter(self) -> LinearFilter | None:
+        """This stage as a linear shift-invariant filter of the values in its encoding (:meth:`encodings`), when it
+        is one and draws nothing: a profile's chain then composes it with the adjacent such stages into one filter
+        at inference (:mod:`camdegrade.effects.plan`), which must equal running them one by one up to float rounding
+        (tested for every effect). ``None`` (the default) for a stage that is not: coring, curves, noise, warps,
+        quantisation, per-sample draws."""
+        return None
 
     def config(self) -> dict[str, Any]:
         """JSON-serialisable constructor arguments (not the fitted tensors, which are buffers)."""

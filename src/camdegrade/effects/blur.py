@@ -15,7 +15,8 @@ from camdegrade._fingerprint import module_tensors, tensors_fingerprint
 from camdegrade.effects._common import batch_shape, resolve_params, scalar
 from camdegrade.effects._fitting import PairList, affine_residual, as_pairs, grid_search, minimize, textured_crops
 from camdegrade.effects.base import Effect, Encoding, Pairs, check_range, register_effect
-from camdegrade.functional import blur_image, convolve_separable, separable_taps
+from camdegrade.effects.linear import Kernel, LinearFilter, taps_kernel
+from camdegrade.functional import blur_image, convolve_separable, psf_kernel, separable_taps
 
 __all__ = ["Blur", "fit_margin"]
 
@@ -135,6 +136,21 @@ class Blur(Effect):
         if taps is None:
             return self._blur(image, params, linear=False)
         return convolve_separable(image, *taps)
+
+    def linear_filter(self) -> LinearFilter | None:
+        """A PSF without jitter is a linear shift-invariant filter of its encoding's values (``α`` = the PSF, nothing
+        on the luma, no clamp: its taps are non-negative and sum to 1): the separable taps its forward uses where
+        the PSF factorises, else the PSF's 2-D taps as separable terms. With jitter every sample has its own."""
+        if self.sigma_jitter != 0:
+            return None
+        encoding: Encoding = "linear" if self.linear else "srgb"
+        one = [value.reshape(1) for value in (self.sigma_x, self.sigma_y, self.angle, self.motion_length)]
+        taps = separable_taps(*one)
+        if taps is None:
+            psf = psf_kernel(*one, self.motion_angle.reshape(1))[0]
+            return LinearFilter(own=taps_kernel(psf), encoding=encoding)
+        across, down = (tuple(float(t) for t in values[0]) for values in taps)
+        return LinearFilter(own=Kernel(terms=((1.0, down, across),)), encoding=encoding)
 
     def _fixed_taps(self, image: Tensor) -> tuple[Tensor, Tensor] | None:
         """The separable taps of this (jitter-free) PSF for ``image``'s dtype and device, or None when it does

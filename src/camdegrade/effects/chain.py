@@ -6,8 +6,8 @@ from collections.abc import Mapping, Sequence
 
 from torch import Tensor
 
-from camdegrade.effects.base import STAGES, Effect, Encoding
-from camdegrade.functional.color import linear_to_srgb_, srgb_to_linear_
+from camdegrade.effects.base import STAGES, Effect
+from camdegrade.effects.plan import chain_plan
 
 __all__ = ["apply_effects", "chain_moved_points", "chain_source_points", "check_chain", "check_params", "moves_pixels"]
 
@@ -35,30 +35,24 @@ def apply_effects(
 ) -> Tensor:
     """``image`` (sRGB floats) through every stage in order, as stage-by-stage ``effect(image, params)`` would be.
 
-    Without autograd, stages run through :meth:`Effect.forward_encoded` on one working tensor (``image`` itself
-    when ``overwrite``, else a copy): a run of linear-light stages (blur, vignetting, noise, colour, …) shares a
-    single decode and encode instead of one per stage, and stages work in place. With a graph to build, each
-    stage's ``forward`` runs in turn.
+    Without autograd, the chain's plan runs (:func:`camdegrade.effects.plan.chain_plan`) on one working tensor
+    (``image`` itself when ``overwrite``, else a copy): adjacent linear shift-invariant stages as one composed
+    filter, the others through :meth:`Effect.forward_encoded`, in place where they can, a run of linear-light
+    stages (blur, vignetting, noise, colour, …) sharing a single decode and encode. With a graph to build, each
+    stage's ``forward`` runs in turn (:func:`apply_stages`).
     """
+    check_params(effects, params)
     if image.requires_grad:
-        for effect, effect_params in zip(effects, params, strict=True):
-            image = effect(image, effect_params)
-        return image
-    encoding: Encoding = "srgb"
-    if not overwrite:
-        image = image.clone()
+        return apply_stages(effects, params, image)
+    return chain_plan(effects).run_(effects, params, image if overwrite else image.clone())
+
+
+def apply_stages(effects: Sequence[Effect], params: Sequence[Mapping[str, Tensor]], image: Tensor) -> Tensor:
+    """``image`` through each stage's ``forward`` in turn: the reference the plan is held to (and the path that
+    builds a graph)."""
     for effect, effect_params in zip(effects, params, strict=True):
-        wanted, produced = effect.encodings()
-        image = _encode(image, encoding, wanted)
-        image = effect.forward_encoded(image, effect_params)
-        encoding = produced
-    return _encode(image, encoding, "srgb")
-
-
-def _encode(image: Tensor, current: Encoding, wanted: Encoding) -> Tensor:
-    if current == wanted:
-        return image
-    return srgb_to_linear_(image) if wanted == "linear" else linear_to_srgb_(image)
+        image = effect(image, effect_params)
+    return image
 
 
 def moves_pixels(effects: Sequence[Effect]) -> bool:

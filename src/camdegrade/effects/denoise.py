@@ -15,7 +15,9 @@ from camdegrade.effects._detail import crop_options, detail_loss
 from camdegrade.effects._fitting import as_pairs, grid_search, minimize
 from camdegrade.effects.base import Effect, Pairs, check_range, register_effect
 from camdegrade.effects.blur import fit_margin
-from camdegrade.functional.sharpen import denoise_image, faint_part
+from camdegrade.effects.linear import LinearFilter
+from camdegrade.functional.blur import gaussian_taps
+from camdegrade.functional.sharpen import denoise_image, faint_part, faint_part_, luma_detail
 
 __all__ = ["Denoise"]
 
@@ -93,6 +95,22 @@ class Denoise(Effect):
     def forward(self, image: Tensor, params: Mapping[str, Tensor] | None = None) -> Tensor:
         device = image.device
         return denoise_image(image, self.sigma.to(device), self.threshold.to(device), luma=self.luma)
+
+    def forward_encoded(self, image: Tensor, params: Mapping[str, Tensor] | None = None) -> Tensor:
+        """In place, without autograd: the luma's detail taken from the luma alone (one plane blurred, not three),
+        its faint part taken off R, G and B alike; equal to :meth:`forward` up to float rounding."""
+        threshold = float(self.threshold)
+        if threshold == 0.0:
+            return image
+        if not self.luma or min(image.shape[-2:]) <= len(gaussian_taps(float(self.sigma))) // 2:
+            return self.forward(image, params)
+        faint = faint_part_(luma_detail(image, float(self.sigma)), threshold)
+        return image.sub_(faint).clamp_(0.0, 1.0)
+
+    def linear_filter(self) -> LinearFilter | None:
+        """The identity at threshold 0 (it returns its input unchanged, unclamped); coring otherwise, which is not
+        linear (``None``): it splits a run of composed filters."""
+        return LinearFilter() if float(self.threshold) == 0.0 else None
 
     @classmethod
     def fit(

@@ -11,8 +11,9 @@ from torch import Tensor
 
 from camdegrade.effects._fitting import as_pairs
 from camdegrade.effects.base import Effect, Pairs, check_range, register_effect
+from camdegrade.effects.linear import Kernel, LinearFilter
 from camdegrade.functional.analysis import hann2d, luma
-from camdegrade.functional.response import frequency_response_image, knot_coordinates
+from camdegrade.functional.response import frequency_response_image, knot_coordinates, response_map
 
 __all__ = ["DEFAULT_KNOTS", "DETAIL_FROM", "LATTICE", "FrequencyResponse"]
 
@@ -99,6 +100,17 @@ class FrequencyResponse(Effect):
 
     def forward(self, image: Tensor, params: Mapping[str, Tensor] | None = None) -> Tensor:
         return frequency_response_image(image, self.gains.to(image.device))
+
+    def linear_filter(self) -> LinearFilter:
+        """A luma frequency response is linear and shift-invariant on the sRGB values: ``γ = R − δ`` on the luma
+        (added to R, G and B alike), then the clamp. ``R`` has no short support (its gains are interpolated between
+        knots 0.05 cycles/pixel apart), so it is given by its gains on the FFT grid, as the forward computes them."""
+        gains = self.gains.detach().float().clone()
+
+        def change(height: int, width: int) -> Tensor:
+            return response_map(gains.cpu(), height, width).double() - 1.0
+
+        return LinearFilter(luma=Kernel(spectral=change), clamps=True)
 
     @classmethod
     def fit(

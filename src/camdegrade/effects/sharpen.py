@@ -16,7 +16,9 @@ from camdegrade.effects._detail import crop_options, detail_loss
 from camdegrade.effects._fitting import PairList, as_pairs, grid_search, minimize
 from camdegrade.effects.base import Effect, Pairs, check_range, register_effect
 from camdegrade.effects.blur import fit_margin
-from camdegrade.functional.sharpen import coring, unsharp_mask_image
+from camdegrade.effects.linear import DELTA, Kernel, LinearFilter
+from camdegrade.functional.blur import gaussian_taps
+from camdegrade.functional.sharpen import cored_, coring, luma_detail, unsharp_mask_image
 
 __all__ = ["Sharpen"]
 
@@ -99,6 +101,31 @@ class Sharpen(Effect):
         return unsharp_mask_image(
             image, self.sigma.to(device), self.amount.to(device), self.threshold.to(device), luma=self.luma
         )
+
+    def forward_encoded(self, image: Tensor, params: Mapping[str, Tensor] | None = None) -> Tensor:
+        """In place, without autograd, with ``luma``: the detail taken from the luma alone (one plane blurred, not
+        three), cored and added to R, G and B alike; equal to :meth:`forward` up to float rounding. (Without coring a
+        profile's plan composes the stage instead: :meth:`linear_filter`.)"""
+        amount, threshold = float(self.amount), float(self.threshold)
+        if not self.luma or min(image.shape[-2:]) <= len(gaussian_taps(float(self.sigma))) // 2:
+            return self.forward(image, params)
+        detail = luma_detail(image, float(self.sigma))
+        if threshold > 0.0:
+            detail = cored_(detail, threshold)
+        return image.add_(detail, alpha=amount).clamp_(0.0, 1.0)
+
+    def linear_filter(self) -> LinearFilter | None:
+        """Without coring (threshold 0, or amount 0) unsharp masking is linear and shift-invariant on the sRGB
+        values: ``δ + amount·(δ − G)`` on the luma (added to R, G and B alike) or on each channel, then the clamp;
+        ``G`` the separable Gaussian taps its forward subtracts. With coring it is not (``None``)."""
+        amount = float(self.amount)
+        if amount != 0.0 and float(self.threshold) > 0.0:
+            return None
+        taps = gaussian_taps(float(self.sigma))
+        detail = DELTA.plus(Kernel(terms=((-1.0, taps, taps),))).times(amount)
+        if self.luma:
+            return LinearFilter(own=DELTA, luma=detail, clamps=True)
+        return LinearFilter(own=DELTA.plus(detail), clamps=True)
 
     @classmethod
     def fit(

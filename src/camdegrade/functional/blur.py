@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import math
 
 import torch
@@ -205,6 +206,16 @@ def separable_taps(
     axes); else None. Use them with :func:`convolve_separable`."""
     sigmas = _separable_sigmas(sigma_x, sigma_y, angle, motion_length)
     return None if sigmas is None else _gaussian_taps(*sigmas)
+
+
+@functools.lru_cache(maxsize=64)
+def gaussian_taps(sigma: float) -> tuple[float, ...]:
+    """The 1-D taps of :func:`blur_image`'s isotropic Gaussian of ``sigma`` pixels (computed in float32, as a
+    float32 ``sigma`` buffer gives them, negligible outer taps trimmed), as Python floats; cached."""
+    value = torch.tensor([sigma], dtype=torch.float32)
+    zero = torch.zeros_like(value)
+    across, _ = _gaussian_taps(*_separable_sigmas(value, value, zero, zero))  # type: ignore[misc]
+    return tuple(float(tap) for tap in across[0])
 
 
 def _separable_sigmas(sigma_x: Tensor, sigma_y: Tensor, angle: Tensor, length: Tensor) -> tuple[Tensor, Tensor] | None:

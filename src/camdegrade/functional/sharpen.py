@@ -11,9 +11,18 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from camdegrade.functional._utils import ParamLike, apply_float, as_channel_view, check_image, per_sample
+from camdegrade.functional._utils import (
+    ParamLike,
+    apply_float,
+    as_channel_view,
+    check_image,
+    per_sample,
+    restore,
+    to_float,
+)
 from camdegrade.functional.analysis import luma as luma_of
-from camdegrade.functional.blur import blur_image
+from camdegrade.functional.blur import blur_image, gaussian_taps
+from camdegrade.functional.filtering import convolve_terms, luma_plane
 
 __all__ = ["coring", "denoise_image", "faint_part", "unsharp_mask_image"]
 
@@ -91,10 +100,47 @@ def denoise_image(image: Tensor, sigma: ParamLike, threshold: ParamLike, *, luma
     return apply_float(image, kernel)
 
 
+def image_detail(image: Tensor, sigma: ParamLike, *, luma: bool = True) -> Tensor:
+    """The detail :func:`denoise_image` cores, ``x − G_σ ⊛ x`` of float ``image`` ``[..., 3, H, W]`` (of its luma,
+    ``[..., 1, H, W]``, with ``luma``), for :func:`denoised_with_detail`: a fit trying many thresholds at one sigma
+    takes it once."""
+    check_image(image)
+    return _detail(to_float(image), sigma, luma)
+
+
+def denoised_with_detail(image: Tensor, detail: Tensor, threshold: ParamLike) -> Tensor:
+    """:func:`denoise_image` of ``image`` given its :func:`image_detail` at the sigma wanted: the same values."""
+    check_image(image)
+    x = to_float(image)
+    threshold_t = _checked_threshold(threshold, image)
+    return restore((x - faint_part(detail, threshold_t.to(x.dtype))).clamp(0.0, 1.0), image)
+
+
 def faint_part(detail: Tensor, threshold: Tensor) -> Tensor:
     """The part of ``detail`` that :func:`coring` removes: ``detail · t² / (d² + t²)`` (all of it well below the
     threshold, none well above it)."""
     return detail - coring(detail, threshold)
+
+
+def luma_detail(image: Tensor, sigma: float) -> Tensor:
+    """``Y − G_σ ⊛ Y``, ``(N, 1, H, W)``, of the Rec. 601 luma ``Y`` of float ``image`` ``(N, 3, H, W)`` (no autograd;
+    the border mirrored, sigma's radius below H and W): the detail :func:`unsharp_mask_image` and
+    :func:`denoise_image` take with ``luma``, its luma taken first, so that one plane is blurred instead of three
+    (the same Gaussian taps; equal up to float rounding)."""
+    taps = gaussian_taps(sigma)
+    return convolve_terms(luma_plane(image), 1.0, [(-1.0, taps, taps)])
+
+
+def cored_(detail: Tensor, threshold: float) -> Tensor:
+    """:func:`coring` of ``detail`` with a positive ``threshold``, in place: ``d³ / (d² + t²)``."""
+    square = detail * detail
+    return detail.mul_(square).div_(square.add_(threshold * threshold))
+
+
+def faint_part_(detail: Tensor, threshold: float) -> Tensor:
+    """:func:`faint_part` of ``detail`` with a positive ``threshold``, in place: ``d · t² / (d² + t²)``."""
+    square = (detail * detail).add_(threshold * threshold)
+    return detail.mul_(threshold * threshold).div_(square)
 
 
 def _checked_threshold(threshold: ParamLike, image: Tensor) -> Tensor:

@@ -139,10 +139,14 @@ class Patches:
         seed: int,
         stream: str,
         image_only: bool = False,
+        features: Sequence[PairFeatures | None] | None = None,
     ) -> Patches:
+        """:data:`PATCHES_PER_PAIR` positions of each pair (seeded by ``(seed, stream, index)``); ``features``: the
+        pairs' :func:`pair_features`, when the caller computed them once for several samples."""
+        features = features if features is not None else [None] * len(cleans)
         parts = [
-            _pair_patches(index, clean, real, sim, derived_generator(seed, stream, index), image_only)
-            for index, (clean, real, sim) in enumerate(zip(cleans, reals, sims, strict=True))
+            _pair_patches(index, clean, real, sim, derived_generator(seed, stream, index), image_only, feature)
+            for index, (clean, real, sim, feature) in enumerate(zip(cleans, reals, sims, features, strict=True))
         ]
         parts = [part for part in parts if part is not None]
         if not parts:
@@ -162,8 +166,36 @@ class Patches:
         return cls(*(torch.cat([getattr(part, f.name) for part in shifted]) for f in fields(cls)))
 
 
+@dataclass
+class PairFeatures:
+    """What the patches of one (clean, real, sim) pair are cut from, whatever their positions: the flat mask, the
+    gradient energy and the colourfulness of the clean image, and the fine detail of the real and the simulated
+    image (each minus its 3×3 mean)."""
+
+    flat: Tensor
+    energy: Tensor
+    chroma: Tensor
+    detail: dict[float, Tensor]
+
+
+def pair_features(clean: Tensor, real: Tensor, sim: Tensor) -> PairFeatures:
+    """:class:`PairFeatures` of one pair (computed once, they serve every critic that samples it)."""
+    return PairFeatures(
+        flat=flat_mask(clean).float(),
+        energy=gradient_energy(clean),
+        chroma=clean.amax(-3) - clean.amin(-3),
+        detail={label: image - box_mean(image, 3) for label, image in ((1.0, real), (0.0, sim))},
+    )
+
+
 def _pair_patches(
-    index: int, clean: Tensor, real: Tensor, sim: Tensor, generator: torch.Generator, image_only: bool = False
+    index: int,
+    clean: Tensor,
+    real: Tensor,
+    sim: Tensor,
+    generator: torch.Generator,
+    image_only: bool = False,
+    features: PairFeatures | None = None,
 ) -> tuple[Tensor, ...] | None:
     height, width = clean.shape[-2:]
     if min(height, width) < PATCH:
@@ -173,10 +205,8 @@ def _pair_patches(
     lefts = (torch.randint(0, (width - PATCH) // GRID + 1, (PATCHES_PER_PAIR,), generator=generator) * GRID).tolist()
     ys = torch.linspace(-1, 1, height)[:, None].expand(height, width)
     xs = torch.linspace(-1, 1, width)[None, :].expand(height, width)
-    flat = flat_mask(clean).float()
-    energy = gradient_energy(clean)
-    chroma = clean.amax(-3) - clean.amin(-3)
-    detail = {label: image - box_mean(image, 3) for label, image in ((1.0, real), (0.0, sim))}
+    features = features or pair_features(clean, real, sim)
+    flat, energy, chroma, detail = features.flat, features.energy, features.chroma, features.detail
     inputs, labels, radius, intensity, flat_share, texture, saturation = [], [], [], [], [], [], []
     for top, left in zip(tops, lefts, strict=True):
         window = (..., slice(top, top + PATCH), slice(left, left + PATCH))
@@ -435,13 +465,15 @@ def repeated_critic_test(
     second = [index for index, chosen in enumerate(trains) if not chosen]
     correct_sum, count = torch.zeros(len(scenes)), torch.zeros(len(scenes))
     accuracies = []
+    features = [pair_features(*pair) if min(pair[0].shape[-2:]) >= PATCH else None for pair in zip(*pairs, strict=True)]
     for seed in range(seeds):
         for fit, held in ((first, second), (second, first)):
             calibration = tuple([column[index] for index in fit] for column in pairs)
             scored = tuple([column[index] for index in held] for column in pairs)
-            patches_in = Patches.sample(*calibration, seed, "critic-calibration", image_only)
+            fit_features, held_features = [features[i] for i in fit], [features[i] for i in held]
+            patches_in = Patches.sample(*calibration, seed, "critic-calibration", image_only, fit_features)
             net = train_critic(patches_in, seed, steps or _split_steps(calibration[0]))
-            patches = Patches.sample(*scored, seed, "critic-held-out", image_only)
+            patches = Patches.sample(*scored, seed, "critic-held-out", image_only, held_features)
             correct = ((logits(net, patches) > 0).float() == patches.labels).float()
             accuracies.append(float(correct.mean()))
             owner = torch.tensor(held)[patches.pair]

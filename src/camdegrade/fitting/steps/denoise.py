@@ -20,7 +20,6 @@ References:
 
 from __future__ import annotations
 
-import itertools
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import ClassVar
@@ -32,8 +31,9 @@ from camdegrade._seeds import derived_generator
 from camdegrade.effects import Denoise
 from camdegrade.fitting.steps.base import FitStep, PairedFit, Verdict
 from camdegrade.fitting.steps.texture import band_errors, radial_powers
-from camdegrade.functional import blur_planes, denoise_image
+from camdegrade.functional import blur_planes
 from camdegrade.functional.analysis import luma
+from camdegrade.functional.sharpen import denoised_with_detail, image_detail
 from camdegrade.metrics import psnr
 from camdegrade.profile import CameraProfile
 
@@ -142,14 +142,14 @@ class DenoiseMatch(FitStep):
 
 def _best_candidate(sampled: Sequence[Tensor], real: Tensor, seed: int) -> tuple[float, float, float]:
     """``(distance, sigma, threshold in levels)`` of the candidate whose output on ``sampled`` comes closest to the
-    captures' amplitudes ``real``."""
-
-    def distance(sigma: float, level: float) -> float:
-        return amplitude_distance(
-            detail_amplitudes([denoise_image(s, sigma, level / 255) for s in sampled], seed), real
-        )
-
-    return min((distance(sigma, level), sigma, level) for sigma, level in itertools.product(SIGMAS, THRESHOLD_LEVELS))
+    captures' amplitudes ``real`` (each sigma's detail taken once for all its thresholds: the same outputs)."""
+    scored = []
+    for sigma in SIGMAS:
+        details = [image_detail(image, sigma) for image in sampled]
+        for level in THRESHOLD_LEVELS:
+            outputs = [denoised_with_detail(s, d, level / 255) for s, d in zip(sampled, details, strict=True)]
+            scored.append((amplitude_distance(detail_amplitudes(outputs, seed), real), sigma, level))
+    return min(scored)
 
 
 def _rounded(note: dict) -> dict:

@@ -69,6 +69,9 @@ class EffectStage(FitStep):
         return self.kind.name
 
     def propose(self, fit: PairedFit) -> Effect | Verdict:
+        absent = self._absent_noise(fit)
+        if absent is not None:  # dropped whatever it would be fitted to: not fitted (the same record)
+            return absent
         cleans = [clean for clean, _ in fit.train_pairs]
         captured = [target for _, target in fit.train_pairs]
         simulated = fit.profile.simulate(cleans, seed=0, deterministic=True)
@@ -79,6 +82,20 @@ class EffectStage(FitStep):
         except ValueError as error:  # e.g. too few pixels to estimate it
             fit.say(f"effect {self.kind.name}: not fitted ({error})")
             return Verdict({"kept": False, "reason": str(error)})
+
+    def _absent_noise(self, fit: PairedFit) -> Verdict | None:
+        """For a stage that draws only noise: the record and log line :meth:`judge` would give when the validation
+        pairs show no noise above the profile's, which do not depend on the stage fitted (its evidence without the
+        stage decides), so the costly fit by simulation is skipped; ``None`` otherwise (noise measurably present,
+        too few flat pixels to tell, or no validation pairs: then the stage is fitted and judged)."""
+        if not self.kind.draws_only_noise() or not fit.val_pairs:
+            return None
+        pairs = zip(*fit.val_pairs, strict=True)
+        _, evidence = noise_evidence(fit.profile, None, *pairs, eight_bit=fit.eight_bit)
+        if evidence.present or evidence.capture_noise is None or evidence.capture_over_simulation_low is None:
+            return None
+        fit.say(f"effect {self.kind.name}: {evidence.describe()} [evidence: validation]")
+        return Verdict({**evidence.to_dict(), "evidence": "validation"})
 
     def judge(self, fit: PairedFit, effect: Effect) -> dict[str, Any]:
         """The stage kept (``effect``, ``effect`` less its banding, or none) and its record. A stage that draws

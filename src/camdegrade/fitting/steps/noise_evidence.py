@@ -124,7 +124,7 @@ def _number(value: float | None) -> str:
 
 def noise_evidence(
     profile: CameraProfile,
-    stage: Effect,
+    stage: Effect | None,
     cleans: Sequence[Tensor],
     captures: Sequence[Tensor],
     *,
@@ -132,7 +132,9 @@ def noise_evidence(
     seed: int = 0,
 ) -> tuple[Effect | None, NoiseEvidence]:
     """The noise stage to keep for ``profile`` (``stage``, ``stage`` without its banding, or ``None``) and the
-    evidence on ``(cleans, captures)``: float ``(3, H, W)`` images in [0, 1] the stage was not fitted on."""
+    evidence on ``(cleans, captures)``: float ``(3, H, W)`` images in [0, 1] the stage was not fitted on. Whether
+    the captures hold noise above the profile's is decided without the stage; ``stage=None`` stops there (the
+    evidence of a stage not yet fitted: ``present`` says whether fitting one can change anything)."""
     masks = [flat_mask(clean) for clean in cleans]
     stages, outputs = _network_apart(profile, cleans)
     reals = _sums(captures, cleans, masks)
@@ -162,6 +164,9 @@ def noise_evidence(
             f"the capture's noise is not measurably above the profile's (that needs {MIN_NOISE_RATIO:.2f}x, a "
             f"bootstrap bound above 1 and {MIN_EXCESS_LEVELS} levels more)"
         )
+        return None, evidence
+    if stage is None:
+        evidence.reason = "noise measurably above the profile's; no stage given to judge"
         return None, evidence
 
     def sampled(effect: Effect) -> NoiseSums:
