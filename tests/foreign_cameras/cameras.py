@@ -106,7 +106,7 @@ def webcam() -> Camera:
 
     sRGB → linear → lens (Gaussian core σ 0.7 px + 4 % halo of σ 4 px) → natural vignetting (cos⁴, 30° at the
     corners) → a sensor of half the pixels (PIL box: each pixel integrates its area) → the filters' colour response
-    (overlapping passbands, red 0.52× and blue 0.66× as sensitive as green) → Poisson-Gaussian noise (1,500 e⁻ at full
+    (overlapping passbands, red 0.52× and blue 0.66× as sensitive as green) → Poisson-Gaussian noise (4,000 e⁻ at full
     scale, read noise 0.2 % of it) → white balance (3 % warm of neutral) → colour matrix (inverse overlap, saturation
     1.08) → sRGB → 8 bits → contrast S-curve (+25 % slope at mid-grey) as an 8-bit table on the 8-bit values → the
     ISP's 2× upscale of its 8-bit buffer (PIL bicubic). The noise is drawn before the upscale, so it comes out
@@ -119,7 +119,7 @@ def webcam() -> Camera:
             Cos4Vignetting(30.0),
             SensorSampling(0.5, "box"),
             _raw_response(_WEBCAM_MIX, _WEBCAM_SENSITIVITY),
-            ShotNoise(1500.0, 0.002),
+            ShotNoise(4000.0, 0.002),
             ColorMatrix(_matrix(np.diag([1.03 / 0.52, 1.0, 0.97 / 0.66]))),
             _colour_correction(_WEBCAM_MIX, 1.08),
             Encode(),
