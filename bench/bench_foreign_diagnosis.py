@@ -76,6 +76,8 @@ def score(scenario: Scenario, report: Any, seconds: float) -> dict[str, Any]:
         "first_accepted": first,
         "first_ranked": ranked[0]["change"] if ranked else None,
         "ranked": ranked,
+        "expected_rank": next((i for i, c in enumerate(report.changes) if _label(c) in expected), None),
+        "all_changes": [[_label(c), round(c["reduction"], 2)] for c in report.changes if "reduction" in c],
         "held_back": held.get("change"),
         "misfit": [_label(row) for row in report.misfit],
         "missing_first": _label(report.missing[0]) if report.missing else None,

@@ -18,7 +18,7 @@ Run from the repo root::
 
     OMP_NUM_THREADS=1 .venv/bin/python bench/bench_foreign_fit.py             # 8 cameras, 120 training pairs each
     OMP_NUM_THREADS=1 .venv/bin/python bench/bench_foreign_fit.py --quick     # 2 cameras, 48 pairs
-    OMP_NUM_THREADS=1 .venv/bin/python bench/bench_foreign_fit.py --png docs/foreign_cameras.png   # after a run
+    OMP_NUM_THREADS=1 .venv/bin/python bench/bench_foreign_fit.py --png docs/foreign_cameras.png
 
 Writes ``OUT/fit/CAMERA.json`` per camera (``--table-only`` prints the table of those already written).
 """
@@ -111,7 +111,6 @@ def measure(name: str, args: argparse.Namespace) -> dict[str, Any]:
     sigma, colour_map = fit_blur_colour_map(train_pairs(name, args.fit_pairs, args.size))
     baseline = [blur_colour_map(_unit(clean), sigma, colour_map) for clean, _ in held]
     fitted = profile.fitted or {}
-    evidence_tiles(name, profile, args)
 
     def mean_psnr(images: list[torch.Tensor]) -> float:
         return round(sum(psnr(image, real) for image, real in zip(images, reals, strict=True)) / len(reals), 2)
@@ -163,8 +162,9 @@ def table(rows: list[dict[str, Any]]) -> str:
     return "\n".join(lines)
 
 
-def _window(clean: np.ndarray, side: int, flattest: bool) -> tuple[int, int]:
-    """Top-left of the ``side``² window (stride 8) with the least (``flattest``) or most gradient energy."""
+def _window(clean: np.ndarray, side: int, flattest: bool) -> tuple[tuple[int, int], float]:
+    """Top-left of the ``side``² window (stride 8) with the least (``flattest``) or most gradient energy, and that
+    energy."""
     luma = clean.astype(np.float64).mean(axis=-1)
     energy = np.hypot(*np.gradient(luma))
     scores = {
@@ -172,7 +172,8 @@ def _window(clean: np.ndarray, side: int, flattest: bool) -> tuple[int, int]:
         for top in range(0, luma.shape[0] - side + 1, 8)
         for left in range(0, luma.shape[1] - side + 1, 8)
     }
-    return (min if flattest else max)(scores, key=scores.__getitem__)
+    corner = (min if flattest else max)(scores, key=scores.__getitem__)
+    return corner, float(scores[corner])
 
 
 def _tile(image: np.ndarray, corner: tuple[int, int], side: int, zoom: int) -> Image.Image:
@@ -181,29 +182,29 @@ def _tile(image: np.ndarray, corner: tuple[int, int], side: int, zoom: int) -> I
     return crop.resize((side * zoom, side * zoom), Image.Resampling.NEAREST)
 
 
-def evidence_tiles(name: str, profile: Any, args: argparse.Namespace) -> None:
-    """Write ``OUT/tiles/CAMERA.npy``: on held-out pairs, clean | capture | default-fit simulation of a flat crop
-    (96² of a walls scene) at 1:1 and of a textured crop (48² of a photo) at 2× nearest-neighbour, six uint8
-    (96, 96, 3) tiles (plain arrays, read back without pickle by ``--png``)."""
+def evidence_tiles(name: str, profile: Any, args: argparse.Namespace) -> list[Image.Image]:
+    """On held-out pairs: clean | capture | default-fit simulation of the flattest 96² window of the walls scenes
+    at 1:1, and of the most textured 48² window of the photo crops at 2× nearest-neighbour."""
     held = held_out_pairs(camera(name), 8, args.size)
     side = min(96, args.size)
     tiles = []
-    for index, zoom, crop, flattest in ((1, 1, side, True), (2, 2, side // 2, False)):
+    for indices, zoom, crop, flattest in (((1, 5), 1, side, True), ((0, 2, 4, 6), 2, side // 2, False)):
+        windows = {index: _window(held[index][0].permute(1, 2, 0).numpy(), crop, flattest) for index in indices}
+        index = (min if flattest else max)(windows, key=lambda i: windows[i][1])
         clean, captured = held[index]
         sim = _rounded(simulate(profile, [clean.float().div(255.0)], seed=0, stream="foreign-png"))[0]
         trio = [image.permute(1, 2, 0).numpy() for image in (clean, captured, sim.mul(255).round().byte())]
-        corner = _window(trio[0], crop, flattest)
-        tiles += [np.asarray(_tile(image, corner, crop, zoom)) for image in trio]
-    (args.out / "tiles").mkdir(parents=True, exist_ok=True)
-    np.save(args.out / "tiles" / f"{name}.npy", np.stack(tiles))
+        tiles += [_tile(image, windows[index][0], crop, zoom) for image in trio]
+    return tiles
 
 
 def evidence_png(names: list[str], args: argparse.Namespace, path: Path) -> None:
-    """Compose the tiles of ``names`` (written by the fit rows) into one PNG, a row per camera."""
-    rows = []
-    for name in names:
-        tiles = np.load(args.out / "tiles" / f"{name}.npy", allow_pickle=False)
-        rows.append((name, [Image.fromarray(tile) for tile in tiles]))
+    """The crops of :func:`evidence_tiles` of each camera's default fit (fitted, or loaded from ``OUT/fits/``) in
+    one PNG, a row per camera."""
+    rows = [
+        (name, evidence_tiles(name, fitted_profile(name, args.fit_pairs, args.size, args.out)[0], args))
+        for name in names
+    ]
     _compose(rows, path)
 
 
@@ -230,7 +231,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--held-out", type=int, default=48)
     parser.add_argument("--size", type=int, default=128)
     parser.add_argument("--quick", action="store_true", help="webcam and phone, 48 training and 16 held-out pairs")
-    parser.add_argument("--png", type=Path, default=None, help="compose the crops of --png-cameras (after the rows)")
+    parser.add_argument("--png", type=Path, default=None, help="write the crops of --png-cameras' fits to this PNG")
     parser.add_argument("--png-cameras", nargs="*", default=["webcam", "phone", "zoom-lanczos"])
     parser.add_argument("--table-only", action="store_true", help="print the table of the rows already written")
     parser.add_argument("--out", type=Path, default=DEFAULT_OUT)
