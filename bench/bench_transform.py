@@ -119,7 +119,8 @@ def gemm_case(dtype: torch.dtype = torch.float32) -> tuple[Case, float]:
 
 def fit_step_cases() -> dict[str, Case]:
     """Training at 128², batch 32: the module in float32 on NCHW crops (before) and the fit's own step."""
-    from camdegrade.fitting.training import FitConfig, _TrainStep
+    from camdegrade.fitting.network.training import _TrainStep
+    from camdegrade.fitting.recipe import FitConfig
     from camdegrade.network import DomainShiftNet
 
     generator = torch.Generator().manual_seed(0)
@@ -245,7 +246,7 @@ def diagnose_time(threads: int) -> float | None:
     return result["seconds"]
 
 
-#: The profile of width 32 distilled from the default one (``examples/distill_city100.py``).
+#: The profile of width 32 distilled from the default one (``experiments/distill_city100.py``).
 FAST_PROFILE = "city100-iphonex-fast"
 
 
@@ -312,7 +313,7 @@ def line_cases() -> tuple[dict[str, Case], dict[str, float]]:
 
 def fast_profile_quality() -> float | None:
     """How far the fast profile's held-out City100 mean PSNR lies below the full one's (dB), as recorded when it was
-    made (``examples/distill_city100.py``)."""
+    made (``experiments/distill_city100.py``)."""
     if FAST_PROFILE not in list_profiles():
         return None
     quality = load_profile(FAST_PROFILE).quality

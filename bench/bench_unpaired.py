@@ -23,7 +23,6 @@ from PIL import Image
 from camdegrade import CameraProfile
 from camdegrade._pixels import unit_to_bytes
 from camdegrade.effects import Blur, Color, Noise, Tone, Vignetting
-from camdegrade.fitting import simulate
 from camdegrade.fitting.unpaired import fit_unpaired
 from camdegrade.synthetic import dead_leaves_images
 
@@ -50,7 +49,7 @@ def main(argv: list[str] | None = None) -> int:
         captured.mkdir()
         clean.mkdir()
         scenes = dead_leaves_images(args.count, args.size, seed=2)
-        for index, image in enumerate(simulate(CAMERA, scenes, seed=7)):
+        for index, image in enumerate(CAMERA.simulate(scenes, seed=7)):
             Image.fromarray(unit_to_bytes(image).permute(1, 2, 0).numpy()).save(
                 captured / f"{index:03d}.jpg", quality=85
             )

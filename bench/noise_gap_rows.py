@@ -41,7 +41,6 @@ from camdegrade._pixels import as_unit
 from camdegrade._seeds import derived_generator
 from camdegrade.effects import Noise
 from camdegrade.fitting import FitConfig, PairSet
-from camdegrade.fitting.pairset import simulate
 from camdegrade.functional.analysis import flat_mask
 from camdegrade.functional.noise_stats import BINS, NoiseSums
 from camdegrade.io import read_image
@@ -125,7 +124,7 @@ class Row:
     def noisy(self, cleans: Sequence[Tensor], captures: Sequence[Tensor], seed: int, stream: str) -> list[Tensor]:
         """Image ``i`` draws from ``(seed, stream, i)``; simulations rounded to 8 bits."""
         if self.profile is not None:
-            return [to_8bit(x) for x in simulate(self.profile, cleans, seed, stream=stream)]
+            return [to_8bit(x) for x in self.profile.simulate(cleans, seed, stream=stream)]
         if self.effect is None:
             return list(captures)
         out = []

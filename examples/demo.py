@@ -20,6 +20,7 @@ from camdegrade import CameraDegrade, list_profiles, load_profile
 from camdegrade.functional.analysis import flat_mask
 from camdegrade.io import write_image
 from camdegrade.metrics import psnr
+from camdegrade.summary import profile_summary
 
 SIZE = 256
 
@@ -73,12 +74,12 @@ def test_chart(size: int) -> torch.Tensor:
     return (chart.clamp(0, 1) * 255).round().to(torch.uint8)
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--profile", default="city100-iphonex", help=f"one of {list_profiles()} or a path")
     parser.add_argument("--out", type=Path, default=Path("out/demo"))
     parser.add_argument("--seed", type=int, default=0)
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
 
     profile = load_profile(args.profile)
     degrade = CameraDegrade(profile, seed=args.seed)
@@ -105,15 +106,14 @@ def main() -> None:
         "grid": str(grid_path),
     }
     (args.out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
-    print(f"profile        {profile.name}: {profile.description}")
-    print(f"effect chain   {', '.join(profile.effect_names) or '(network only)'}")
-    for key, value in profile.quality.items():
-        print(f"  {key:28s} {value}")
+    print(profile_summary(args.profile))
+    print()
     for name, stats in summary["images"].items():
         print(f"image {name:10s} PSNR(degraded, clean) = {stats['psnr_degraded_vs_clean_db']:.2f} dB")
     print(f"degraded {len(images)} images of {SIZE}x{SIZE} in {seconds:.2f} s")
     print(f"wrote {grid_path} (clean | degraded | |diff| x4) and {args.out / 'summary.json'}")
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(main())

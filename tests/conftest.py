@@ -46,7 +46,8 @@ def real_pairs_dir() -> Path:
 
 
 def load_script(relative_path: str, module_name: str) -> ModuleType:
-    """A script of the repository (``examples/...``, ``bench/...``: not a package) imported as ``module_name``.
+    """A script of the repository (``examples/...``, ``experiments/...``, ``bench/...``: not a package) imported as
+    ``module_name``.
 
     Tests import it as ``from conftest import load_script``. The module is put in ``sys.modules`` before it runs,
     because dataclasses and pickling look a class's module up by name.

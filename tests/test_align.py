@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import torch
 
-from camdegrade.fitting.align import AlignmentResult, align_pair, apply_shift, estimate_shift, format_shifts, register
+from camdegrade.pairs.align import AlignmentResult, align_pair, apply_shift, estimate_shift, format_shifts, register
 
 skimage_data = pytest.importorskip("skimage.data")
 ndimage = pytest.importorskip("scipy.ndimage")

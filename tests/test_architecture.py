@@ -1,6 +1,6 @@
 """The house rules of docs/architecture.md, checked: effect facts live on the effect classes, one seed scheme, the
-layers import only downward, no import cycles, no shim modules, and no function longer than 80 lines unless it says
-why."""
+layers import only downward, no import cycles, no shim modules, no function longer than 60 lines, no file longer than
+400 and no folder of more than 10 modules unless it says why; a fit is a loop of steps."""
 
 from __future__ import annotations
 
@@ -8,6 +8,7 @@ import ast
 import subprocess
 import sys
 import textwrap
+from collections import Counter
 from pathlib import Path
 
 import pytest
@@ -120,6 +121,7 @@ def test_seed_scheme_is_a_fixed_formula() -> None:
     assert torch.equal(first, torch.randn(4, generator=derived_generator(1, "x")))
 
 
+@pytest.mark.slow
 def test_seed_scheme_is_the_same_in_another_process() -> None:
     code = "from camdegrade._seeds import derive_seed; print(derive_seed(7, 'dataloader-worker', 3))"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
@@ -137,6 +139,7 @@ FORBIDDEN = {
     "measures": ("profile", "engine", "transform", "data", "fitting", "diagnose", "sim"),
     "synthetic": ("effects", "profile", "engine", "transform", "data", "fitting", "diagnose", "network", "inference"),
     "inference": ("effects", "profile", "engine", "transform", "data", "fitting", "diagnose", "sim", "io"),
+    "pairs": ("effects", "profile", "engine", "transform", "data", "fitting", "diagnose", "network", "measures", "sim"),
 }
 
 
@@ -270,7 +273,8 @@ def test_the_cycle_check_can_fail() -> None:
 
 
 #: Modules of the never-released 0.1.0 layout (moved into camdegrade.fitting) and the helper that forwarded them.
-REMOVED_SHIMS = ("fit", "pairs", "training", "align", "checkpoint", "_deprecated")
+#: (``camdegrade.pairs`` is a package again: the pairs' own wing, not a module forwarding names.)
+REMOVED_SHIMS = ("fit", "training", "align", "checkpoint", "_deprecated")
 
 
 @pytest.mark.parametrize("name", REMOVED_SHIMS)
@@ -292,7 +296,23 @@ def test_nothing_in_the_package_is_deprecated() -> None:
 
 #: Functions allowed more than MAX_FUNCTION_LINES lines, each with the reason.
 LONG_FUNCTIONS: dict[str, str] = {}
-MAX_FUNCTION_LINES = 80
+MAX_FUNCTION_LINES = 60
+MAX_FILE_LINES = 400
+MAX_FOLDER_MODULES = 10
+#: Modules (path in the package) allowed more than MAX_FILE_LINES lines and folders ("path/", "./" the package
+#: itself) allowed more than MAX_FOLDER_MODULES modules, each with the reason: what is left for a later split.
+TOO_BIG: dict[str, str] = {
+    "inference.py": "the CPU plans of both networks; a split by network is left for later (issue 45)",
+    "measures/critic.py": "the critic's network, patches and tests together; left for later (issue 45)",
+    "_profile_format/check.py": "the torch-free checks of every header field; left for later (issue 45)",
+    "diagnose/core.py": "diagnose() and its verdict in words; the verdict's own module is left for later (issue 45)",
+    "diagnose/report.py": "the report and its HTML; left for later (issue 45)",
+    "./": "the package's leaf helpers and top rooms; sorting them into folders is left for later (issue 45)",
+    "effects/": "one module per effect (the registry's rule); grouping by stage is left for later (issue 45)",
+    "functional/": "one module per kernel family; left for later (issue 45)",
+    "measures/": "one module per statistic family and the critics; left for later (issue 45)",
+    "diagnose/": "where / which / how far, the critics, the report; left for later (issue 45)",
+}
 
 
 def _function_lengths(source: str, module: str) -> dict[str, int]:
@@ -325,13 +345,58 @@ def _all_function_lengths() -> dict[str, int]:
     return lengths
 
 
-def test_no_function_is_longer_than_80_lines_without_a_reason() -> None:
+def _over_without_reason(sizes: dict[str, int], limit: int, allowed: dict[str, str]) -> tuple[list, list]:
+    """``(what is over limit and not allowed, what is allowed but no longer over it)``."""
+    over = {name for name, size in sizes.items() if size > limit}
+    return sorted(over - set(allowed)), sorted(name for name in allowed if sizes.get(name, 0) <= limit)
+
+
+def test_no_function_is_longer_than_60_lines_without_a_reason() -> None:
     lengths = _all_function_lengths()
-    too_long = {name: lines for name, lines in lengths.items() if lines > MAX_FUNCTION_LINES}
-    assert set(too_long) <= set(LONG_FUNCTIONS), sorted(too_long.items(), key=lambda item: -item[1])
-    stale = {name for name in LONG_FUNCTIONS if lengths.get(name, 0) <= MAX_FUNCTION_LINES}
-    assert not stale, f"allowed but gone or short now, remove them from LONG_FUNCTIONS: {sorted(stale)}"
+    too_long, stale = _over_without_reason(lengths, MAX_FUNCTION_LINES, LONG_FUNCTIONS)
+    assert not too_long, sorted((lengths[name], name) for name in too_long)
+    assert not stale, f"allowed but gone or short now, remove them from LONG_FUNCTIONS: {stale}"
     assert len(lengths) > 500
+
+
+def test_no_file_is_longer_than_400_lines_without_a_reason() -> None:
+    lines = {str(path.relative_to(PACKAGE)): len(path.read_text().splitlines()) for path in MODULES.values()}
+    files = {name: why for name, why in TOO_BIG.items() if not name.endswith("/")}
+    too_long, stale = _over_without_reason(lines, MAX_FILE_LINES, files)
+    assert not too_long and not stale, (too_long, f"allowed but short now, remove from TOO_BIG: {stale}")
+
+
+def test_no_folder_holds_more_than_10_modules_without_a_reason() -> None:
+    folders = Counter(f"{path.parent.relative_to(PACKAGE)}/" for path in MODULES.values())
+    allowed = {name: why for name, why in TOO_BIG.items() if name.endswith("/")}
+    crowded, stale = _over_without_reason(folders, MAX_FOLDER_MODULES, allowed)
+    assert not crowded and not stale, (crowded, f"allowed but small now, remove from TOO_BIG: {stale}")
+    assert folders["fitting/steps/"] and folders["pairs/"]  # the folders were read
+
+
+def test_the_size_checks_can_fail() -> None:
+    assert _over_without_reason({"a": 5, "b": 3, "c": 9}, 4, {"c": "why", "d": "gone"}) == (["a"], ["d"])
+
+
+def test_a_fit_is_a_loop_of_steps() -> None:
+    """``fit_profile`` is load → split → the recipe's steps (the network among them) → record, in at most 40 lines
+    and with no record written by hand; the unpaired fit runs the same loop over its steps, and its state is one
+    small class (issue 45)."""
+    from camdegrade.fitting import fit, steps
+    from camdegrade.fitting.unpaired import UNPAIRED_STEPS, bench
+
+    lengths = _all_function_lengths()
+    assert lengths["fitting.fit.fit_profile"] <= 40
+    assert lengths["fitting.unpaired.fit.fit_unpaired"] <= 40
+    for module in (fit, PACKAGE / "fitting" / "unpaired" / "fit.py"):
+        source = module.read_text() if isinstance(module, Path) else Path(module.__file__).read_text()
+        assert "run_steps(" in source and "_note" not in source
+    assert all(isinstance(step, steps.FitStep) for _, step in UNPAIRED_STEPS)
+    assert not hasattr(bench, "_UnpairedFit")
+    state = next(
+        n for n in ast.walk(ast.parse(Path(bench.__file__).read_text())) if getattr(n, "name", "") == "UnpairedFit"
+    )
+    assert state.end_lineno - state.lineno + 1 <= 120
 
 
 def test_the_function_length_check_can_fail() -> None:

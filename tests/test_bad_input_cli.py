@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 import torch
 
-import camdegrade.fitting.fit as fit_module
+import camdegrade.fitting.steps.network as network_step
 from bad_inputs import animated, cut_image, good_image, one_line_error, png_with_rows, profile_file, run_cli
 from camdegrade.io import read_image
 from profiles_for_tests import deterministic_profile, stochastic_profile
@@ -296,7 +296,7 @@ def test_fit_checks_its_output_is_writable_before_training(tmp_path: Path, monke
     def no_training(*args, **kwargs):
         raise AssertionError("trained before checking the output")
 
-    monkeypatch.setattr(fit_module, "fit_network", no_training)
+    monkeypatch.setattr(network_step, "fit_network", no_training)
     pairs = make_pairs_folder(tmp_path / "pairs")
     (tmp_path / "taken.safetensors").mkdir()
     good_image(tmp_path / "file.png")

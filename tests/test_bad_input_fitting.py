@@ -16,11 +16,12 @@ from bad_inputs import cut_image, one_line_error, png_with_rows, run_cli
 from camdegrade import CameraProfile, load_profile
 from camdegrade.diagnose import diagnose
 from camdegrade.errors import CamdegradeError, PairsError
-from camdegrade.fitting.checkpoint import CHECKPOINT_KEY, load_checkpoint
 from camdegrade.fitting.fit import fit_profile
-from camdegrade.fitting.pairs import discover_pairs
-from camdegrade.fitting.training import FitConfig, fit_network
+from camdegrade.fitting.network.checkpoint import CHECKPOINT_KEY, load_checkpoint
+from camdegrade.fitting.network.training import fit_network
+from camdegrade.fitting.recipe import FitConfig
 from camdegrade.io import write_image
+from camdegrade.pairs.discovery import discover_pairs
 from camdegrade.sim import simulate_pairs
 from test_fit import QUICK as CLI_QUICK
 from test_fit import make_pairs_folder
@@ -126,6 +127,7 @@ def test_diagnose_refuses_too_few_pairs(tmp_path: Path) -> None:
         diagnose(CameraProfile(None, []), _write_pairs(tmp_path / "pairs", 2))
 
 
+@pytest.mark.slow
 def test_diagnose_reports_the_pairs_it_skipped_in_stdout_and_json(tmp_path: Path, capsys) -> None:
     folder = _write_pairs(tmp_path / "pairs", 11, mismatched=2)
     cut_image(folder / "captured" / "s10.png", keep=0.5, size=(32, 32))  # unreadable: the run ends with status 1

@@ -10,14 +10,14 @@ import torch
 from safetensors.torch import save_file
 
 import camdegrade.diagnose.core as core
-import camdegrade.fitting.fit as fit_module
+import camdegrade.fitting.steps.network as network_step
 import camdegrade.io
 from bad_inputs import good_image, one_line_error, profile_file, run_cli
 from camdegrade import CameraProfile, load_profile
 from camdegrade.effects import Vignetting
 from camdegrade.errors import PairsError, ProfileError
-from camdegrade.fitting.pairs import discover_pairs
 from camdegrade.io import read_image, write_image
+from camdegrade.pairs.discovery import discover_pairs
 from camdegrade.profile import METADATA_KEY, serialize_metadata
 from test_fit import QUICK, make_pairs_folder
 
@@ -40,7 +40,7 @@ def test_a_long_file_name_is_written_atomically_too(tmp_path: Path) -> None:
 
 def test_fit_refuses_a_checkpoint_that_is_the_output(tmp_path: Path, monkeypatch, capsys) -> None:
     """The checkpoint is deleted after a successful fit: it used to take the fitted profile with it."""
-    monkeypatch.setattr(fit_module, "fit_network", lambda *a, **k: pytest.fail("trained before checking"))
+    monkeypatch.setattr(network_step, "fit_network", lambda *a, **k: pytest.fail("trained before checking"))
     out = tmp_path / "cam.safetensors"
     argv = ["fit", make_pairs_folder(tmp_path / "pairs"), "-o", out, "--checkpoint", out, *QUICK]
     code, _, err = run_cli(argv, capsys)

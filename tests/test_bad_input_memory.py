@@ -46,6 +46,7 @@ print(json.dumps({"status": status, "before_mb": before, "after_mb": peak_mb()})
 """
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     "name, height, width, rows, message",
     [

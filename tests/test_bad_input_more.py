@@ -381,6 +381,7 @@ def test_unpaired_diagnosis_skips_a_truncated_image_and_reports_it(tmp_path: Pat
     assert (tmp_path / "r.json").exists()
 
 
+@pytest.mark.slow
 def test_file_names_that_are_not_utf8_are_printed_escaped(tmp_path: Path) -> None:
     """Under PYTHONIOENCODING=utf-8 the progress line of such a name raised UnicodeEncodeError and stopped apply."""
     import subprocess
@@ -440,7 +441,7 @@ def test_a_recipe_takes_one_effect_name_as_a_name_not_its_letters() -> None:
 
     with pytest.raises(ValueError, match=r"effects must be effect names .* got unknown \['tonne'\]"):
         FitConfig.recipe("fast").replace(effects="tonne")
-    assert FitConfig.recipe("fast").replace(effects="tone").effects == ("tone",)
+    assert FitConfig.recipe("fast").replace(effects="tone").option("effects") == ("tone",)
 
 
 def test_fit_lists_manifest_rows_naming_missing_files_and_exits_1(tmp_path: Path, capsys) -> None:
@@ -457,7 +458,7 @@ def test_fit_lists_manifest_rows_naming_missing_files_and_exits_1(tmp_path: Path
 
 
 def test_manifest_rows_naming_one_file_twice_or_a_folder_are_reported(tmp_path: Path) -> None:
-    from camdegrade.fitting.pairs import discover_pairs
+    from camdegrade.pairs.discovery import discover_pairs
 
     pairs = _pairs(tmp_path)
     manifest = pairs / "m.csv"

@@ -1,5 +1,5 @@
 """The built-in City100 profiles against the iPhone X's own captures on the 16 held-out scenes (056–070, 098; never
-used in any fit), whole frames, sampled as training sees them (``examples/fidelity_city100.py`` prints the same
+used in any fit), whole frames, sampled as training sees them (``experiments/fidelity_city100.py`` prints the same
 numbers with the critics, docs/built-in-profiles.md): no 4-pixel grid, the camera's flat noise and spectrum, and at
 least 30 dB;
 ``-fast`` by what its distillation recorded beside the full profile.
@@ -17,7 +17,7 @@ from camdegrade import CameraDegrade, load_profile
 from camdegrade._pixels import as_unit
 from camdegrade.fitting import discover_pairs, filter_pairs, load_pair
 from camdegrade.measures.fidelity import FidelityReport, measure_fidelity
-from conftest import PAPER_BUILT_IN
+from conftest import PAPER_BUILT_IN, REPOSITORY
 
 pytestmark = [pytest.mark.realdata, pytest.mark.slow]
 torch.set_num_threads(1)
@@ -64,7 +64,9 @@ def test_the_built_ins_record_what_they_were_fitted_with() -> None:
     chain = ["blur", "sharpen", "denoise", "frequency_response"]
     assert [e.name for e in full.effects] == [e.name for e in fast.effects] == chain
     assert full.fitted["response"]["kept"] is True
+    # recorded when the script lived in examples/ (the profile's bytes are kept); it lives in experiments/ now
     assert full.fitted["command"].startswith("python examples/fit_city100_default.py")
+    assert (REPOSITORY / "experiments" / "fit_city100_default.py").is_file()
     assert full.fitted["effects"]["noise"]["kept"] is False
     assert full.quality["held_out_pairs"] == 16 and full.quality["fidelity"]["grid_ratio"] <= 2.0
     # the distilled network's held-out PSNR, as distill_city100.py measured it beside the full profile's

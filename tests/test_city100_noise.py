@@ -1,5 +1,5 @@
 """The built-in ``city100-iphonex`` on flat regions of the 16 held-out REAL City100 scenes, sampled as training sees
-it (``examples/city100_noise_evidence.py``, which prints the table in docs/results.md): its noise within [0.8, 1.25]
+it (``experiments/city100_noise_evidence.py``, which prints the table in docs/results.md): its noise within [0.8, 1.25]
 of the camera's and its row banding at most 1.5× the camera's, pooled over the pixels where the clean image is flat
 in absolute terms. The profile shipped before the flat-region noise fit (a test fixture) fails both, so the check can
 fail. Skipped when the shared real-pairs folder is absent."""
@@ -19,7 +19,7 @@ torch.set_num_threads(1)
 
 @pytest.fixture(scope="module")
 def rows(real_pairs_dir: Path) -> dict[str, dict]:
-    example = load_script("examples/city100_noise_evidence.py", "camdegrade_city100_noise_evidence")
+    example = load_script("experiments/city100_noise_evidence.py", "camdegrade_city100_noise_evidence")
     sums, _ = example.statistics(real_pairs_dir)
     return {row["image"]: row for row in example.table(sums)}
 

@@ -24,6 +24,7 @@ from camdegrade._profile_format.check import (
 from camdegrade._profile_format.header import read_header, running_versions
 from camdegrade.effects import EFFECTS
 from camdegrade.network import MAX_WIDTH, DomainShiftNet
+from camdegrade.summary import profile_summary
 from profiles_for_tests import deterministic_profile, stochastic_profile
 
 HEAVY = ("torch", "torchvision")
@@ -38,7 +39,9 @@ def test_help_version_list_and_info_import_no_torch() -> None:
 import contextlib, io, json, sys
 from camdegrade.cli import main
 results = {{}}
-for argv in (["--help"], ["--version"], ["list"], ["info", "city100-iphonex"], ["info", "lowcost-robot-sim"]):
+runs = (["--help"], ["--version"], ["list"], ["info", "city100-iphonex"], ["info", "lowcost-robot-sim"],
+        ["info", "city100-iphonex", "--json"])
+for argv in runs:
     out = io.StringIO()
     with contextlib.redirect_stdout(out):
         try:
@@ -61,8 +64,9 @@ print(json.dumps({{"results": results, "heavy": [name for name in {HEAVY!r} if n
         info = results[f"info {name}"][1]
         for index, effect in enumerate(chain):
             assert f"  {index}. {effect.name} [{effect.stage}] " in info, (name, info)
-    sigma = round(float(load_profile("city100-iphonex").effects[0].sigma_x), 6)
-    assert f"sigma_x={sigma}" in results["info city100-iphonex"][1]
+    sigma = float(load_profile("city100-iphonex").effects[0].sigma_x)
+    assert f"sigma_x={sigma:.3g}" in results["info city100-iphonex"][1]
+    assert json.loads(results["info city100-iphonex --json"][1])["name"] == "city100-iphonex"
 
 
 def test_the_entry_point_module_imports_no_torch_for_info() -> None:
@@ -78,6 +82,7 @@ def test_the_entry_point_module_imports_no_torch_for_info() -> None:
     assert not imported & set(HEAVY)
 
 
+@pytest.mark.slow
 def test_import_camdegrade_imports_torch_only_when_a_name_needs_it() -> None:
     code = f"""
 import sys
@@ -96,12 +101,17 @@ print(heavy())
 
 def test_every_public_name_is_the_object_its_module_defines() -> None:
     from camdegrade import data, fitting, network, profile, sim, transform
+    from camdegrade.fitting import unpaired
 
     homes = {
         "BatchDegrade": data,
         "DegradedDataset": data,
         "DegradedIterableDataset": data,
         "IndexedDataset": data,
+        "FitConfig": fitting,
+        "PairSet": fitting,
+        "distill_profile": fitting,
+        "fit_unpaired": unpaired,
         "fit_profile": fitting,
         "DomainShiftNet": network,
         "CameraProfile": profile,
@@ -124,28 +134,96 @@ def test_every_public_name_is_the_object_its_module_defines() -> None:
         camdegrade.no_such_name  # noqa: B018
 
 
-def _items(line: str) -> tuple[str, set[str]]:
-    """``("blur [optics]", {"sigma_x=0.5", ...})`` of one effect line; shapes of large tensors left out."""
-    head, _, rest = line.strip().partition("] ")
-    items = {item for item in rest.split(", ") if item and not item.endswith(">")}
-    return head.split(". ", 1)[1] + "]", items
+@pytest.mark.slow
+@pytest.mark.parametrize("first", ["the subpackage", "the top-level name"])
+def test_camdegrade_diagnose_is_the_function_and_the_subpackage_whichever_comes_first(first: str) -> None:
+    """Importing a subpackage sets it on its parent, so ``camdegrade.diagnose`` is the subpackage: it must be callable
+    as the function too, in a fresh interpreter whichever import comes first."""
+    imports = ["import camdegrade.diagnose.report", "from camdegrade import diagnose"]
+    code = "\n".join(
+        [
+            *(imports if first == "the subpackage" else imports[::-1]),
+            """
+import inspect, sys
+import camdegrade, camdegrade.diagnose as package
+from camdegrade.diagnose import DiagnosisReport, diagnose as function
+from camdegrade.diagnose.core import diagnose as core
+assert diagnose is camdegrade.diagnose is package and function is core
+assert camdegrade.diagnose.DiagnosisReport is DiagnosisReport and camdegrade.diagnose.report.DiagnosisReport
+assert inspect.signature(diagnose) == inspect.signature(core)
+try:
+    diagnose("city100-iphonex", [])
+except Exception as error:  # the function ran: it refuses no pairs
+    print(error)
+""",
+        ]
+    )
+    run = _python(code)
+    assert run.returncode == 0, run.stderr
+    assert "pairs must hold at least one (clean, captured) pair" in run.stdout
 
 
-@pytest.mark.parametrize("name", ["city100-iphonex", "lowcost-robot-sim", "stochastic"])
-def test_info_shows_what_describe_shows(name: str, tmp_path: Path, capsys) -> None:
+@pytest.mark.parametrize("name", ["city100-iphonex", "city100-iphonex-fast", "lowcost-robot-sim", "stochastic"])
+def test_info_summarizes_in_25_lines_of_120_characters(name: str, tmp_path: Path, capsys) -> None:
     if name == "stochastic":
         name = str(stochastic_profile().save(tmp_path / "cam.safetensors"))
     status, out, err = run_cli(["info", name], capsys)
     assert status == 0 and err == ""
-    described = load_profile(name).describe().splitlines()
-    shown = out.splitlines()
-    assert shown[:4] == described[:4]  # name, description, network, number of effects
-    chain = [line for line in described if line.startswith("  ") and ". " in line]
-    assert [_items(line) for line in chain] == [_items(line) for line in shown[4 : 4 + len(chain)]]
-    for key in ("fitted:", "quality:", "written by:"):
-        assert [line for line in described if line.startswith(key)] == [line for line in shown if line.startswith(key)]
-    assert any(line.startswith("fitted with: torch ") for line in shown)
-    assert any(line.startswith("running:     torch ") for line in shown)
+    lines = out.splitlines()
+    assert len(lines) <= 25 and max(len(line) for line in lines) <= 120, out
+    profile = load_profile(name)
+    assert lines[0] == f"profile    {profile.name}"
+    chain = next(index for index, line in enumerate(lines) if line.startswith("chain      "))
+    for index, effect in enumerate(profile.effects):  # one line per stage, in order
+        assert lines[chain + 1 + index].startswith(f"  {index}. {effect.name} [{effect.stage}] "), out
+    assert any(line.startswith("versions   fitted with torch ") for line in lines)
+    assert "--json" in lines[-1]
+
+
+def test_info_of_the_built_in_says_what_a_person_needs() -> None:
+    """The chain with its key values, the network, the held-out PSNR, fidelity, critics and the warnings."""
+    out = profile_summary("city100-iphonex")
+    profile, quality = load_profile("city100-iphonex"), read_header("city100-iphonex").metadata["quality"]
+    parameters = sum(parameter.numel() for parameter in profile.network.parameters())
+    assert f"network    LocalAffineNet (curves, upsample bilinear, width 64): {parameters:,} parameters" in out
+    assert "  0. blur [optics] sigma_x=0.6, sigma_y=0.6" in out and "  1. sharpen [isp] amount=1.5, sigma=1" in out
+    held_out = f"held-out   16 pairs: PSNR identity {quality['identity_psnr_db']:.2f} dB -> profile 30.81 dB"
+    assert held_out in out
+    bands = " ".join(f"{value:+.2f}" for value in quality["fidelity"]["bands"])
+    assert f"bands log2 {bands}, flat noise 0.97" in out and "fidelity: grid 1.20" in out
+    assert "critic: paired 0.88 ± 0.03 [0.85-0.91], image-only 0.65 ± 0.03 [0.61-0.68] (8 critic(s)" in out
+    assert "steps      kept: denoise, network, response, texture; dropped: noise, vignetting" in out
+    assert "warnings   none" in out
+
+
+def test_a_fits_warnings_and_long_text_stay_within_the_width(tmp_path: Path) -> None:
+    profile = stochastic_profile()
+    profile.description = "a long description " * 20
+    profile.fitted = {"warnings": ["the network is worse than the identity " * 5, "second"]}
+    lines = profile_summary(profile.save(tmp_path / "cam.safetensors")).splitlines()
+    assert max(len(line) for line in lines) <= 120
+    assert lines[2].endswith(" ...") and len([line for line in lines if "a long description" in line]) == 2
+    warned = [index for index, line in enumerate(lines) if line.startswith("warnings   the network is worse")]
+    assert warned and "second" in "".join(lines[warned[0] : warned[0] + 3])
+
+
+@pytest.mark.parametrize("name", ["city100-iphonex", "lowcost-robot-sim", "stochastic"])
+def test_info_json_is_the_full_record(name: str, tmp_path: Path, capsys) -> None:
+    if name == "stochastic":
+        name = str(stochastic_profile().save(tmp_path / "cam.safetensors"))
+    status, out, err = run_cli(["info", name, "--json"], capsys)
+    assert status == 0 and err == ""
+    record = json.loads(out)
+    values, versions = record.pop("values"), record.pop("versions")
+    assert record == read_header(name).metadata  # every metadata key, as stored
+    profile = load_profile(name)
+    assert (record["fitted"], record["quality"]) == (profile.fitted, profile.quality)
+    expected = {f"effects.{key}": value for key, value in profile.effects.state_dict().items()}
+    assert sorted(values) == sorted(expected)
+    for key, tensor in expected.items():
+        assert torch.allclose(torch.tensor(values[key], dtype=torch.float64), tensor.double(), atol=1e-6), key
+    assert versions["running"] == running_versions()
+    assert versions["fitted_with"] == read_header(name).recorded_versions()
 
 
 def test_profiles_record_each_stage_and_the_check_knows_every_effects_stage() -> None:
@@ -246,8 +324,8 @@ def test_info_warns_once_per_package_of_another_major_release(tmp_path, monkeypa
         assert line.startswith("camdegrade info: warning: profile 'test-deterministic' was fitted with")
         assert f"this is {package} {HERE[package]}, another major release" in line
     recorded = read_header(path).recorded_versions()
-    assert f"fitted with: torch {recorded['torch'] or '(not recorded)'}, torchvision " in out
-    assert "running:     torch 2.14.1, torchvision 0.29.1" in out
+    assert f"versions   fitted with torch {recorded['torch'] or '(not recorded)'}, torchvision " in out
+    assert "; running torch 2.14.1, torchvision 0.29.1" in out
 
 
 def test_running_versions_are_the_installed_ones_read_without_importing() -> None:

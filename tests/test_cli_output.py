@@ -15,8 +15,8 @@ import torch
 
 from bad_inputs import run_cli
 from camdegrade._text import printable
-from camdegrade.fitting.pairs import discover_pairs
 from camdegrade.io import write_image
+from camdegrade.pairs.discovery import discover_pairs
 from profiles_for_tests import deterministic_profile
 
 SOURCE = Path(__file__).resolve().parents[1] / "src"
@@ -81,8 +81,11 @@ def test_info_shows_hostile_names_escaped(tmp_path: Path, capsys) -> None:
     code, out, err = run_cli(["info", _hostile_profile(tmp_path / "cam.safetensors")], capsys)
     _assert_safe(out + err)
     assert code == 0, err
-    assert "name:        cam\\x1b[2J\\x1b[Hforged: line\\u202e" in out
-    assert "description: desc\\n\\x1b[2J" in out
+    assert "profile    cam\\x1b[2J\\x1b[Hforged: line\\u202e" in out
+    assert "           desc\\n\\x1b[2J" in out
+    code, out, err = run_cli(["info", _hostile_profile(tmp_path / "cam.safetensors"), "--json"], capsys)
+    _assert_safe(out + err)
+    assert code == 0 and json.loads(out)["name"] == f"cam{FORGED}"  # JSON escapes it, and reads back as written
 
 
 def test_apply_lists_hostile_file_names_escaped(tmp_path: Path, capsys) -> None:

@@ -14,14 +14,14 @@ from pathlib import Path
 import pytest
 
 import camdegrade
-import camdegrade.fitting.pairs as pairs_module
-import camdegrade.fitting.training as training_module
+import camdegrade.fitting.network.training as training_module
+import camdegrade.pairs.discovery as pairs_module
 from camdegrade._recipes import FAST, FIELDS, PAPER, TRAINING_FIELDS, recipe_default
 from camdegrade.cli import diagnose as diagnose_command
 from camdegrade.cli import distill as distill_command
 from camdegrade.cli import main, main_parser
-from camdegrade.fitting import FitConfig, PairSet, fit_profile
-from camdegrade.fitting.fit import DEFAULT_EFFECTS
+from camdegrade.fitting import DEFAULT_EFFECTS, FitConfig, PairSet, fit_profile
+from camdegrade.fitting.steps import STEPS
 from test_fit import QUICK, make_pairs_folder
 
 
@@ -31,11 +31,36 @@ def _options(command: str) -> dict[str, argparse.Action]:
     return {option: action for action in subparsers.choices[command]._actions for option in action.option_strings}
 
 
-def test_the_recipe_table_has_one_entry_per_fit_config_field() -> None:
-    assert [field.name for field in dataclasses.fields(FitConfig)] == [field.name for field in FIELDS]
-    assert list(FAST) == list(PAPER) == [field.name for field in FIELDS]
-    assert FitConfig() == FitConfig.recipe("fast") and FitConfig().effects == DEFAULT_EFFECTS
+def test_the_recipe_table_has_one_entry_per_fit_config_field_or_step_option() -> None:
+    plain = [field.name for field in FIELDS if field.plain]
+    assert [field.name for field in dataclasses.fields(FitConfig)] == [*plain, "steps"]
+    assert list(FAST) == list(PAPER) == [*plain, "steps"]
+    assert FitConfig() == FitConfig.recipe("fast") and FitConfig().option("effects") == DEFAULT_EFFECTS
     assert set(TRAINING_FIELDS) < set(FAST)
+    for field in FIELDS:  # every step field names a registered step (and an option it has)
+        if field.step:
+            step, option = field.step.split(".")
+            assert option in {item.name for item in dataclasses.fields(STEPS[step])}, field.name
+        assert set(field.toggles) <= set(STEPS), field.name
+
+
+def test_the_cli_options_of_the_switches_map_onto_the_steps() -> None:
+    """``--effects``, ``--texture`` and ``--sensor-scale`` set the options of the recipe's steps (or which run)."""
+    fast = FitConfig.recipe("fast")
+    assert [step.name for step in fast.steps] == ["resolution", "effects", "texture", "denoise", "response"]
+    none = fast.replace(texture="none", effects=(), sensor_scale=0.5)
+    assert [step.name for step in none.steps] == ["resolution", "effects"]
+    assert none.option("effects") == () and none.option("sensor_scale") == 0.5 and none.option("texture") == "none"
+    assert none.left_out() == {name: "texture='none'" for name in ("texture", "denoise", "response")}
+    assert none.replace(texture="match") == fast.replace(effects=(), sensor_scale=0.5)  # back in their places
+    paper = FitConfig.recipe("paper")
+    assert [step.name for step in paper.steps] == ["resolution", "effects"] and paper.option("sensor_scale") == 1.0
+    with pytest.raises(ValueError, match=r"texture must be one of \('match', 'none'\), got texture='sharp'"):
+        fast.replace(texture="sharp")
+    with pytest.raises(ValueError, match=r"steps: no fit step is named 'texure'"):
+        fast.replace(steps=("resolution", "texure"))
+    with pytest.raises(ValueError, match=r"steps: \['resolution'\] come before the network"):
+        fast.replace(steps=("effects", "resolution"))
 
 
 @pytest.mark.parametrize("command, not_offered", [("fit", {}), ("distill", distill_command.NOT_OFFERED)])
@@ -149,7 +174,7 @@ def test_the_pairs_enter_no_room_more_than_twice_on_their_way_to_training(tmp_pa
     """Issue 22: followed as a value from the CLI's fit to the first training step (before: pairs.py and
     pairset.py three times each, the files discovered twice)."""
     rooms = _rooms_the_pairs_walk_through(tmp_path, monkeypatch)
-    assert rooms[0] == "fitting/pairs.py" and "fitting/fit.py" in rooms, rooms  # the walk was seen
+    assert rooms[0] == "pairs/discovery.py" and "fitting/fit.py" in rooms, rooms  # the walk was seen
     assert max(Counter(rooms).values()) <= 2, rooms
 
 

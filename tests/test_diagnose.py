@@ -16,12 +16,12 @@ from camdegrade.diagnose.changes import add_effect
 from camdegrade.diagnose.heldout import HeldOut
 from camdegrade.diagnose.report import REQUIRED_KEYS
 from camdegrade.effects import EFFECTS, JPEG, Noise, Tone, Vignetting
-from camdegrade.fitting.noise import fit_noise_stage
-from camdegrade.fitting.pairset import PairSet, simulate
+from camdegrade.fitting.in_chain import fit_noise_stage
 from camdegrade.functional.analysis import box_mean, flat_mask
 from camdegrade.functional.noise_stats import measure_set
 from camdegrade.io import write_image
 from camdegrade.measures import FAMILIES, StatisticSet, bootstrap_indices, family_gaps, gap, measurement_scale
+from camdegrade.pairs.pairset import PairSet
 from camdegrade.profile import CameraProfile, load_profile
 from camdegrade.sim import VirtualCamera
 from conftest import PAPER_BUILT_IN
@@ -66,7 +66,7 @@ def test_gap_is_fair_to_noise() -> None:
     mse_without = sum(
         float((s - r).pow(2).mean())
         for s, r in zip(
-            simulate(CameraProfile(None, [Tone(gamma=1.1)]), held.cleans, 0, stream="held-out"), held.reals, strict=True
+            CameraProfile(None, [Tone(gamma=1.1)]).simulate(held.cleans, 0, stream="held-out"), held.reals, strict=True
         )
     )
     mse_correct = sum(float((s - r).pow(2).mean()) for s, r in zip(sims, held.reals, strict=True))
@@ -122,11 +122,11 @@ def test_noise_level_is_calibrated_through_the_later_stages() -> None:
     real = measure_set(reals, cleans, masks)
 
     def ratios(noise: Noise) -> torch.Tensor:  # simulated / real noise std per measurable bin
-        simulated = measure_set(simulate(add_effect(profile, noise), cleans, 9), cleans, masks)
+        simulated = measure_set(add_effect(profile, noise).simulate(cleans, 9), cleans, masks)
         ratio = simulated.std() / real.std()
         return ratio[torch.isfinite(ratio)]
 
-    closed_form = Noise.fit(simulate(profile, cleans, 0, deterministic=True), reals, rounds=0, banding=False)
+    closed_form = Noise.fit(profile.simulate(cleans, 0, deterministic=True), reals, rounds=0, banding=False)
     calibrated = fit_noise_stage(profile, cleans, reals)
     errors = (ratios(calibrated) - 1).abs()
     assert errors.numel() >= 12
@@ -154,6 +154,7 @@ def vignetting_report() -> DiagnosisReport:
     return diagnose(profile, calibration, held_out=held_out, candidates=["vignetting", "tone", "blur", "noise"])
 
 
+@pytest.mark.slow
 def test_withheld_vignetting_is_named_and_closes_the_gap(vignetting_report: DiagnosisReport) -> None:
     report = vignetting_report
     assert report.added[0] == "vignetting" and report.accepted[0] == "add vignetting"
@@ -167,6 +168,7 @@ def test_withheld_vignetting_is_named_and_closes_the_gap(vignetting_report: Diag
     assert report.profile is not None and "vignetting" in report.profile.effect_names
 
 
+@pytest.mark.slow  # the vignetting diagnosis (a module fixture, about 30 s of CPU) is most of it
 def test_json_schema(vignetting_report: DiagnosisReport, tmp_path: Path) -> None:
     data = json.loads(vignetting_report.write_json(tmp_path / "r.json").read_text())
     assert list(data)[: len(REQUIRED_KEYS)] == list(REQUIRED_KEYS)
@@ -197,6 +199,7 @@ def test_json_schema(vignetting_report: DiagnosisReport, tmp_path: Path) -> None
     assert data["skipped"] == []
 
 
+@pytest.mark.slow  # the vignetting diagnosis (a module fixture, about 30 s of CPU) is most of it
 def test_html_is_one_self_contained_file(vignetting_report: DiagnosisReport, tmp_path: Path) -> None:
     page = vignetting_report.write_html(tmp_path / "r.html").read_text()
     assert page.startswith("<!DOCTYPE html>")
@@ -208,6 +211,7 @@ def test_html_is_one_self_contained_file(vignetting_report: DiagnosisReport, tmp
     assert "Learned critic" in page and "A flat region at 1:1" in page
 
 
+@pytest.mark.slow
 def test_control_names_nothing() -> None:
     camera = _camera(Vignetting(k1=-0.2), Noise(a=0.002))
     profile = CameraProfile(None, [Vignetting(k1=-0.2), Noise(a=0.002)])
@@ -232,6 +236,7 @@ def _cli(argv: list[str]) -> int:
     return main(["diagnose", *argv], prog="camdegrade")
 
 
+@pytest.mark.slow
 def test_cli_writes_json_html_and_profile(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     camera = _camera(Tone(gamma=1.25, black=0.02))
     _write_pairs(tmp_path / "pairs", _pairs(camera, 16, 48, seed=7))
@@ -309,6 +314,7 @@ def test_a_critic_with_one_answer_scores_chance_and_says_so() -> None:
     assert not score(net, patches, seed=0).one_answer
 
 
+@pytest.mark.slow
 def test_captures_identical_to_the_clean_images_say_the_profile_degrades_more() -> None:
     """Issue 26: a camera that changes nothing, a profile (network and effects) that degrades a lot. No single change
     closes the gap, but the verdict must not call it unexplained: the profile degrades more than the camera."""

@@ -32,7 +32,7 @@ NOISE_AXES = ("noise", "noise_correlation", "banding")
 
 
 def _example():
-    return load_script("examples/diagnose_city100.py", "camdegrade_diagnose_city100_example")
+    return load_script("experiments/diagnose_city100.py", "camdegrade_diagnose_city100_example")
 
 
 def _flattest_crop(clean: torch.Tensor, captured: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -87,7 +87,7 @@ def test_the_refitted_profile_shows_no_noise_finding(after: DiagnosisReport) -> 
 
 def test_the_built_in_is_named_by_its_4_pixel_grid(after: DiagnosisReport) -> None:
     """What a person sees beside the captures: the built-in's network prints a 4-pixel grid (7.7× the camera's on
-    the 8 held-out whole frames of examples/diagnose_city100.py), and the verdict names it."""
+    the 8 held-out whole frames of experiments/diagnose_city100.py), and the verdict names it."""
     grid = next(entry for entry in after.visible if entry["look"] == "grid")
     assert grid["significant"] and grid["before"]["ratio"] > 2, grid
     assert "What a person sees: the simulation carries a 4-pixel grid" in after.verdict, after.verdict

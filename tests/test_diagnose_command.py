@@ -8,7 +8,7 @@ import torch
 
 from camdegrade.diagnose.changes import Change
 from camdegrade.diagnose.core import _finding, _reference, refit_command
-from camdegrade.fitting.pairs import PairReport
+from camdegrade.pairs.pair import PairReport
 from camdegrade.profile import CameraProfile
 
 HOSTILE = [

@@ -15,9 +15,9 @@ from camdegrade.diagnose import DiagnosisReport, diagnose
 from camdegrade.diagnose._html import png_url
 from camdegrade.diagnose.critic_html import DETAIL_GAIN
 from camdegrade.effects import Noise, Tone
-from camdegrade.fitting.pairset import PairSet, simulate
 from camdegrade.measures.critic import PATCH, alternate_scenes
 from camdegrade.measures.critic_explain import GROUPINGS, crossfit_critic_test, surest_png
+from camdegrade.pairs.pairset import PairSet
 from camdegrade.profile import CameraProfile
 from camdegrade.sim import VirtualCamera
 from effects_images import patch_chart, photo
@@ -158,7 +158,7 @@ def test_the_reported_interval_contains_a_fresh_critics_accuracy() -> None:
     assert 0.6 < after["accuracy"] < 0.95 and after["high"] - after["low"] > 0.05, after  # neither chance nor sure
     fresh = camera_pairs(camera, 12, 64, seed=20)
     cleans, reals = [clean for clean, _ in fresh], [real for _, real in fresh]
-    sims = simulate(report.profile, cleans, 5, stream="fresh")
+    sims = report.profile.simulate(cleans, 5, stream="fresh")
     trains = alternate_scenes([str(index) for index in range(12)])
     result, _, _ = crossfit_critic_test((cleans, reals, sims), trains, seed=0)
     assert after["low"] <= result.accuracy <= after["high"], (after, result)

@@ -28,7 +28,7 @@ torch.set_num_threads(1)
 TOLERANCE = {"polyu_real_noise": 0.15, "cc15_nam_real_noise": 0.15, "sidd_samples": 0.3}
 
 
-EXAMPLE = load_script("examples/diagnose_real_noise.py", "camdegrade_diagnose_real_noise_example")
+EXAMPLE = load_script("experiments/diagnose_real_noise.py", "camdegrade_diagnose_real_noise_example")
 
 
 @pytest.fixture(scope="module")

@@ -165,6 +165,7 @@ def too_soft() -> DiagnosisReport:
     )
 
 
+@pytest.mark.slow
 def test_a_profile_that_blurs_too_much_is_too_smooth_and_a_blur_or_sharpen_change_mends_it(
     too_soft: DiagnosisReport,
 ) -> None:

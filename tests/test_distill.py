@@ -2,14 +2,15 @@
 
 from __future__ import annotations
 
+import pytest
 import torch
 import torch.nn.functional as F
 
 from camdegrade import CameraProfile, load_profile
 from camdegrade.cli import main
 from camdegrade.effects import Blur, Tone
-from camdegrade.fitting.distill import distill_profile
-from camdegrade.fitting.training import FitConfig
+from camdegrade.fitting.network.distill import distill_profile
+from camdegrade.fitting.recipe import FitConfig
 from camdegrade.io import write_image
 from camdegrade.synthetic import dead_leaves_image, dead_leaves_images
 from profiles_for_tests import seeded_network
@@ -91,6 +92,7 @@ def test_a_profile_without_network_cannot_be_distilled() -> None:
         raise AssertionError("accepted")
 
 
+@pytest.mark.slow
 def test_cli_distills_on_generated_images_and_never_writes_over_the_teacher(tmp_path, capsys) -> None:
     teacher = _teacher().save(tmp_path / "teacher.safetensors")
     assert main(["distill", str(teacher), "-o", str(teacher), "--epochs", "1", "--quiet"]) == 1

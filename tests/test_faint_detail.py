@@ -1,14 +1,16 @@
-"""A fit's noise-reduction stage (:mod:`camdegrade.fitting.faint_detail`): kept where the camera cores its output."""
+"""A fit's noise-reduction stage (:mod:`camdegrade.fitting.steps.denoise`): kept where the camera cores its output."""
 
 from __future__ import annotations
 
+import pytest
 import torch
 
 from camdegrade import CameraProfile
 from camdegrade.effects import Blur, Denoise, Sharpen
 from camdegrade.fitting import FitConfig, fit_profile
-from camdegrade.fitting.faint_detail import fit_denoise
+from camdegrade.fitting.steps.denoise import DenoiseMatch
 from camdegrade.synthetic import dead_leaves_images
+from steps_for_tests import run_step
 
 torch.set_num_threads(1)
 
@@ -32,7 +34,9 @@ def test_a_camera_that_cores_gets_a_denoise_stage_after_its_other_stages() -> No
     notes: list[str] = []
     base = CameraProfile(None, [Sharpen(1.0, 0.5)])
     camera = [Sharpen(1.0, 0.5), Denoise(1.0, 4 / 255)]
-    profile, note = fit_denoise(base, _pairs(_grainy(6, 0), *camera), _pairs(_grainy(4, 1), *camera), notes.append)
+    profile, note = run_step(
+        DenoiseMatch(), base, _pairs(_grainy(6, 0), *camera), _pairs(_grainy(4, 1), *camera), notes.append
+    )
     assert note["kept"] and abs(note["threshold_levels"] - 4.0) < 1.0 and abs(note["sigma"] - 1.0) < 0.25, note
     assert note["val_psnr_after"] - note["val_psnr_before"] > 1.0, note
     assert [type(effect) for effect in profile.effects] == [Sharpen, Denoise]
@@ -42,23 +46,26 @@ def test_a_camera_that_cores_gets_a_denoise_stage_after_its_other_stages() -> No
 def test_a_camera_that_keeps_its_faint_detail_gets_none() -> None:
     camera = Blur(0.6, linear=False)
     base = CameraProfile(None, [Blur(0.6, linear=False)])
-    profile, note = fit_denoise(base, _pairs(_grainy(6, 2), camera), _pairs(_grainy(4, 3), camera), lambda _: None)
+    profile, note = run_step(
+        DenoiseMatch(), base, _pairs(_grainy(6, 2), camera), _pairs(_grainy(4, 3), camera), lambda _: None
+    )
     assert not note["kept"] and len(profile.effects) == 1, note
 
 
 def test_a_profile_with_a_denoise_stage_is_left_alone() -> None:
     base = CameraProfile(None, [Denoise(1.0, 0.01)])
     pairs = _pairs(_grainy(2, 4), Denoise(1.0, 0.01))
-    profile, note = fit_denoise(base, pairs, pairs, lambda _: None)
+    profile, note = run_step(DenoiseMatch(), base, pairs, pairs, lambda _: None)
     assert note == {"kept": False, "reason": "the profile already has a denoise stage"} and profile is base
 
 
+@pytest.mark.slow
 def test_a_fit_records_its_denoise_step_and_the_paper_recipe_skips_it() -> None:
     pairs = [
         ((clean * 255).round().to(torch.uint8), (captured * 255).round().to(torch.uint8))
         for clean, captured in _pairs([image.clamp(0, 1) for image in _grainy(10, 5)], Denoise(1.0, 6 / 255))
     ]
-    quick = FitConfig(epochs=1, crop=32, crops_per_pair=2, width=4, val_fraction=0.3, effects=())
+    quick = FitConfig(epochs=1, crop=32, crops_per_pair=2, width=4, val_fraction=0.3).replace(effects=())
     matched = fit_profile(pairs, quick).fitted["denoise"]
     assert set(matched) >= {"kept", "sigma", "threshold_levels", "val_psnr_before", "val_psnr_after"}, matched
     skipped = fit_profile(pairs, quick.replace(texture="none")).fitted["denoise"]

@@ -11,14 +11,16 @@ import torch.nn.functional as F
 from bad_inputs import run_cli
 from camdegrade import CameraProfile
 from camdegrade._pixels import bytes_to_unit, unit_to_bytes
-from camdegrade.cli._quality import quality_lines
 from camdegrade.effects import Blur, Noise, Tone
 from camdegrade.fitting import FitConfig, fit_profile
-from camdegrade.fitting.evidence import noise_evidence
-from camdegrade.fitting.stages import _judge
+from camdegrade.fitting.steps import PairedFit
+from camdegrade.fitting.steps.effects import EffectStage
+from camdegrade.fitting.steps.noise_evidence import noise_evidence
 from camdegrade.io import write_image
 from camdegrade.measures.critic import repeated_critic_test, split_critic_test
+from camdegrade.pairs import PairSet
 from camdegrade.sim import VirtualCamera
+from camdegrade.summary import quality_lines
 from camdegrade.synthetic import dead_leaves_images
 
 torch.set_num_threads(1)
@@ -53,6 +55,7 @@ def _pairs(camera: VirtualCamera, count: int = 12, size: int = 128) -> list[tupl
 QUICK = FitConfig.recipe("fast").replace(epochs=2, crop=32, crops_per_pair=4)
 
 
+@pytest.mark.slow
 def test_a_noiseless_camera_gets_no_noise_stage() -> None:
     lines: list[str] = []
     profile = fit_profile(_pairs(_camera(None)), QUICK.replace(val_fraction=0.25), log=lines.append)
@@ -64,6 +67,7 @@ def test_a_noiseless_camera_gets_no_noise_stage() -> None:
     assert any(line.startswith("effect noise: dropped on 3 pair(s)") for line in lines), lines
 
 
+@pytest.mark.slow
 def test_a_noisy_camera_keeps_its_noise_at_its_level_and_reports_the_critic() -> None:
     lines: list[str] = []
     camera = _camera(Noise(a=0.003, b=2e-5))
@@ -138,12 +142,15 @@ def test_validation_pairs_without_flat_pixels_leave_the_judgement_to_the_trainin
         charts = [(_chart(96, seed), camera(_chart(96, seed), generator=generator)) for seed in range(3)]
         leaves = [bytes_to_unit(image) for image in dead_leaves_images(2, 48, seed=0)]
         textured = [(leaf, camera(leaf, generator=generator)) for leaf in leaves]
+    lines: list[str] = []
+    train, val = PairSet.load(charts), PairSet.load(textured)
     profile = CameraProfile(None, [Tone(**TONE)])
-    kept, note, line = _judge(profile, Noise(a=0.002, b=1e-5), textured, charts, eight_bit=False)
-    assert kept is not None and note["kept"] and note["pairs"] == 3
+    fit = PairedFit.of(train, train, val, profile=profile, seed=0, say=lines.append, arch="local_affine", refit=False)
+    note = EffectStage(Noise).judge(fit, Noise(a=0.002, b=1e-5))
+    assert [type(effect) for effect in fit.profile.effects] == [Noise, Tone] and note["kept"] and note["pairs"] == 3
     assert note["evidence"] == "training (the validation pairs hold too few flat pixels)"
-    assert line.startswith("kept on 3 pair(s)")
-    assert line.endswith("[evidence: training (the validation pairs hold too few flat pixels)]")
+    assert lines[-1].startswith("effect noise: kept on 3 pair(s)")
+    assert lines[-1].endswith("[evidence: training (the validation pairs hold too few flat pixels)]")
 
 
 # --- the critic on one set of pairs ---------------------------------------------------------------------------
@@ -180,16 +187,14 @@ def test_quality_lines_show_psnr_fidelity_and_critic_and_nothing_else_from_the_f
     }
     lines = quality_lines(quality)
     assert lines[0] == (
-        "validation (8 pairs) PSNR: identity inf dB (identical), baseline 31.26 dB, network 31.45 dB, profile 30.60 dB"
+        "validation 8 pairs: PSNR identity inf dB (identical) -> profile 30.60 dB (baseline 31.26 dB, network 31.45 dB)"
     )
-    assert "grid ratio 0.76, bands log2 +0.01 -0.30 n/a n/a -2.20, noise ratio 1.02, banding ratio n/a" in lines[1]
-    assert lines[2].endswith("paired 0.62 [95 % CI 0.55-0.70, 4 held-out pairs], image-only not run")
+    assert "grid 0.76, bands log2 +0.01 -0.30 n/a n/a -2.20, flat noise 1.02, banding n/a" in lines[1]
+    assert lines[2].endswith("paired 0.62 [0.55-0.70], image-only not run (1 critic(s); 0.5: cannot tell)")
     quality["fidelity"]["critic_image_only"] = {"accuracy": 0.7, "low": 0.6, "high": 0.8, "pairs": 8, "std": 0.05,
                                                 "critics": 4}  # fmt: skip
-    assert quality_lines(quality)[2].endswith(
-        "image-only 0.70 ± 0.05 over 4 critics [95 % CI 0.60-0.80, 8 held-out pairs]"
-    )
-    assert quality_lines({"description": "no psnr"}) == []
+    assert quality_lines(quality)[2].endswith("image-only 0.70 ± 0.05 [0.60-0.80] (0.5: cannot tell)")
+    assert "\x1b" not in "".join(lines) and quality_lines({"description": "no psnr"}) == []
 
 
 def test_cli_fit_prints_the_quality_block_and_info_shows_it(tmp_path, capsys) -> None:
@@ -200,13 +205,14 @@ def test_cli_fit_prints_the_quality_block_and_info_shows_it(tmp_path, capsys) ->
     tiny = ["--epochs", "1", "--crop", "32", "--crops-per-pair", "2", "--val-fraction", "0.34", "--quiet"]
     code, printed, _ = run_cli(["fit", tmp_path / "pairs", "-o", out, *tiny], capsys)
     assert code == 0
-    block = [line for line in printed.splitlines() if line.startswith("validation (2 pairs)")]
-    assert len(block) == 3 and block[0].startswith("validation (2 pairs) PSNR: identity ")
-    assert "baseline " in block[0] and "network " in block[0] and "profile " in block[0]
-    assert "grid ratio " in block[1] and block[2].endswith("paired not run, image-only not run")
+    lines = printed.splitlines()
+    start = next(index for index, line in enumerate(lines) if line.startswith("validation 2 pairs: PSNR identity "))
+    block = lines[start : start + 3]
+    assert "baseline " in block[0] and "network " in block[0] and "-> profile " in block[0]
+    assert "fidelity: grid " in block[1] and block[2].endswith("paired not run, image-only not run (0.5: cannot tell)")
     assert "no critic (2 validation scene(s); it needs 4" in printed
     code, shown, _ = run_cli(["info", out], capsys)
-    assert code == 0 and [line for line in shown.splitlines() if line.startswith("validation (2 pairs)")] == block
+    assert code == 0 and "\n".join(block) in shown
 
 
 def _told_apart(count: int = 4) -> tuple[list[torch.Tensor], list[torch.Tensor], list[torch.Tensor]]:
@@ -215,6 +221,7 @@ def _told_apart(count: int = 4) -> tuple[list[torch.Tensor], list[torch.Tensor],
     return cleans, cleans, [(clean * 0.5).clamp(0, 1) for clean in cleans]  # far from the captures
 
 
+@pytest.mark.slow
 def test_repeated_critics_score_every_pair_and_the_first_is_the_split_critic() -> None:
     pairs, scenes = _told_apart(), ["b", "a", "d", "c"]
     result = repeated_critic_test(pairs, scenes, seeds=2, steps=30, image_only=True)

@@ -12,10 +12,11 @@ from torch import Tensor
 from camdegrade import CameraProfile
 from camdegrade.diagnose.attribute import check_candidates
 from camdegrade.effects import EFFECTS, FrequencyResponse
-from camdegrade.fitting.response import fit_response
+from camdegrade.fitting.steps.response import ResponseMatch
 from camdegrade.functional import frequency_response_image
 from camdegrade.functional.response import MAPS_KEPT, response_map
 from effects_images import photo
+from steps_for_tests import run_step
 
 KNOTS = 11
 
@@ -217,7 +218,7 @@ def test_fit_response_keeps_the_stage_the_camera_has() -> None:
     truth = camera_response()
     pairs = [(source, eight_bit(frequency_response_image(source, truth))) for source in crops(12, 128)]
     notes: list[str] = []
-    profile, note = fit_response(CameraProfile(None, []), pairs[:6], pairs[6:], notes.append)
+    profile, note = run_step(ResponseMatch(), CameraProfile(None, []), pairs[:6], pairs[6:], notes.append)
     assert note["kept"] is True, note
     assert note["val_band_error_after"] < note["val_band_error_before"] - 0.1
     (stage,) = profile.effects
@@ -230,7 +231,7 @@ def test_fit_response_keeps_the_stage_the_camera_has() -> None:
 
 def test_fit_response_drops_it_where_the_camera_has_none() -> None:
     pairs = [(source, eight_bit(source)) for source in crops(12, 128)]
-    profile, note = fit_response(CameraProfile(None, []), pairs[:6], pairs[6:], lambda _: None)
+    profile, note = run_step(ResponseMatch(), CameraProfile(None, []), pairs[:6], pairs[6:], lambda _: None)
     assert note["kept"] is False and not profile.effects
 
 

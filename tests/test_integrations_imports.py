@@ -7,11 +7,14 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 import camdegrade
 
 OPTIONAL_STACKS = ("albumentations", "albucore", "cv2", "datasets", "pyarrow", "lightning", "pytorch_lightning")
 
 
+@pytest.mark.slow
 def test_importing_camdegrade_imports_no_optional_stack():
     code = (
         "import sys\n"

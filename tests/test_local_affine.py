@@ -11,8 +11,8 @@ from camdegrade import network as network_module
 from camdegrade._recipes import ARCHS, FAST, PAPER, UPSAMPLINGS
 from camdegrade.errors import ProfileError
 from camdegrade.fitting import FitConfig
-from camdegrade.fitting.baseline import apply_linear_baseline, baseline_psnr, fit_linear_baseline
-from camdegrade.fitting.training import fit_network, new_network
+from camdegrade.fitting.network.baseline import apply_linear_baseline, baseline_psnr, fit_linear_baseline
+from camdegrade.fitting.network.training import fit_network, new_network
 from camdegrade.measures.fidelity import grid_rms
 from camdegrade.network import ARCHITECTURES, DomainShiftNet, LocalAffineNet, build_network, smoothed
 from camdegrade.synthetic import dead_leaves_images
@@ -193,8 +193,8 @@ def test_a_start_of_another_architecture_is_refused() -> None:
 
 
 def test_a_fit_that_ends_while_still_rising_says_so() -> None:
-    from camdegrade.fitting.fit import still_rising
-    from camdegrade.fitting.training import EpochResult
+    from camdegrade.fitting.network.training import EpochResult
+    from camdegrade.fitting.quality import still_rising
 
     config = FitConfig(epochs=3)
     rising = [EpochResult(i + 1, 0.1, psnr, 0.001, True) for i, psnr in enumerate((25.0, 25.5, 25.8))]

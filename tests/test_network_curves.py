@@ -13,7 +13,7 @@ from camdegrade._profile_format import check
 from camdegrade._recipes import CURVES, FAST, PAPER
 from camdegrade.errors import ProfileError
 from camdegrade.fitting import FitConfig
-from camdegrade.fitting.training import fit_network, new_network
+from camdegrade.fitting.network.training import fit_network, new_network
 from camdegrade.functional import srgb_to_linear
 from camdegrade.metrics import psnr
 from camdegrade.network import CURVE_KNOTS, LocalAffineNet, build_network, piecewise_linear

@@ -13,10 +13,12 @@ import torch.nn.functional as F
 
 from camdegrade import load_profile
 from camdegrade.effects import Noise
-from camdegrade.fitting import FitConfig, fit_profile
-from camdegrade.fitting import fit as fit_module
+from camdegrade.fitting import FitConfig, fit_profile, quality
+from camdegrade.fitting.steps import network as network_step
 
-RECIPE = FitConfig(epochs=2, crop=32, batch_size=4, crops_per_pair=4, val_fraction=0.34, lr=0.003, effects=("noise",))
+RECIPE = FitConfig(epochs=2, crop=32, batch_size=4, crops_per_pair=4, val_fraction=0.34, lr=0.003).replace(
+    effects=("noise",)
+)
 
 
 def _pairs(*, noise_only: bool, count: int = 6) -> list[tuple[torch.Tensor, torch.Tensor]]:
@@ -38,7 +40,7 @@ def test_a_noise_only_camera_gets_no_network(tmp_path: Path) -> None:
     profile = fit_profile(_pairs(noise_only=True), RECIPE, log=lines.append)
     note = profile.fitted["network"]
     assert profile.network is None and note["kept"] is False
-    limit = fit_module.NETWORK_MIN_GAIN_DB
+    limit = network_step.NETWORK_MIN_GAIN_DB
     assert note["gain_db"] < limit and note["baseline_gain_db"] < limit
     assert any(line.startswith("network dropped:") for line in lines)
     assert [type(effect) for effect in profile.effects] == [Noise]
@@ -50,7 +52,7 @@ def test_a_noise_only_camera_gets_no_network(tmp_path: Path) -> None:
 
 
 def test_the_threshold_decides(monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setattr(fit_module, "NETWORK_MIN_GAIN_DB", -math.inf)
+    monkeypatch.setattr(network_step, "NETWORK_MIN_GAIN_DB", -math.inf)
     profile = fit_profile(_pairs(noise_only=True), RECIPE.replace(effects=()))
     assert profile.network is not None and profile.fitted["network"]["kept"] is True
 
@@ -62,14 +64,15 @@ def test_a_camera_with_a_tone_change_keeps_its_network() -> None:
     assert note["gain_db"] > 3.0
 
 
+@pytest.mark.slow
 def test_without_validation_pairs_the_network_is_kept() -> None:
     profile = fit_profile(_pairs(noise_only=True), RECIPE.replace(effects=(), val_fraction=0.0))
     assert profile.network is not None
-    assert profile.fitted["network"] == {"kept": True, "min_gain_db": fit_module.NETWORK_MIN_GAIN_DB}
+    assert profile.fitted["network"] == {"kept": True, "min_gain_db": network_step.NETWORK_MIN_GAIN_DB}
 
 
 def test_a_dropped_network_is_not_warned_about() -> None:
     # the network is no better than the clean image here, and the profile does not hold it: nothing to warn about
     profile = fit_profile(_pairs(noise_only=True), RECIPE.replace(epochs=1))
-    assert fit_module.quality_warnings(profile.quality)  # the trained network's scores alone would warn
+    assert quality.quality_warnings(profile.quality)  # the trained network's scores alone would warn
     assert profile.network is None and "warnings" not in profile.fitted

@@ -1,7 +1,7 @@
 """The noise fitter on REAL sensor noise (PolyU, CC15, SIDD: clean = mean of many frames, real = one frame).
 
 One noise stage per subset is fitted on half of its images and checked on the other half, where the clean image is
-flat in absolute terms (``examples/noise_table.py``, which prints the table). Skipped when the shared real-pairs
+flat in absolute terms (``experiments/noise_table.py``, which prints the table). Skipped when the shared real-pairs
 folder is absent.
 
 PolyU meets the bar on the noise level: its std per channel and intensity bin within ±15 % of the real noise in at
@@ -26,7 +26,7 @@ pytestmark = [pytest.mark.realdata, pytest.mark.slow]
 
 
 def _load_example() -> ModuleType:
-    return load_script("examples/noise_table.py", "camdegrade_noise_table_example")
+    return load_script("experiments/noise_table.py", "camdegrade_noise_table_example")
 
 
 @pytest.fixture(scope="module")

@@ -9,22 +9,18 @@ import torch
 from PIL import Image
 
 from camdegrade.errors import PairsError
-from camdegrade.fitting.pairs import (
+from camdegrade.pairs.discovery import (
     AMBIGUOUS,
-    BAD_ROW,
-    DUPLICATE,
-    MISSING,
     NO_CAPTURED,
     NO_CLEAN,
     NO_SUFFIX,
     SIZE_MISMATCH,
-    TOO_SMALL,
-    UNREADABLE,
-    Pair,
     discover_pairs,
     filter_pairs,
 )
-from camdegrade.fitting.pairset import load_pair, split_by_scene
+from camdegrade.pairs.manifest import BAD_ROW, DUPLICATE
+from camdegrade.pairs.pair import MISSING, TOO_SMALL, UNREADABLE, Pair
+from camdegrade.pairs.pairset import load_pair, split_by_scene
 
 
 def save(path: Path, size: tuple[int, int] = (32, 24), mode: str = "RGB", seed: int = 0, **options) -> Path:

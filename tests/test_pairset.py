@@ -10,8 +10,8 @@ import torch
 from camdegrade import CameraProfile
 from camdegrade.effects import Noise, Tone
 from camdegrade.errors import PairsError
-from camdegrade.fitting.pairset import PairSet, simulate
 from camdegrade.io import write_image
+from camdegrade.pairs.pairset import PairSet
 
 
 def _image(seed: int, size: int = 24) -> torch.Tensor:
@@ -78,12 +78,12 @@ def test_split_keeps_every_scene_on_one_side(tmp_path: Path) -> None:
 def test_simulation_is_seeded_per_image_and_stream() -> None:
     profile = CameraProfile(None, [Noise(a=0.01, b=1e-4), Tone(gamma=1.2)])
     cleans = [torch.rand(3, 16, 16, generator=torch.Generator().manual_seed(i)) for i in range(3)]
-    first = simulate(profile, cleans, seed=1)
-    assert all(torch.equal(a, b) for a, b in zip(first, simulate(profile, cleans, seed=1), strict=True))
-    assert torch.equal(simulate(profile, cleans[:1], seed=1)[0], first[0])  # an image's draw ignores the others
-    assert not torch.equal(simulate(profile, cleans, seed=1, stream="other")[0], first[0])
-    assert not torch.equal(simulate(profile, cleans, seed=2)[0], first[0])
-    mean = simulate(profile, cleans, seed=1, deterministic=True)
+    first = profile.simulate(cleans, seed=1)
+    assert all(torch.equal(a, b) for a, b in zip(first, profile.simulate(cleans, seed=1), strict=True))
+    assert torch.equal(profile.simulate(cleans[:1], seed=1)[0], first[0])  # an image's draw ignores the others
+    assert not torch.equal(profile.simulate(cleans, seed=1, stream="other")[0], first[0])
+    assert not torch.equal(profile.simulate(cleans, seed=2)[0], first[0])
+    mean = profile.simulate(cleans, seed=1, deterministic=True)
     assert torch.allclose(mean[0], Tone(gamma=1.2)(cleans[0][None])[0], atol=1e-6)
 
 

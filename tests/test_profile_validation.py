@@ -345,7 +345,7 @@ def test_every_built_in_profile_passes_both(tmp_path: Path, name: str, capsys: p
     copied = _corrupted(tmp_path, name, lambda parts: None)
     for profile in (name, copied):
         status, out, err = run_cli(["info", profile], capsys)
-        assert (status, err) == (0, "") and out.startswith(f"name:        {name}\n")
+        assert (status, err) == (0, "") and out.startswith(f"profile    {name}\n")
         loaded = load_profile(profile)
         assert loaded.name == name
     for key, value in load_profile(name).state_dict().items():

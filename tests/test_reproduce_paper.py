@@ -1,4 +1,4 @@
-"""Smoke test of ``examples/reproduce_paper.py --quick``: the paper's ordering holds on captured test images."""
+"""Smoke test of ``experiments/reproduce_paper.py --quick``: the paper's ordering holds on captured test images."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ from conftest import load_script
 
 
 def load_example():
-    return load_script("examples/reproduce_paper.py", "reproduce_paper")
+    return load_script("experiments/reproduce_paper.py", "reproduce_paper")
 
 
 def test_scenes_are_seeded_and_in_range():

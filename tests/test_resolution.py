@@ -16,7 +16,7 @@ from camdegrade.effects import JPEG, Blur, Noise, Resolution
 from camdegrade.effects.resolution import SCALES
 from camdegrade.errors import CamdegradeError
 from camdegrade.fitting import FitConfig, fit_profile
-from camdegrade.fitting.training import _sensor_crop, fit_network, random_crop_batch
+from camdegrade.fitting.network.training import _sensor_crop, fit_network, random_crop_batch
 from camdegrade.functional import resolution_image
 from camdegrade.measures.resampling import MIN_EXCESS, resampling_trace
 from camdegrade.metrics import psnr
@@ -89,10 +89,13 @@ def test_scaled_and_magnitude() -> None:
         (lambda: resampling_trace(leaves(1), reference=[]), "reference must hold at least one image"),
         (lambda: resampling_trace([torch.rand(1, 3, 32, 32)]), r"images must be \(3, H, W\) images, got shape"),
         (lambda: resampling_trace([torch.full((3, 32, 32), math.nan)]), "images must be finite"),
-        (lambda: FitConfig(sensor_scale=2.0), "sensor_scale must be 'auto' or a number from 0.125 to 1"),
-        (lambda: FitConfig(sensor_scale="half"), "sensor_scale must be 'auto' or a number from 0.125 to 1"),
-        (lambda: FitConfig(effects=("noise", "resolution")), "effects: 'resolution' is not fitted after the network"),
-        (lambda: FitConfig(arch="paper", sensor_scale=0.5), "sensor_scale=0.5 needs arch='local_affine'"),
+        (lambda: FitConfig().replace(sensor_scale=2.0), "sensor_scale must be 'auto' or a number from 0.125 to 1"),
+        (lambda: FitConfig().replace(sensor_scale="half"), "sensor_scale must be 'auto' or a number from 0.125 to 1"),
+        (
+            lambda: FitConfig().replace(effects=("noise", "resolution")),
+            "effects: 'resolution' is not fitted after the network",
+        ),
+        (lambda: FitConfig().replace(arch="paper", sensor_scale=0.5), "sensor_scale=0.5 needs arch='local_affine'"),
         (lambda: fit_profile("no-such-folder", sensor_scale_recipe(0.5), init_from="city100-iphonex"), "init_from"),
         (lambda: random_crop_batch([], 8, 1, torch.Generator(), step=0), "step must be a positive integer, got step=0"),
         (lambda: _sensor_crop(8, Resolution(1 / 3)), "crop must hold two sensor periods .* at least 24, got crop=8"),
@@ -190,6 +193,7 @@ def _camera_pairs(scale: float, count: int, seed: int) -> list[tuple[Tensor, Ten
 TINY = {"epochs": 6, "crops_per_pair": 16, "crop": 32, "texture": "none", "effects": ()}
 
 
+@pytest.mark.slow
 def test_a_fit_trains_its_network_through_the_upscale_it_finds() -> None:
     train, held = _camera_pairs(0.5, 24, seed=1), _camera_pairs(0.5, 8, seed=2)
     found = fit_profile(train, FitConfig.recipe("fast", **TINY))
@@ -227,6 +231,7 @@ def test_the_note_says_no_stage_where_the_network_was_dropped() -> None:
     assert profile.fitted["resolution"]["kept"] is False, profile.fitted["resolution"]
 
 
+@pytest.mark.slow
 def test_a_camera_without_an_upscale_gets_no_stage() -> None:
     profile = fit_profile(_camera_pairs(1.0, 16, seed=1), FitConfig.recipe("fast", **TINY))
     assert profile.fitted["resolution"]["kept"] is False

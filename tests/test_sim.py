@@ -111,7 +111,7 @@ def test_simulate_pairs_is_reproducible_per_image(input_folder: Path, tmp_path: 
 
 
 def test_simulate_pairs_feeds_pair_discovery_and_the_fitters(input_folder: Path, tmp_path: Path) -> None:
-    pairs_module = pytest.importorskip("camdegrade.fitting.pairs")
+    pairs_module = pytest.importorskip("camdegrade.pairs.discovery")
     out = tmp_path / "pairs"
     simulate_pairs(VirtualCamera([JPEG(45)], name="jpeg-only"), input_folder, out)
     report = pairs_module.discover_pairs(out)

@@ -1,4 +1,4 @@
-"""The unpaired fit of the REAL City100 iPhone X (``examples/fit_city100_unpaired.py``) on a smaller split than the
+"""The unpaired fit of the REAL City100 iPhone X (``experiments/fit_city100_unpaired.py``) on a smaller split than the
 example's, to stay fast: clean images of scenes 001–010 and captures of 036–045 (no scene on both sides), checked on
 the pairs of every other held-out scene (8 of 056–070, 098). Its flat noise is within [0.8, 1.25] of the camera's,
 every spectrum band within ±1 log2 (the example's 35 + 20 images bring four of five within ±0.5, see
@@ -14,7 +14,6 @@ import pytest
 import torch
 
 from camdegrade._pixels import as_unit
-from camdegrade.fitting import simulate
 from camdegrade.measures.fidelity import measure_fidelity
 from conftest import load_script
 
@@ -24,14 +23,14 @@ torch.set_num_threads(1)
 
 @pytest.fixture(scope="module")
 def result(real_pairs_dir: Path) -> tuple:
-    example = load_script("examples/fit_city100_unpaired.py", "camdegrade_fit_city100_unpaired")
+    example = load_script("experiments/fit_city100_unpaired.py", "camdegrade_fit_city100_unpaired")
     scenes = example.city100(real_pairs_dir)
     captured, clean = example.CAPTURED_SCENES[:10], example.CLEAN_SCENES[:10]
     profile, _ = example.fit(scenes, progress=False, captured=captured, clean=clean)
     held_out = example.HELD_OUT[::2]
     cleans = [as_unit(scenes[scene][0]) for scene in held_out]
     reals = [as_unit(scenes[scene][1]) for scene in held_out]
-    sims = [image.mul(255).round().div(255) for image in simulate(profile, cleans, 0)]
+    sims = [image.mul(255).round().div(255) for image in profile.simulate(cleans, 0)]
     rows = {
         label: measure_fidelity(s, reals, cleans).to_dict(digits=3)
         for label, s in (("clean", cleans), ("unpaired", sims))

@@ -18,9 +18,8 @@ from camdegrade._seeds import derived_generator
 from camdegrade.diagnose.unpaired import diagnose_unpaired
 from camdegrade.effects import JPEG, Blur, Color, FrequencyResponse, Noise, Sharpen, Tone, Vignetting
 from camdegrade.errors import PairsError
-from camdegrade.fitting import simulate
-from camdegrade.fitting._distribution_match import RESPONSE_FLOOR
 from camdegrade.fitting.unpaired import MIN_IMAGES, NOT_IDENTIFIABLE, UNPAIRED_EFFECTS, fit_unpaired
+from camdegrade.fitting.unpaired.spectrum import RESPONSE_FLOOR
 from camdegrade.functional.resolution import resolution_image
 from camdegrade.functional.tone import tone_curve
 from camdegrade.synthetic import dead_leaves_images
@@ -50,7 +49,7 @@ def _scenes(seed: int, count: int = COUNT, size: int = SIZE) -> list[torch.Tenso
 def _captures(*effects, seed: int = 2, count: int = COUNT, size: int = SIZE) -> list[torch.Tensor]:
     """Scenes of seed ``seed`` (never the clean set's) photographed by a camera of ``effects``, as 8-bit images."""
     camera = CameraProfile(None, list(effects))
-    return [unit_to_bytes(image) for image in simulate(camera, _scenes(seed, count, size), seed=7)]
+    return [unit_to_bytes(image) for image in camera.simulate(_scenes(seed, count, size), seed=7)]
 
 
 @pytest.fixture(scope="module")
@@ -81,6 +80,7 @@ def combined(combined_captures: list[torch.Tensor], clean: list[torch.Tensor]) -
     return fit_unpaired(combined_captures, clean)
 
 
+@pytest.mark.slow
 def test_the_combined_camera_is_recovered_from_other_scenes(combined: CameraProfile) -> None:
     assert combined.network is None and combined.fitted["unpaired"] is True
     assert combined.fitted["captures"] == COUNT and combined.fitted["clean_images"] == COUNT
@@ -100,6 +100,7 @@ def test_the_combined_camera_is_recovered_from_other_scenes(combined: CameraProf
     assert _stage(combined, "frequency_response") is None, combined.fitted["effects"]["frequency_response"]
 
 
+@pytest.mark.slow
 def test_captures_alone_give_the_noise_their_own_flat_pixels_show() -> None:
     """No clean set and no stage after the noise: the stage is the captures' own flat-pixel moments read straight
     (no simulated calibration); 4 levels come back within 10 %, and a second fit gives the same bytes."""
@@ -121,6 +122,7 @@ def test_a_tone_curve_is_recovered_within_five_hundredths(clean: list[torch.Tens
     assert float((fitted - grid**1.3).abs().max()) <= 0.05
 
 
+@pytest.mark.slow
 def test_the_control_camera_recovers_nothing(clean: list[torch.Tensor]) -> None:
     profile = fit_unpaired(_captures(), clean)
     assert profile.effect_names == [], profile.fitted["effects"]
@@ -134,6 +136,7 @@ def test_sharpening_is_recovered(clean: list[torch.Tensor]) -> None:
     assert _stage(profile, "blur") is None
 
 
+@pytest.mark.slow
 def test_a_detail_response_blur_and_sharpening_cannot_make_is_fitted_after_them() -> None:
     """A camera whose detail processing dips at 0.2 cycles/pixel and rises again at 0.3 (as City100's iPhone's
     spectrum does), after blur and 4 levels of noise: blur and sharpening leave the captures' spectrum; the radial
@@ -152,6 +155,7 @@ def test_a_detail_response_blur_and_sharpening_cannot_make_is_fitted_after_them(
     assert 0.9 <= fidelity["noise_ratio"] <= 1.1, fidelity
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("texture", [False, True], ids=["noise-the-chain-misses", "texture-only-the-captures-have"])
 def test_no_detail_response_is_kept_for_a_difference_the_camera_does_not_make(texture: bool) -> None:
     """Cameras with no detail response (16 scenes of 192²), where something else leaves the same small mismatch in
@@ -167,7 +171,7 @@ def test_no_detail_response_is_kept_for_a_difference_the_camera_does_not_make(te
         camera = (Blur(0.8),)
     else:
         camera = (Blur(0.8), Noise(levels=torch.full((3, 4), 3.0 / 255), linear=False))
-    captures = [unit_to_bytes(image) for image in simulate(CameraProfile(None, list(camera)), scenes, seed=7)]
+    captures = [unit_to_bytes(image) for image in CameraProfile(None, list(camera)).simulate(scenes, seed=7)]
     kinds = ("blur", "sharpen", "frequency_response") if texture else UNPAIRED_EFFECTS
     profile = fit_unpaired(captures, _scenes(1, COUNT, NO_DETAIL_SIZE), effects=kinds)
     notes = profile.fitted["effects"]["frequency_response"]
@@ -184,6 +188,7 @@ def _with_band_texture(scene: torch.Tensor, index: int, levels: float = 8.0) -> 
     return (scene.double() + texture / texture.std() * levels).round().clamp(0, 255).to(torch.uint8)
 
 
+@pytest.mark.slow
 def test_no_detail_response_is_kept_where_blur_alone_made_the_captures() -> None:
     captures = _captures(Blur(0.8), size=NO_DETAIL_SIZE)
     kinds = ("blur", "sharpen", "frequency_response")
@@ -247,7 +252,7 @@ def test_pngs_that_were_jpegs_get_a_warning_and_an_estimated_quality(tmp_path: P
 
 
 def test_too_few_images_names_the_argument_and_the_count(clean: list[torch.Tensor]) -> None:
-    with pytest.raises(PairsError, match=rf"captured must hold at least {MIN_IMAGES} readable images.*got 3"):
+    with pytest.raises(PairsError, match=rf"captured must hold at least {MIN_IMAGES} usable images.*got 3"):
         fit_unpaired(clean[:3], clean)
     with pytest.raises(PairsError, match=r"clean must hold at least"):
         fit_unpaired(clean, clean[:2])
@@ -255,6 +260,7 @@ def test_too_few_images_names_the_argument_and_the_count(clean: list[torch.Tenso
         fit_unpaired(42)
 
 
+@pytest.mark.slow  # the combined camera's fit (a module fixture) takes most of it
 @pytest.mark.parametrize("name", sorted(NOT_IDENTIFIABLE))
 def test_effects_that_need_correspondence_are_refused_and_never_fitted(name: str, combined: CameraProfile) -> None:
     with pytest.raises(ValueError, match=rf"{name!r} cannot be fitted unpaired"):
@@ -271,6 +277,7 @@ def test_an_unreadable_file_and_mixed_sizes_do_not_stop_the_fit(tmp_path: Path) 
     assert [Path(entry["path"]).name for entry in profile.fitted["unreadable"]] == ["broken.png"]
 
 
+@pytest.mark.slow
 def test_the_cli_fits_writes_and_refuses_with_one_line(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
     captured = _write(
         _captures(Noise(levels=torch.full((3, 4), 4.0 / 255), linear=False), count=MIN_IMAGES),
@@ -293,6 +300,7 @@ def test_the_cli_fits_writes_and_refuses_with_one_line(tmp_path: Path, capsys: p
     assert "give either PAIRS or --unpaired" in capsys.readouterr().err
 
 
+@pytest.mark.slow  # the combined camera's fit (a module fixture) takes most of it
 def test_the_unpaired_diagnosis_reads_the_statistics_the_fit_matched(
     tmp_path: Path, combined: CameraProfile, combined_captures: list[torch.Tensor], clean: list[torch.Tensor]
 ) -> None:

@@ -1,19 +1,26 @@
 """The fitting recipes' values and fields, in one place and without torch.
 
-:class:`~camdegrade.fitting.FitConfig` has one field per entry of :data:`FIELDS` (a test holds them equal), and the
-command line derives its recipe options (``camdegrade fit``/``distill``: type, help, the default shown) from the same
-entries, so a new recipe field cannot be left out of either.
+A recipe is its training values (one :class:`~camdegrade.fitting.FitConfig` field each), the share of scenes that
+validates, and one ordered tuple of fit steps with their options (``steps``: ``(name, options)`` pairs; the classes
+are in :mod:`camdegrade.fitting.steps`). :data:`FIELDS` is the one table of what can be set: each entry is a
+``FitConfig`` field, an option of a step (``step="effects.names"``) or a choice that says whether some steps run
+(``toggles``). The command line makes its recipe options from it (``camdegrade fit``/``distill``: type, help, the
+default shown), ``FitConfig`` checks every value by it (:func:`check_value`), and ``FitConfig.replace`` maps a step's
+field onto its step, so a new recipe field cannot be left out of any of them.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Any
 
+from camdegrade._checks import check_seed
+
 #: camdegrade's default recipe: many small steps on small windows (batches of 8 windows of 64², 32 per pair and
 #: epoch: the pixels of 8 windows of 128², in four times the steps), Adam on a cosine schedule over 10 epochs,
-#: stopping early once the validation PSNR stops rising (``patience`` epochs without 0.01 dB of progress). Chosen on
-#: City100 and a simulated camera (``examples/recipe_comparison.py``, docs/fitting.md).
+#: stopping early once the validation PSNR stops rising (``patience`` epochs without 0.01 dB of progress). Chosen by
+#: the time to a good network (docs/results.md, *The recipes: time to a good network*).
 FAST: dict[str, Any] = {
     "epochs": 10,
     "crop": 64,
@@ -30,9 +37,13 @@ FAST: dict[str, Any] = {
     "upsample": "bilinear",
     "curves": "channel",
     "val_fraction": 0.15,
-    "effects": ("noise", "vignetting"),
-    "texture": "match",
-    "sensor_scale": "auto",
+    "steps": (
+        ("resolution", {"scale": "auto"}),
+        ("effects", {"names": ("noise", "vignetting")}),
+        ("texture", {}),
+        ("denoise", {}),
+        ("response", {}),
+    ),
 }
 #: The paper's schedule (Hegde et al.): 100 epochs, Adam at lr 0.01 halved every 30 epochs, batch 32, no early stop;
 #: 8 windows of 128² per pair and epoch.
@@ -47,33 +58,36 @@ PAPER: dict[str, Any] = {
     "patience": 0,
     "arch": "paper",
     "curves": "none",
-    "texture": "none",
-    "sensor_scale": 1.0,
+    "steps": (("resolution", {"scale": 1.0}), ("effects", {"names": ("noise", "vignetting")})),
 }
 RECIPES: dict[str, dict[str, Any]] = {"fast": FAST, "paper": PAPER}
-
-#: The values of the network's training (recorded as a profile's ``fitted['recipe']`` and in a checkpoint); the
-#: other fields say how the pairs are split and which effect stages follow the network.
-TRAINING_FIELDS: tuple[str, ...] = tuple(
-    name for name in FAST if name not in ("val_fraction", "effects", "texture", "sensor_scale")
-)
 
 
 @dataclass(frozen=True)
 class RecipeField:
-    """One recipe value as the command line offers it: ``kind`` names the rule its text must meet (``count``: an
-    integer >= 1, ``count0``: >= 0, ``number``: > 0, ``fraction``: in [0, 1), ``seed``, ``choice``: one of
-    ``choices``, ``names``: any number of names, none for the empty tuple, ``sensor``: ``auto`` or a number from
-    :data:`MIN_SENSOR_SCALE` to 1)."""
+    """One recipe value as the command line offers it: ``kind`` names the rule it must meet (``count``: an integer
+    >= 1, ``count0``: >= 0, ``number``: > 0, ``fraction``: in [0, 1), ``seed``, ``choice``: one of ``choices``,
+    ``names``: any number of names, none for the empty tuple, ``sensor``: ``auto`` or a number from
+    :data:`MIN_SENSOR_SCALE` to 1). Where it lives: a ``FitConfig`` field of its name; or ``step``, an option of a fit
+    step (``"effects.names"``); or ``toggles``, steps that run where its value is its first choice and not where it
+    is ``"none"``. ``note`` finishes the message that refuses a value (``count0``: what 0 means)."""
 
     name: str
     kind: str
     help: str
     choices: tuple[str, ...] = ()
+    step: str = ""
+    toggles: tuple[str, ...] = ()
+    note: str = ""
 
     @property
     def option(self) -> str:
         return "--" + self.name.replace("_", "-")
+
+    @property
+    def plain(self) -> bool:
+        """Whether it is a field of ``FitConfig`` itself (not a step's)."""
+        return not (self.step or self.toggles)
 
 
 SCHEDULES: tuple[str, ...] = ("step", "cosine")
@@ -87,8 +101,8 @@ UPSAMPLINGS: tuple[str, ...] = ("bilinear", "smooth")
 CURVES: tuple[str, ...] = ("none", "channel")
 TRAIN_PRECISIONS: tuple[str, ...] = ("auto", "float32", "bfloat16")
 #: ``match``: after the effect stages, a blur and a sharpening that match the profile's band power to the captures'
-#: (:mod:`camdegrade.fitting.texture`), then a noise reduction that matches its faint detail to theirs
-#: (:mod:`camdegrade.fitting.faint_detail`), each where the validation pairs confirm it; ``none``: no such stages.
+#: (:mod:`camdegrade.fitting.steps.texture`), then a noise reduction that matches its faint detail to theirs
+#: (:mod:`camdegrade.fitting.steps.denoise`), each where the validation pairs confirm it; ``none``: no such stages.
 TEXTURES: tuple[str, ...] = ("match", "none")
 #: The smallest sensor scale a recipe accepts (``camdegrade.effects.Resolution.MIN_SCALE``; a test keeps them equal).
 MIN_SENSOR_SCALE = 0.125
@@ -105,7 +119,10 @@ FIELDS: tuple[RecipeField, ...] = (
         "schedule", "choice", "how the learning rate moves: halved in steps, or along a half cosine", SCHEDULES
     ),
     RecipeField(
-        "patience", "count0", "stop after N epochs without a better validation PSNR (by 0.01 dB), 0 never stops"
+        "patience",
+        "count0",
+        "stop after N epochs without a better validation PSNR (by 0.01 dB), 0 never stops",
+        note="0: no early stopping",
     ),
     RecipeField(
         "precision",
@@ -134,25 +151,79 @@ FIELDS: tuple[RecipeField, ...] = (
         CURVES,
     ),
     RecipeField("val_fraction", "fraction", "share of scenes held out to choose the best epoch"),
-    RecipeField("effects", "names", "effect stages fitted after the network, from the registry (none: network only)"),
+    RecipeField(
+        "effects",
+        "names",
+        "effect stages fitted after the network, from the registry (none: network only)",
+        step="effects.names",
+    ),
     RecipeField(
         "texture",
         "choice",
         "match: add a blur, a sharpening and a noise reduction that match the captures' band power and faint "
         "detail, where validation confirms it",
         TEXTURES,
+        toggles=("texture", "denoise", "response"),
     ),
     RecipeField(
         "sensor_scale",
         "sensor",
         "a camera that upscales: its sensor's resolution relative to its output (0.5: every other pixel "
         "sampled), the network trained through it; auto: found from the captures (1/2, 1/3, 1/4); 1: none",
+        step="resolution.scale",
     ),
 )
+FIELD: dict[str, RecipeField] = {field.name: field for field in FIELDS}
+
+#: The values of the network's training (recorded as a profile's ``fitted['recipe']`` and in a checkpoint); the
+#: other fields say how the pairs are split and which steps follow.
+TRAINING_FIELDS: tuple[str, ...] = tuple(field.name for field in FIELDS if field.plain and field.name != "val_fraction")
+#: The effect stages a recipe fits after the network unless told otherwise.
+DEFAULT_EFFECTS: tuple[str, ...] = dict(FAST["steps"])["effects"]["names"]
+
+
+def field_value(field: RecipeField, values: dict[str, Any], steps: list[tuple[str, dict[str, Any]]]) -> Any:
+    """``field``'s value in a recipe of plain ``values`` and ``steps`` (``(name, options)`` pairs): a step option
+    (``None`` where that step is not in the recipe), or a toggle's first choice where all its steps are in the recipe
+    and ``"none"`` where none is (``None`` for some)."""
+    if field.plain:
+        return values[field.name]
+    present = dict(steps)
+    if field.step:
+        name, option = field.step.split(".")
+        return present[name].get(option) if name in present else None
+    found = [name in present for name in field.toggles]
+    return field.choices[0] if all(found) else "none" if not any(found) else None
 
 
 def recipe_default(key: str) -> str:
     """``key``'s value in each recipe, for help text: ``"15; paper: 100"``, or one value where they agree."""
-    fast, paper = FAST[key], PAPER[key]
+    fast, paper = (field_value(FIELD[key], recipe, list(recipe["steps"])) for recipe in (FAST, PAPER))
     shown = (" ".join(fast) or "none") if isinstance(fast, tuple) else f"{fast}"
     return shown if fast == paper else f"{shown}; paper: {paper}"
+
+
+def check_value(field: RecipeField, value: Any) -> None:
+    """Refuse a value of ``field`` that breaks its kind's rule, naming the field and the value (``names`` are checked
+    by the step they belong to, against the effect registry)."""
+    name = field.name
+    if field.kind in ("count", "count0"):
+        low = 1 if field.kind == "count" else 0
+        if isinstance(value, bool) or not isinstance(value, int) or value < low:
+            rule = "a positive integer" if low else f"an integer >= 0 ({field.note})"
+            raise ValueError(f"{name} must be {rule}, got {name}={value!r}")
+    elif field.kind == "number":
+        if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+            raise ValueError(f"{name} must be a positive number, got {name}={value!r}")
+    elif field.kind == "fraction":
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0.0 <= value < 1.0:
+            raise ValueError(f"{name} must be in [0, 1), got {name}={value!r}")
+    elif field.kind == "choice":
+        if value not in field.choices:
+            raise ValueError(f"{name} must be one of {field.choices}, got {name}={value!r}")
+    elif field.kind == "seed":
+        check_seed(value, name)
+    elif field.kind == "sensor":
+        number = not isinstance(value, bool) and isinstance(value, (int, float))
+        if value != "auto" and not (number and MIN_SENSOR_SCALE <= value <= 1):
+            raise ValueError(f"{name} must be 'auto' or a number from {MIN_SENSOR_SCALE} to 1, got {name}={value!r}")

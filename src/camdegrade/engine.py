@@ -20,6 +20,24 @@ from camdegrade.functional.geometry import centered_coordinates, remap_labels
 from camdegrade.inference import Precision
 from camdegrade.profile import CameraProfile, EffectParams
 
+__all__ = [
+    "BOX_EDGE_POINTS",
+    "CHUNK_PIXELS",
+    "FLOAT_DTYPES",
+    "DeviceCopies",
+    "check_image_shape",
+    "check_image_tensor",
+    "degrade_frames",
+    "degrade_selected",
+    "one_warp",
+    "params_on",
+    "select_params",
+    "warp_boxes",
+    "warp_keypoints",
+    "warp_mask",
+    "warp_points",
+]
+
 #: On the CPU, frames are degraded in chunks of about this many pixels: a chunk's working tensors then stay in
 #: the CPU's L2 cache, where the memory-bound elementwise stages run several times faster than on a whole batch.
 CHUNK_PIXELS = 1 << 17

@@ -2,6 +2,18 @@
 
 from __future__ import annotations
 
+__all__ = [
+    "BatchError",
+    "CamdegradeError",
+    "ImageError",
+    "PairsError",
+    "PlainTensorsWarning",
+    "ProfileError",
+    "ProfileTypeError",
+    "UnknownPresetError",
+    "UnknownProfileError",
+]
+
 
 class CamdegradeError(Exception):
     """Base class of every error camdegrade raises on purpose."""

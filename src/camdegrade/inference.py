@@ -25,6 +25,26 @@ from camdegrade.network import (
 )
 from camdegrade.synthetic import dead_leaves_images
 
+__all__ = [
+    "FILTER_OUTPUTS",
+    "MATRIX_UPSAMPLING_MAX",
+    "PRECISIONS",
+    "SPARSE_MAX_LIVE",
+    "SPARSE_MIN_PIXELS",
+    "CpuInference",
+    "CpuPlan",
+    "LocalAffineInference",
+    "Precision",
+    "byte_curve",
+    "cpu_inference",
+    "native_bfloat16",
+    "probe_channel_order",
+    "resolve_precision",
+    "run_network",
+    "upsampled_field",
+    "upsampling_matrix",
+]
+
 #: How the network runs at inference: ``"float32"`` is the reference; ``"bfloat16"`` runs the convolutions and
 #: products in bfloat16; ``"auto"`` picks bfloat16 where the device computes it natively, else float32.
 Precision = Literal["auto", "float32", "bfloat16"]
@@ -139,8 +159,8 @@ class CpuInference:
     - ReLU leaves many encoder channels at zero over a whole image (about half of them for the built-in profiles
       on natural photos). In float32, from :data:`SPARSE_MIN_PIXELS` encoder pixels up, the first decoder product
       leaves those out; they contribute exact zeros, so only the rounding order changes. In native bfloat16, where
-      gathering the live columns costs more than the half product it saves (0.57 ms against 0.53 ms for a 224²
-      image on an AMD EPYC with AVX-512 BF16), the channels are ordered once by a probe
+      gathering the live columns costs more than the half product it saves (docs/performance.md, *The CPU plans'
+      choices*), the channels are ordered once by a probe
       (:func:`probe_channel_order`) and the product runs over the prefix that ends at the last live one.
     - The pointwise curves (``curves=True``) run in float32; a byte image's input curve is a table lookup
       (:func:`byte_curve`, the same values).
@@ -277,10 +297,8 @@ class LocalAffineInference:
       with its 3 outputs padded by zeros to :data:`FILTER_OUTPUTS`.
     - Images are computed one at a time, so each gets the same bytes alone as in any batch or chunk.
 
-    Measured with 2 threads, one 224² photograph, the built-in ``city100-iphonex``'s network: on an AMD EPYC (Zen 3,
-    AVX2) in float32 10.1 ms against the module's 17.9 ms on channels-last input (the paper network's plan of the
-    same width: 7.3–8.1 ms); on a Xeon with AMX in bfloat16 3.7 ms (the paper network's plan: 2.4 ms), of which the
-    float32 filter takes 1.4 ms and the field's upsampling 0.6 ms.
+    About half the module's time in float32; measured against it and the paper network's plan in
+    docs/performance.md, *The CPU plans' choices*.
 
     Args:
         network: the module; its weights are copied once (see :func:`cpu_inference`, which rebuilds the plan when
@@ -373,7 +391,7 @@ class LocalAffineInference:
     def _decode1(self, pixels: Tensor) -> Tensor:
         """ReLU of the first decoder product for one image's encoder ``pixels`` ``(M, C)``: in float32 without the
         channels that are zero over the image; in bfloat16 whole (a column gather costs more than it saves there:
-        see :meth:`CpuInference._decode1`; 0.87 ms against 0.22 ms for a 224² image on a Xeon with AMX, 2 threads)."""
+        see :meth:`CpuInference._decode1` and docs/performance.md, *The CPU plans' choices*)."""
         weight, bias = self.decode[0]
         if self.dtype == torch.float32:
             return _live_linear_relu(pixels, weight, bias)
@@ -383,23 +401,20 @@ class LocalAffineInference:
 
 
 #: The local-affine plan's 7×7 filter computes this many outputs (3, then zeros): oneDNN's channels-last kernel is
-#: faster with 8 than with 3 on an AMD EPYC Zen 3 (1.3–1.6 ms against 1.6–2.3 ms for a 224² image, 2 threads); on a
-#: Xeon with AVX-512 both take 1.4 ms.
+#: faster with 8 than with 3 on AVX2, and as fast on AVX-512 (docs/performance.md, *The CPU plans' choices*).
 FILTER_OUTPUTS = 8
 
 
 #: Fields of at most this many rows and columns (images up to 256²) are upsampled by two small matrix products;
-#: larger ones by interpolation, whose cost grows with the pixels alone. For a 224² image's 12-channel field: 0.38 ms
-#: against 0.96 ms on a Xeon with AMX, 0.82 against 0.94 on an AMD EPYC Zen 3; at 128 rows the interpolation is
-#: already as fast (2 threads).
+#: larger ones by interpolation, whose cost grows with the pixels alone: the products are faster up to here, and the
+#: interpolation as fast from 128 rows (docs/performance.md, *The CPU plans' choices*).
 MATRIX_UPSAMPLING_MAX = 64
 
 
 def byte_curve(knots: Tensor) -> Tensor:
     """The curve through ``knots`` ``(3, K)`` at every byte value, per channel, flattened ``(3 · 256,)``: exactly what
     :func:`~camdegrade.network.piecewise_linear` gives a byte image read as ``value / 255`` (the same arithmetic on
-    the same floats), in a lookup of about half its time (0.55 against 0.97–1.27 ms for a 224² image, AMD EPYC Zen 3,
-    2 threads)."""
+    the same floats), in a lookup of about half its time (docs/performance.md, *The CPU plans' choices*)."""
     values = bytes_to_unit(torch.arange(256, dtype=torch.uint8)).expand(1, 3, 1, 256)
     return piecewise_linear(values, knots).reshape(-1)
 
@@ -486,8 +501,8 @@ def probe_channel_order(network: DomainShiftNet) -> Tensor:
 def _use_fused_kernels(dtype: torch.dtype) -> bool:
     """Whether to call oneDNN's fused kernels (private torch ops that torch.compile uses): for native bfloat16 only.
 
-    They raise for bfloat16 on CPUs without it, and in float32 they are no faster than the plain ops at 224² and
-    cost about 0.1 ms more per call on small images (measured on an AVX2 CPU)."""
+    They raise for bfloat16 on CPUs without it, and in float32 they are no faster than the plain ops and cost more
+    per call on small images (docs/performance.md, *The CPU plans' choices*)."""
     return dtype == torch.bfloat16 and _FUSED_CONV is not None and _FUSED_LINEAR is not None and _cpu_native_bfloat16()
 
 

@@ -20,6 +20,18 @@ from camdegrade._files import atomic_path, folder_relation
 from camdegrade._pixels import NOT_FINITE, SCALE_HINT, as_unit, off_unit_scale, unit_to_bytes
 from camdegrade.errors import ImageError
 
+__all__ = [
+    "IMAGE_EXTENSIONS",
+    "MAX_PIXELS",
+    "input_images",
+    "is_image_path",
+    "iter_images",
+    "read_image",
+    "read_image_size",
+    "to_rgb",
+    "write_image",
+]
+
 #: File extensions read as images (compared case-insensitively).
 _ORIENTATION_TAG = ExifTags.Base.Orientation
 _TRANSPOSED_ORIENTATIONS = frozenset({5, 6, 7, 8})  # EXIF orientations that swap width and height

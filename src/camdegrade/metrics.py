@@ -8,6 +8,8 @@ from torch import Tensor
 
 from camdegrade._pixels import as_unit
 
+__all__ = ["psnr", "ssim"]
+
 
 def psnr(prediction: Tensor, target: Tensor) -> float:
     """Peak signal-to-noise ratio in dB over all pixels, for uint8 or [0, 1] float images of equal shape."""

@@ -15,6 +15,24 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
+__all__ = [
+    "ARCHITECTURES",
+    "CURVE_KNOTS",
+    "FIELD_CHANNELS",
+    "FIELD_SMOOTHING",
+    "FIELD_UPSAMPLING",
+    "LINEAR_TAPS",
+    "MAX_WIDTH",
+    "SIZE_MULTIPLE",
+    "DomainShiftNet",
+    "LocalAffineNet",
+    "ShiftNetwork",
+    "build_network",
+    "check_batch",
+    "piecewise_linear",
+    "smoothed",
+]
+
 #: Total down-sampling of the encoder; inputs are padded to a multiple of this.
 SIZE_MULTIPLE = 4
 #: The widest network built (the paper's is 64): 1024 channels are 27 M parameters, 110 MB. A profile's metadata
@@ -110,10 +128,10 @@ LINEAR_TAPS = 7
 FIELD_CHANNELS = 12
 #: How :class:`LocalAffineNet` brings its quarter-resolution colour field to full resolution. ``"bilinear"`` (the
 #: default): a bilinear field changes slope every 4 pixels, which a trained network can print as a faint grid;
-#: ``"smooth"``: bilinear, then :data:`FIELD_SMOOTHING` along each axis. Not the default: on City100 with the fast
-#: recipe its fit stopped at the linear baseline's validation PSNR (29.59 dB at epoch 1 of 5, held-out 29.86 dB)
-#: where the bilinear field's reached 30.39 dB (held-out 30.72 dB; docs/fitting.md). Profiles written before this
-#: choice existed hold no ``upsample`` key and load as ``"bilinear"``.
+#: ``"smooth"``: bilinear, then :data:`FIELD_SMOOTHING` along each axis. Not the default: with the fast recipe its
+#: fits have stopped early at a lower PSNR than the bilinear field's (docs/results.md, *The two networks, the colour
+#: field and the pointwise curves*). Profiles written before this choice existed hold no ``upsample`` key and load
+#: as ``"bilinear"``.
 FIELD_UPSAMPLING = ("bilinear", "smooth")
 #: ``[1 2 2 2 1] / 8`` = a 4-tap box convolved with a 2-tap box: it keeps a constant field exactly, puts zeros at
 #: 1/4 and 1/2 cycles/pixel (the period-4 harmonics), and after bilinear upsampling (itself two 4-tap boxes and a
@@ -138,11 +156,11 @@ class LocalAffineNet(ShiftNetwork):
     pointwise curves, one per channel (piecewise linear through :data:`CURVE_KNOTS` values, the identity at first).
     A camera's lens blurs linear light and its tone curve follows: ``f`` can decode, ``K`` blur, ``g`` apply the tone
     curve, at every pixel, where the smooth field alone bends its transform across an edge at a quarter of the
-    resolution and prints that every 4 pixels (a soft camera with a tone curve: grid ratio 3.3 without the curves,
-    1.2 with them; docs/fitting.md).
+    resolution and prints that every 4 pixels (measured with and without the curves: docs/results.md, *The two
+    networks, the colour field and the pointwise curves*).
 
     Initialised to pass the image through (``K`` the identity, ``A`` the identity, ``b`` zero); a fit starts it
-    from a least-squares linear baseline (:func:`camdegrade.fitting.baseline.fit_linear_baseline`). About the
+    from a least-squares linear baseline (:func:`camdegrade.fitting.network.baseline.fit_linear_baseline`). About the
     paper network's arithmetic per pixel (its encoder dominates both).
 
     Args:

@@ -15,7 +15,7 @@ from safetensors.torch import save_file
 from torch import Tensor, nn
 
 from camdegrade._files import atomic_path
-from camdegrade._pixels import bytes_to_unit
+from camdegrade._pixels import bytes_to_unit, unit_to_bytes
 from camdegrade._profile_format.check import listing, network_class, network_config
 from camdegrade._profile_format.header import FORMAT_NAME as FORMAT_NAME
 from camdegrade._profile_format.header import FORMAT_VERSION as FORMAT_VERSION
@@ -26,12 +26,15 @@ from camdegrade._profile_format.header import list_profiles as list_profiles
 from camdegrade._profile_format.header import read_header
 from camdegrade._profile_format.header import resolve_profile_path as resolve_profile_path
 from camdegrade._profile_format.header import serialize_metadata as serialize_metadata
+from camdegrade._seeds import derived_generator
 from camdegrade._version import __version__
 from camdegrade.effects import STAGES, Effect, build_effect
 from camdegrade.effects.chain import apply_effects, check_chain, check_params
 from camdegrade.errors import ProfileError
 from camdegrade.inference import Precision, run_network
 from camdegrade.network import ARCHITECTURES, ShiftNetwork
+
+__all__ = ["CameraProfile", "EffectParams", "as_profile", "check_profile_values", "load_profile"]
 
 EffectParams = list[dict[str, Tensor]]
 
@@ -116,6 +119,32 @@ class CameraProfile(nn.Module):
         if self.effects:
             image, owned = apply_effects(self.effects, params, image, overwrite=owned), True
         return image.clamp_(0.0, 1.0) if owned and not image.requires_grad else image.clamp(0.0, 1.0)
+
+    def simulate(
+        self,
+        images: Sequence[Tensor],
+        seed: int,
+        *,
+        stream: str = "simulate",
+        deterministic: bool = False,
+        eight_bit: bool = False,
+    ) -> list[Tensor]:
+        """This profile applied to each image ``(3, H, W)``, image ``i`` drawing from ``(seed, stream, i)``
+        (:func:`~camdegrade._seeds.derived_generator`): the same images for the same seed in any process, whatever
+        else is simulated around them. The one seeded simulation of fitting, diagnosis and the unpaired fit.
+
+        ``deterministic`` runs the deterministic part (:meth:`without_randomness`): the conditional mean that
+        candidate stages are fitted against. ``eight_bit`` rounds each output to 8-bit values, as a file stores it.
+        """
+        profile = self.without_randomness() if deterministic else self
+        out = []
+        with torch.no_grad():
+            for index, image in enumerate(images):
+                batch = image[None]
+                params = profile.make_params(batch.shape, derived_generator(seed, stream, index))
+                output = profile(batch, params)[0]
+                out.append(bytes_to_unit(unit_to_bytes(output)) if eight_bit else output)
+        return out
 
     def with_effects(self, *effects: Effect) -> CameraProfile:
         """A copy of this profile with ``effects`` added, each inserted after the last stage of its kind or earlier."""

@@ -27,6 +27,8 @@ from camdegrade.errors import BatchError, UnknownPresetError
 from camdegrade.functional.geometry import shrink_to_max_side
 from camdegrade.io import input_images, read_image, write_image
 
+__all__ = ["PRESETS", "CameraParams", "Preset", "VirtualCamera", "simulate_pairs"]
+
 CameraParams = list[dict[str, Tensor]]
 
 

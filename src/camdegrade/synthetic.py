@@ -24,6 +24,8 @@ from torch import Tensor
 from camdegrade._pixels import bytes_to_unit, unit_to_bytes
 from camdegrade._seeds import derived_generator
 
+__all__ = ["COVERAGE", "MIN_RADIUS", "dead_leaves_image", "dead_leaves_images"]
+
 #: Discs smaller than this (pixels) are not drawn: near a pixel they would only add aliasing.
 MIN_RADIUS = 2.0
 #: How many times the discs cover the canvas on average: at 4, less than 2 % of it shows the background.

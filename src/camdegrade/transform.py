@@ -33,6 +33,8 @@ from camdegrade.errors import PlainTensorsWarning
 from camdegrade.inference import Precision, resolve_precision
 from camdegrade.profile import CameraProfile, EffectParams, as_profile
 
+__all__ = ["TARGETS", "CameraDegrade"]
+
 _MAIN_PROCESS = -1
 #: The targets that move with the image when a profile moves pixels (distortion, misalignment).
 TARGETS = (tv_tensors.Mask, tv_tensors.BoundingBoxes, tv_tensors.KeyPoints)

@@ -28,7 +28,8 @@ def add_pair_options(parser: argparse.ArgumentParser, *, loading: bool) -> None:
         "--strict",
         action="store_true",
         help="treat every warning as an error: fail on any unmatched, unreadable or tiny file before training, "
-        "and write no profile that does worse than the identity on the validation pairs",
+        "and write no profile that has a warning (one that does worse than the identity on the validation pairs; "
+        "with --unpaired, one whose own check of noise and spectrum fails)",
     )
     parser.add_argument("--align", action="store_true", help="register each pair (sub-pixel shift) before training")
     parser.add_argument(
@@ -41,7 +42,7 @@ def add_pair_options(parser: argparse.ArgumentParser, *, loading: bool) -> None:
 
 def discover(args: argparse.Namespace):
     """The discovery report of ``args.pairs`` with the command's options (the only discovery of the command)."""
-    from camdegrade.fitting.pairs import discover_pairs
+    from camdegrade.pairs.discovery import discover_pairs
 
     return discover_pairs(
         args.pairs,

@@ -1,6 +1,8 @@
-"""The recipe options of ``fit`` and ``distill``, derived from the recipe fields (:data:`camdegrade._recipes.FIELDS`,
-one per :class:`~camdegrade.fitting.FitConfig` field): each field's option, type, help and the default it shows come
-from there, so a new recipe field cannot be forgotten here. Left out, an option keeps the recipe's value."""
+"""The recipe options of ``fit`` and ``distill``, derived from the recipe fields (:data:`camdegrade._recipes.FIELDS`:
+each a :class:`~camdegrade.fitting.FitConfig` field, an option of a fit step such as ``--effects`` and
+``--sensor-scale``, or ``--texture``, which says whether some steps run): each field's option, type, help and the
+default it shows come from there, so a new recipe field cannot be forgotten here. Left out, an option keeps the
+recipe's value; given, ``FitConfig.replace`` puts it where the table says."""
 
 from __future__ import annotations
 

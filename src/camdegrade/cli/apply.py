@@ -9,6 +9,8 @@ from camdegrade._text import printable
 from camdegrade.cli._common import add_profile, add_threads, list_failures, probability, seed
 from camdegrade.errors import BatchError
 
+__all__ = ["add_parser", "run"]
+
 
 def add_parser(commands: argparse._SubParsersAction) -> None:
     apply = commands.add_parser("apply", help="degrade an image file, or every image in a folder (recursively)")

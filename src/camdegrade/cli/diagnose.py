@@ -22,6 +22,8 @@ from camdegrade.cli._common import (
 )
 from camdegrade.cli._pairs import PAIRS_LAYOUTS, add_pair_options, discover, report_files
 
+__all__ = ["NOT_OFFERED", "add_parser", "run"]
+
 #: ``diagnose`` keywords the command does not offer, and why.
 NOT_OFFERED = {
     "held_out": "the command splits PAIRS by scene",
@@ -83,7 +85,7 @@ def run(args: argparse.Namespace) -> int:
         if skipped:  # a dropped pair is never silent, even with --quiet
             print(f"{len(skipped)} file(s) skipped while loading the pairs (see the JSON report's 'skipped')")
     _write(report, args)
-    from camdegrade.fitting.pairs import UNREADABLE
+    from camdegrade.pairs.pair import UNREADABLE
 
     unreadable = [entry for entry in getattr(report, "skipped", []) if entry["reason"].startswith(UNREADABLE)]
     fail_on_unreadable(unreadable, "the diagnosis used the other pairs")

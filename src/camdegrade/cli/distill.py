@@ -12,7 +12,9 @@ from camdegrade.cli._common import add_profile, add_threads, check_outputs, chec
 from camdegrade.cli._recipe import add_recipe_options, check_schedule_options, recipe_changes
 from camdegrade.errors import CamdegradeError
 
-#: The student's width unless told (``camdegrade.fitting.distill.DEFAULT_WIDTH``, here without importing torch).
+__all__ = ["NOT_OFFERED", "STUDENT_WIDTH", "add_parser", "run"]
+
+#: The student's width unless told (``camdegrade.fitting.network.distill.DEFAULT_WIDTH``, here without importing torch).
 STUDENT_WIDTH = 32
 #: Recipe fields distill does not offer, and why.
 NOT_OFFERED = {"effects": "the teacher's effect stages are copied, none is fitted"}
@@ -45,8 +47,8 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from camdegrade.fitting.distill import distill_profile
-    from camdegrade.fitting.training import FitConfig
+    from camdegrade.fitting.network.distill import distill_profile
+    from camdegrade.fitting.recipe import FitConfig
     from camdegrade.profile import resolve_profile_path
 
     recipe = FitConfig.recipe(args.recipe, **{"width": STUDENT_WIDTH, **recipe_changes(args)})

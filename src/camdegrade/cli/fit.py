@@ -10,6 +10,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from camdegrade._recipes import FIELDS
 from camdegrade._text import printable
 from camdegrade.cli._common import (
     add_threads,
@@ -20,9 +21,50 @@ from camdegrade.cli._common import (
     say,
 )
 from camdegrade.cli._pairs import PAIRS_LAYOUTS, add_pair_options, discover, report_files
-from camdegrade.cli._quality import quality_lines
 from camdegrade.cli._recipe import add_recipe_options, check_schedule_options, recipe_changes
 from camdegrade.errors import CamdegradeError
+from camdegrade.summary import quality_lines
+
+__all__ = ["add_parser", "run"]
+
+#: What ``fit --unpaired`` does with each of ``fit``'s options (by ``dest``; ``tests/test_unpaired_cli.py`` builds the
+#: parser and holds every option to one of the two): passed on to :func:`~camdegrade.fitting.unpaired.fit_unpaired`
+#: (``--max-pairs`` as ``max_images``, ``--threads`` by the command line for every command; ``--device``: the
+#: unpaired fit runs on the CPU, another device is refused) ...
+UNPAIRED_USES: tuple[str, ...] = (
+    "unpaired",
+    "clean",
+    "output",
+    "seed",
+    "effects",
+    "sensor_scale",
+    "max_pairs",
+    "strict",
+    "threads",
+    "device",
+    "name",
+    "description",
+    "quiet",
+)
+_NO_NETWORK = "an unpaired profile has no network to train"
+#: ... or refused by name when given, with the reason.
+UNPAIRED_REFUSES: dict[str, str] = {
+    "pairs": "give either PAIRS or --unpaired CAPTURED",
+    "recipe": _NO_NETWORK,
+    **{field.name: _NO_NETWORK for field in FIELDS if field.name not in UNPAIRED_USES},
+    "val_fraction": "no pairs are held out: each stage is checked on random halves of the two sets",
+    "texture": "the unpaired fit matches the captures' spectrum with its own stages (blur, sharpen, "
+    "frequency_response: choose them with --effects)",
+    "clean_suffix": "the unpaired fit reads two folders (CAPTURED and --clean), not pairs",
+    "captured_suffix": "the unpaired fit reads two folders (CAPTURED and --clean), not pairs",
+    "align": "there are no pairs to register",
+    "size_mismatch": "there are no pairs to match: images of any sizes are read as they are",
+    "init_from": _NO_NETWORK,
+    "checkpoint": "the unpaired fit writes no checkpoint",
+    "resume": "the unpaired fit writes no checkpoint",
+}
+#: Option values that mean "not given" besides ``None`` (the parser's defaults).
+_NOT_GIVEN: dict[str, object] = {"recipe": "fast", "size_mismatch": "skip", "align": False, "resume": False}
 
 
 def add_parser(commands: argparse._SubParsersAction) -> None:
@@ -71,8 +113,9 @@ def run(args: argparse.Namespace) -> int:
 
     from camdegrade._distributed import is_distributed, is_main_process
     from camdegrade.fitting.fit import fit_profile, init_distributed_from_env
-    from camdegrade.fitting.pairset import PairSet
-    from camdegrade.fitting.training import FitConfig, FitInterrupted
+    from camdegrade.fitting.network.training import FitInterrupted
+    from camdegrade.fitting.recipe import FitConfig
+    from camdegrade.pairs.pairset import PairSet
 
     if (args.pairs is None) == (args.unpaired is None):
         raise ValueError("give either PAIRS or --unpaired CAPTURED, got " + ("both" if args.pairs else "neither"))
@@ -115,14 +158,19 @@ def run(args: argparse.Namespace) -> int:
 
 def _run_unpaired(args: argparse.Namespace) -> int:
     """``fit --unpaired CAPTURED [--clean CLEAN]``: :func:`~camdegrade.fitting.unpaired.fit_unpaired`, written."""
-    from camdegrade.fitting.unpaired import fit_unpaired
+    from camdegrade.fitting.unpaired import UNPAIRED_EFFECTS, fit_unpaired
 
+    refuse_unpaired_options(args)
     check_suffix("--output", args.output)
     check_outputs({"--output": args.output}, [])
     profile = fit_unpaired(
         args.unpaired,
         args.clean,
+        effects=UNPAIRED_EFFECTS if args.effects is None else args.effects,
         seed=args.seed if args.seed is not None else 0,
+        sensor_scale=args.sensor_scale if args.sensor_scale is not None else "auto",
+        max_images=args.max_pairs,
+        strict=args.strict,
         progress=not args.quiet,
         name=args.name or args.output.stem,
         description=args.description,
@@ -135,6 +183,23 @@ def _run_unpaired(args: argparse.Namespace) -> int:
         print(f"camdegrade fit: warning: {warning}", file=sys.stderr)
     fail_on_unreadable(profile.fitted.get("unreadable", []), "the profile was fitted on the other images")
     return 0
+
+
+def refuse_unpaired_options(args: argparse.Namespace) -> None:
+    """A ``ValueError`` naming the first option given that ``fit --unpaired`` does not use (:data:`UNPAIRED_REFUSES`),
+    ``--effects`` with no names (network only) and a ``--device`` other than the CPU."""
+    for dest, why in UNPAIRED_REFUSES.items():
+        value = getattr(args, dest, None)
+        if dest != "pairs" and value is not None and value != _NOT_GIVEN.get(dest, False):
+            option = "--" + dest.replace("_", "-")
+            raise ValueError(f"{option} is not used with --unpaired ({why}), got {option} {printable(str(value))}")
+    if args.effects == []:
+        raise ValueError(
+            f"--no-effects (or --effects with no names: network only) is not used with --unpaired ({_NO_NETWORK}); "
+            "name the stages to fit with --effects"
+        )
+    if str(args.device).split(":")[0] != "cpu":
+        raise ValueError(f"--device {printable(str(args.device))} is not used with --unpaired (it runs on the CPU)")
 
 
 def _write(profile, args: argparse.Namespace, checkpoint: Path) -> None:

@@ -9,6 +9,8 @@ from camdegrade._text import printable
 from camdegrade.cli._common import add_threads, list_failures, positive_int, seed
 from camdegrade.errors import BatchError
 
+__all__ = ["add_parser", "run"]
+
 
 def add_parser(commands: argparse._SubParsersAction) -> None:
     simulate = commands.add_parser(

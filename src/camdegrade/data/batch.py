@@ -13,6 +13,8 @@ from camdegrade.data.policies import Bernoulli, MixPolicy
 from camdegrade.engine import check_image_shape, check_image_tensor, degrade_selected
 from camdegrade.profile import EffectParams
 
+__all__ = ["BatchDegrade"]
+
 
 class BatchDegrade(nn.Module):
     """Degrade some images of a collated batch, on the batch's device, after the DataLoader.

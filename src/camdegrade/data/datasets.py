@@ -17,6 +17,15 @@ from camdegrade.data.policies import Decision, MixPolicy, resolve_policy
 from camdegrade.profile import CameraProfile
 from camdegrade.transform import CameraDegrade
 
+__all__ = [
+    "DegradeLike",
+    "DegradedDataset",
+    "DegradedIterableDataset",
+    "IndexedDataset",
+    "as_camera_degrade",
+    "resolve_seed",
+]
+
 #: What a ``degrade`` argument may be: the transform itself, a profile, a built-in profile name or a profile path.
 DegradeLike = CameraDegrade | CameraProfile | str | os.PathLike
 

@@ -13,6 +13,18 @@ from typing import ClassVar
 from camdegrade._checks import check_int, check_probability
 from camdegrade.data._keys import item_uniform
 
+__all__ = [
+    "Alternate",
+    "Bernoulli",
+    "Decision",
+    "MixPolicy",
+    "PairedViews",
+    "Ratio",
+    "Schedule",
+    "Union",
+    "resolve_policy",
+]
+
 #: What :meth:`MixPolicy.decide` returns: one flag (return that view), or a tuple of flags (return a tuple of views).
 Decision = bool | tuple[bool, ...]
 

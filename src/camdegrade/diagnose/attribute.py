@@ -36,9 +36,10 @@ from camdegrade.diagnose.changes import KINDS, Change, check_kinds
 from camdegrade.diagnose.heldout import Baseline, HeldOut, ImagePairs
 from camdegrade.diagnose.search import Log, Round, Search
 from camdegrade.effects import EFFECTS, check_effect_names
-from camdegrade.fitting.pairset import simulate
 from camdegrade.measures import StatisticSet, family_gaps
 from camdegrade.profile import CameraProfile
+
+__all__ = ["MISFIT_KINDS", "Attribution", "attribute", "check_candidates", "keeping"]
 
 
 @dataclass
@@ -202,7 +203,7 @@ def _final(
     chosen = accepted[-1] if accepted else None
     final_profile = chosen.profile if chosen is not None and chosen.profile is not None else profile
     if chosen is not None and chosen.stats is not None:  # measured with the same draws when it was evaluated
-        final_stats, final_sims = chosen.stats, simulate(final_profile, held.cleans, held.seed, stream=held.stream)
+        final_stats, final_sims = chosen.stats, final_profile.simulate(held.cleans, held.seed, stream=held.stream)
     else:
         final_stats, final_sims = baseline.stats, baseline.sims
     final_null, _ = held.statistics(final_profile, null=True)

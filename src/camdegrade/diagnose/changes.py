@@ -10,14 +10,30 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, ClassVar
 
 from camdegrade.effects import EFFECTS, Effect
-from camdegrade.fitting.finetune import finetune_network
-from camdegrade.fitting.noise import replace_stage
+from camdegrade.fitting.in_chain import replace_stage
+from camdegrade.fitting.network.finetune import finetune_network
 from camdegrade.measures import FAMILIES, StatisticSet
 from camdegrade.measures.noise import NoiseLevel, noise_stage_text
 from camdegrade.profile import CameraProfile
 
 if TYPE_CHECKING:
     from camdegrade.diagnose.search import Round
+
+__all__ = [
+    "KINDS",
+    "AddEffect",
+    "Change",
+    "ChangeKind",
+    "Made",
+    "Plan",
+    "RefitNetwork",
+    "RefitStage",
+    "RemoveStage",
+    "add_effect",
+    "check_kinds",
+    "effect_params",
+    "without_stage",
+]
 
 
 @dataclass

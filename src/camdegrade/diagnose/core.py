@@ -16,11 +16,13 @@ from camdegrade.diagnose.critique import CRITIC_CHANCE, Critique, critiques
 from camdegrade.diagnose.report import DiagnosisReport, example_crops, flat_crops
 from camdegrade.diagnose.where import findings, visible
 from camdegrade.errors import PairsError
-from camdegrade.fitting.pairs import PairReport
-from camdegrade.fitting.pairset import PairSet, PairsSource
 from camdegrade.measures import check_explains
 from camdegrade.measures.visible import GridComparison, compare_grid
+from camdegrade.pairs.pair import PairReport
+from camdegrade.pairs.pairset import PairSet, PairsSource
 from camdegrade.profile import CameraProfile, as_profile
+
+__all__ = ["IMAGE_ONLY", "MIN_PAIRS", "REFIT_OPTIONS", "diagnose", "findings_of", "refit_command"]
 
 #: Fewest pairs on each side of the split: below this a held-out gap has no spread to judge it by, and the
 #: diagnosis refuses rather than state a verdict from one or two pairs.
@@ -33,9 +35,9 @@ REFIT_OPTIONS = ("-o", "REFIT.safetensors", "--epochs", "20", "--lr", "0.001")
 
 def diagnose(
     profile: CameraProfile | str | os.PathLike[str],
-    pairs: PairsSource,
+    pairs: PairsSource | PairSet,
     *,
-    held_out: PairsSource | None = None,
+    held_out: PairsSource | PairSet | None = None,
     calibration_fraction: float = 0.5,
     candidates: Iterable[str] | None = None,
     kinds: Iterable[str] | None = None,
@@ -51,10 +53,12 @@ def diagnose(
 
     Args:
         profile: a :class:`CameraProfile`, a built-in profile name or a ``.safetensors`` path.
-        pairs: REAL (clean, captured) pairs: a folder, CSV manifest or suffix-rule folder (as ``camdegrade fit``
-            takes), a :class:`~camdegrade.fitting.PairReport`, a list of ``Pair`` or of ``(clean, captured)``
-            tensors. They are split by scene into a calibration part (changes are fitted on it) and a held-out
-            part (every reported gap is measured on it).
+        pairs: REAL (clean, captured) pairs, as :func:`~camdegrade.fitting.fit_profile` takes them: a
+            :class:`~camdegrade.pairs.PairSet` (loaded with its options; see :meth:`PairSet.load`), or what it loads:
+            a folder, CSV manifest or suffix-rule folder (``clean_suffix``, ``captured_suffix``), a
+            :class:`~camdegrade.pairs.PairReport`, a list of ``Pair`` or of ``(clean, captured)`` tensors. They
+            are split by scene into a calibration part (changes are fitted on it) and a held-out part (every
+            reported gap is measured on it).
         held_out: give the held-out pairs explicitly; then ``pairs`` is the calibration part as a whole.
         calibration_fraction: share of scenes used for calibration when ``held_out`` is not given.
         candidates: effect names that may be added (default: every registered effect).

@@ -25,8 +25,10 @@ from dataclasses import dataclass, field
 from camdegrade.diagnose.attribute import Attribution
 from camdegrade.diagnose.changes import Change
 from camdegrade.diagnose.critique import CRITIC_CHANCE, Critique, critiques
-from camdegrade.fitting.pairset import PairSet, simulate
 from camdegrade.measures.visible import TEXTURE_LOG2, TextureComparison, compare_texture
+from camdegrade.pairs.pairset import PairSet
+
+__all__ = ["CriticCheck", "check_changes"]
 
 
 @dataclass
@@ -74,7 +76,7 @@ def check_changes(
     for index, change in enumerate(result.accepted):
         if change.profile is None:
             raise ValueError(f"accepted change {change.label!r} has no profile to simulate")
-        sims = simulate(change.profile, result.held.cleans, result.held.seed, stream=result.held.stream)
+        sims = change.profile.simulate(result.held.cleans, result.held.seed, stream=result.held.stream)
         after = critic(f"with {' + '.join(c.label for c in change.chain)} (image only)", sims)
         previous = check.steps[-1][1].result
         surer = after.result.accuracy > previous.high and after.result.low > CRITIC_CHANCE

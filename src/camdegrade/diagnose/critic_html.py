@@ -12,6 +12,8 @@ from typing import Any
 from camdegrade.diagnose._html import png_url, table
 from camdegrade.measures.critic_explain import SurePatch, surest_png
 
+__all__ = ["DETAIL_GAIN", "critic_section"]
+
 #: How much the fine detail the critic saw is amplified in the picture (0.5 + gain · detail; grey is none).
 DETAIL_GAIN = 4.0
 

@@ -24,6 +24,8 @@ from torch import Tensor
 from camdegrade.measures.critic import CriticResult, alternate_scenes
 from camdegrade.measures.critic_explain import CriticExplanation, crossfit_critic_test
 
+__all__ = ["CRITIC_CHANCE", "SUREST", "SUREST_PER_PAIR", "Critique", "critiques"]
+
 #: The critic "tells them apart" when the lower end of its 95 % interval is above this.
 CRITIC_CHANCE = 0.55
 #: Surest patches shown per class, and at most this many of a class from one pair.

@@ -8,11 +8,12 @@ from dataclasses import dataclass
 from torch import Tensor
 
 from camdegrade._seeds import derive_seed
-from camdegrade.fitting.pairset import simulate
 from camdegrade.functional.analysis import flat_mask
 from camdegrade.measures import StatisticSet, bootstrap_indices, family_gaps, gap, gap_spread
 from camdegrade.measures.gap import Scale, measurement_scale
 from camdegrade.profile import CameraProfile
+
+__all__ = ["BOOTSTRAP_ROUNDS", "MIN_REDUCTION", "MIN_RELATIVE", "SIGNIFICANCE", "Baseline", "HeldOut", "ImagePairs"]
 
 #: A reduction counts when it exceeds this many bootstrap standard errors ...
 SIGNIFICANCE = 3.0
@@ -64,7 +65,7 @@ class HeldOut:
         return gap(first, second, scale=self.scale)
 
     def statistics(self, profile: CameraProfile, *, null: bool = False) -> tuple[StatisticSet, list[Tensor]]:
-        sims = simulate(profile, self.cleans, self.seed, stream=self.stream + (".null" if null else ""))
+        sims = profile.simulate(self.cleans, self.seed, stream=self.stream + (".null" if null else ""))
         return StatisticSet.measure(sims, self.cleans, self.masks), sims
 
 

@@ -31,6 +31,8 @@ from camdegrade.measures.noise import NOISE_BINS, NoiseLevel
 from camdegrade.measures.spatial import TILES
 from camdegrade.profile import CameraProfile
 
+__all__ = ["REQUIRED_KEYS", "DiagnosisReport", "example_crops", "flat_crops", "render_html"]
+
 #: Keys every JSON report has at the top level (more follow them).
 REQUIRED_KEYS = ("gap_before", "gap_after", "noise_floor", "where", "effects", "added")
 

@@ -15,10 +15,11 @@ from camdegrade.diagnose.strength import refine_strength
 from camdegrade.effects import Effect
 from camdegrade.effects.base import evenly_spaced
 from camdegrade.errors import CamdegradeError
-from camdegrade.fitting.noise import fit_stage_in_chain
-from camdegrade.fitting.pairset import simulate
+from camdegrade.fitting.in_chain import fit_stage_in_chain
 from camdegrade.measures import StatisticSet, family_gaps, gap_spread
 from camdegrade.profile import CameraProfile
+
+__all__ = ["MIN_NOISE_PAIRS", "NOISE_PAIRS", "NOISE_PIXELS", "REFINE_PAIRS", "Log", "Round", "Search", "prefer_simpler"]
 
 #: Calibration pairs on which the strength of each fitted change is refined.
 REFINE_PAIRS = 12
@@ -104,7 +105,7 @@ class Round:
     def sources(self, profile: CameraProfile | None = None) -> list[Tensor]:
         """The deterministic output of ``profile`` (default: the current one) on the calibration images."""
         if profile is not None:
-            return simulate(profile, self.search.cleans, self.search.seed, stream="sources", deterministic=True)
+            return profile.simulate(self.search.cleans, self.search.seed, stream="sources", deterministic=True)
         if self._sources is None:
             self._sources = self.sources(self.current)
         return self._sources

@@ -11,6 +11,8 @@ import torch
 from camdegrade.diagnose.heldout import MIN_REDUCTION
 from camdegrade.effects import Effect
 
+__all__ = ["STRENGTHS", "refine_strength"]
+
 STRENGTHS = (0.6, 1.0, 1.6)
 
 

@@ -20,13 +20,12 @@ from torch import Tensor
 
 from camdegrade._pixels import as_unit
 from camdegrade.diagnose.report import DiagnosisReport
-from camdegrade.errors import ImageError
-from camdegrade.fitting.pairs import UNREADABLE
-from camdegrade.fitting.pairset import simulate
 from camdegrade.fitting.unpaired import MIN_IMAGES, unpaired_fidelity
-from camdegrade.io import iter_images, read_image
 from camdegrade.measures import NO_REFERENCE, image_statistics
+from camdegrade.pairs.folder import FolderImages, read_folder
 from camdegrade.profile import CameraProfile, as_profile
+
+__all__ = ["diagnose_unpaired"]
 
 
 def _stack(images: list[Tensor]) -> dict[str, Tensor]:
@@ -50,18 +49,11 @@ def _scores(a: dict[str, Tensor], b: dict[str, Tensor]) -> dict[str, float]:
 
 def _load(folder: Path, max_images: int | None, skipped: list[dict[str, str]]) -> list[Tensor]:
     """The first ``max_images`` readable images of ``folder`` as unit floats; the others go to ``skipped``."""
-    paths = sorted(iter_images(folder)) if folder.is_dir() else []
-    if not paths:
+    found = read_folder(folder, max_images) if folder.is_dir() else FolderImages()
+    if not found.images and not found.skipped:
         raise ValueError(f"{str(folder)!r} must be a folder holding images")
-    images: list[Tensor] = []
-    for path in paths:
-        if max_images is not None and len(images) >= max_images:
-            break
-        try:
-            images.append(as_unit(read_image(path)))
-        except ImageError as error:  # one bad file never stops the run: it is reported
-            skipped.append({"path": str(path), "reason": f"{UNREADABLE}: {error}"})
-    return images
+    skipped.extend(found.skipped_records())
+    return [as_unit(image) for image in found.images]
 
 
 def diagnose_unpaired(
@@ -78,7 +70,7 @@ def diagnose_unpaired(
     cleans, reals = _load(Path(clean), max_images, skipped), _load(Path(real), max_images, skipped)
     if len(cleans) < 4 or len(reals) < 4:
         raise ValueError(f"unpaired mode needs at least 4 clean and 4 real images, got {len(cleans)} and {len(reals)}")
-    sims = simulate(base, cleans, seed)
+    sims = base.simulate(cleans, seed)
     real_stats, sim_stats = _stack(reals), _stack(sims)
     scores = _scores(real_stats, sim_stats)
     half = len(sims) // 2

@@ -13,6 +13,8 @@ from camdegrade.measures import FAMILIES, StatisticSet
 from camdegrade.measures.blocks import Blocks, block_excess
 from camdegrade.measures.visible import GridComparison, compare_grid, compare_texture
 
+__all__ = ["GRID_SHARE", "findings", "suspects", "visible"]
+
 #: The block-edge excess is the grid's when the middle of the blocks differs from it by at most this share of it.
 GRID_SHARE = 0.5
 

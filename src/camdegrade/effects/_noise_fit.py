@@ -126,6 +126,7 @@ def calibrate(
     *,
     rounds: int = 2,
     banding: bool = True,
+    levels_rule: Callable[[Tensor], Tensor] | None = None,
 ) -> Noise:
     """``noise`` corrected by simulated moments until ``measure(simulate(noise))`` matches ``real``.
 
@@ -135,6 +136,9 @@ def calibrate(
         measure: their statistics; ``base`` is the same statistic without any noise stage.
         rounds: correction rounds of the level table and the correlations.
         banding: then fit row and column banding against the simulated null (none where the data show none).
+        levels_rule: applied to the level table ``(3, K)`` after each correction (the unpaired fit's: smooth in
+            the signal level and bounded, :mod:`camdegrade.fitting.unpaired.noise`). Every table stays within
+            the stage's range (:attr:`Noise.MAX_LEVEL`) whatever the rule.
     """
     if rounds < 0:
         raise ValueError(f"rounds must be >= 0, got rounds={rounds}")
@@ -142,9 +146,9 @@ def calibrate(
     for _ in range(rounds):
         sim = measure(simulate(noise))
         _correct_correlation(noise, real, base, sim)
-        _correct_levels(noise, real, base, sim)
+        _correct_levels(noise, real, base, sim, levels_rule)
     if rounds:  # the last correlation step changed what the chain lets through: the levels follow it once more
-        _correct_levels(noise, real, base, measure(simulate(noise)))
+        _correct_levels(noise, real, base, measure(simulate(noise)), levels_rule)
     if banding and hasattr(noise, "column_sigma"):
         _set_banding(noise, real, measure(simulate(_without_banding(noise))))
     return noise
@@ -167,8 +171,12 @@ def _fill(values: Tensor) -> Tensor:
     return out
 
 
-def _correct_levels(noise: Noise, real: NoiseSums, base: NoiseSums, sim: NoiseSums) -> None:
-    """Each knot's std scaled by how far the simulated excess variance is from the real one."""
+def _correct_levels(
+    noise: Noise, real: NoiseSums, base: NoiseSums, sim: NoiseSums, rule: Callable[[Tensor], Tensor] | None = None
+) -> None:
+    """Each knot's std scaled by how far the simulated excess variance is from the real one (then ``rule``), at
+    most the stage's :attr:`~camdegrade.effects.Noise.MAX_LEVEL`: a chain after the noise that removes nearly all
+    of it (a codec's dead zone) would otherwise have the level raised 4× a round without end."""
     base_variance = _variance(base)
     wanted = _variance(real) - base_variance
     got = _variance(sim) - base_variance
@@ -178,7 +186,10 @@ def _correct_levels(noise: Noise, real: NoiseSums, base: NoiseSums, sim: NoiseSu
     updated = torch.where(levels > 0, levels * factor, switched_on)
     updated = torch.where(wanted <= 0, torch.zeros_like(updated), updated)
     measurable = torch.isfinite(wanted) & torch.isfinite(got)
-    noise.levels.copy_(torch.where(measurable, updated, levels).float())
+    updated = torch.where(measurable, updated, levels)
+    if rule is not None:
+        updated = rule(updated)
+    noise.levels.copy_(updated.clamp(0.0, type(noise).MAX_LEVEL).float())
 
 
 def _variance(sums: NoiseSums) -> Tensor:
@@ -325,7 +336,7 @@ def _set_banding(noise: Noise, real: NoiseSums, null: NoiseSums) -> None:
     noise without banding); zero where that excess is not significant.
 
     The excess rows and columns share is not banding but 2-D noise correlated further than the stage's kernel
-    reaches (the SIDD phones' chroma blotches: row and column means both 9–12 levels beyond the null), so each
+    reaches (chroma blotches; measured in docs/results.md, *Real sensor noise: PolyU, CC15 and SIDD*), so each
     direction keeps only what it has beyond the other. Banding drawn from it printed a plaid over the whole frame. A
     camera with row and column banding loses the weaker, and the stronger its part beyond it; row banding alone (a
     sensor's usual) is kept. Only an excess significant in both directions is shared.

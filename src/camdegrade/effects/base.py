@@ -9,6 +9,21 @@ from typing import Any, ClassVar, Literal, TypeAlias
 import torch
 from torch import Tensor, nn
 
+__all__ = [
+    "EFFECTS",
+    "STAGES",
+    "Effect",
+    "Encoding",
+    "Pairs",
+    "Stage",
+    "build_effect",
+    "check_effect_names",
+    "check_range",
+    "evenly_spaced",
+    "register_effect",
+    "shown",
+]
+
 #: Physical order of stages in a camera: light passes the optics, hits the sensor, is processed, then encoded.
 STAGES: tuple[str, ...] = ("optics", "sensor", "isp", "codec")
 Stage = Literal["optics", "sensor", "isp", "codec"]

@@ -17,6 +17,8 @@ from camdegrade.effects._fitting import PairList, affine_residual, as_pairs, gri
 from camdegrade.effects.base import Effect, Encoding, Pairs, check_range, register_effect
 from camdegrade.functional import blur_image, convolve_separable, separable_taps
 
+__all__ = ["Blur", "fit_margin"]
+
 
 @register_effect
 class Blur(Effect):

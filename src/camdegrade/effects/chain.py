@@ -9,6 +9,8 @@ from torch import Tensor
 from camdegrade.effects.base import STAGES, Effect, Encoding
 from camdegrade.functional.color import linear_to_srgb_, srgb_to_linear_
 
+__all__ = ["apply_effects", "chain_moved_points", "chain_source_points", "check_chain", "check_params", "moves_pixels"]
+
 
 def check_chain(effects: Sequence[Effect], *, ordered: bool = False) -> None:
     """Raise unless every item of ``effects`` is an :class:`Effect` (a ``TypeError`` naming the first that is not)

@@ -16,6 +16,8 @@ from camdegrade.effects.base import Effect, Pairs, check_range, register_effect
 from camdegrade.functional import jpeg_image
 from camdegrade.functional.codec import check_quality
 
+__all__ = ["JPEG"]
+
 
 @register_effect
 class JPEG(Effect):

@@ -17,6 +17,8 @@ from camdegrade.functional import color_matrix_image, srgb_to_linear, tone_curve
 from camdegrade.functional._utils import as_channel_view, per_sample
 from camdegrade.functional.tone import exposed_, levels_gamma_, tone_curve
 
+__all__ = ["Color", "Tone"]
+
 
 @register_effect
 class Color(Effect):

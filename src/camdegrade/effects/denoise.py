@@ -17,6 +17,8 @@ from camdegrade.effects.base import Effect, Pairs, check_range, register_effect
 from camdegrade.effects.blur import fit_margin
 from camdegrade.functional.sharpen import denoise_image, faint_part
 
+__all__ = ["Denoise"]
+
 #: Where :meth:`Denoise.fit` starts: every sigma × threshold of this grid (threshold in [0, 1] units: 1 to 16 levels).
 _GRID_SIGMAS = (0.5, 0.8, 1.2, 1.8, 2.7)
 _GRID_THRESHOLDS = (0.0, 1 / 255, 2 / 255, 4 / 255, 8 / 255, 16 / 255)
@@ -30,8 +32,8 @@ class Denoise(Effect):
     """Noise reduction by coring on the sRGB values, as a camera's ISP removes grain before it sharpens:
     ``y = clip(x − faint(x − G_σ ⊛ x, threshold), 0, 1)`` (:func:`~camdegrade.functional.sharpen.denoise_image`):
     detail well below ``threshold`` is smoothed away, detail well above it is kept. A phone's output has almost no
-    faint fine detail (coring a City100 iPhone X capture again leaves a critic at chance: docs/results.md), which
-    a least-squares network passes through from the clean image.
+    faint fine detail (docs/results.md, *What the critic sees in a default fit*), which a least-squares network
+    passes through from the clean image.
 
     Args:
         sigma: the Gaussian's standard deviation in pixels (the scale of the detail removed).

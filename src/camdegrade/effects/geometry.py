@@ -32,6 +32,8 @@ from camdegrade.functional.geometry import (
     vignetting_gain,
 )
 
+__all__ = ["ChromaticAberration", "Distortion", "Misalignment", "Vignetting"]
+
 
 @register_effect
 class Vignetting(Effect):

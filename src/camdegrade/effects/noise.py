@@ -1,5 +1,4 @@
-"""Sensor stage: camera noise — its level by intensity, its spatial and chroma correlation, row and column banding —
-and its estimator from aligned pairs."""
+"""Sensor stage: camera noise (level by intensity, spatial and chroma correlation, banding) and its estimator."""
 
 from __future__ import annotations
 
@@ -18,6 +17,8 @@ from camdegrade.effects._noise_fit import calibrate, fit_noise, flat_noise_sums
 from camdegrade.effects.base import Effect, Encoding, Pairs, check_range, register_effect
 from camdegrade.functional import linear_to_srgb, srgb_to_linear
 from camdegrade.functional.noise import add_noise_, correlated_field, mix_channels, noise_std
+
+__all__ = ["Noise"]
 
 
 @register_effect

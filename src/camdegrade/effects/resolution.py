@@ -16,6 +16,8 @@ from camdegrade.effects._fitting import as_pairs
 from camdegrade.effects.base import Effect, Pairs, check_range, register_effect
 from camdegrade.functional.resolution import resolution_image
 
+__all__ = ["SCALES", "Resolution"]
+
 #: The sensor resolutions :meth:`Resolution.fit` tries (besides 1): the integer reductions and the common
 #: non-integer ones (720 → 1080 lines is 2/3, 960 → 1280 is 3/4). Each has a period of at most 4 pixels.
 SCALES: tuple[float, ...] = (1 / 2, 1 / 3, 1 / 4, 2 / 3, 3 / 4)
@@ -35,16 +37,16 @@ class Resolution(Effect):
     Valid values (:meth:`check_values`): ``scale`` from :attr:`MIN_SCALE` to 1.
 
     Not a default diagnosis candidate (:attr:`Effect.candidate`): fitted after a network that has already learned
-    the camera's low-pass, a second reduction blurs twice (on a simulated 2× camera the held-out PSNR falls from
-    43.3 to 37.2 dB); it is found before the network is trained (:mod:`camdegrade.fitting.resolution`).
+    the camera's low-pass, a second reduction blurs twice (docs/results.md, *The sensor-resolution trace*); it is
+    found before the network is trained (:mod:`camdegrade.fitting.steps.resolution`).
 
     References:
         R. Keys, "Cubic convolution interpolation for digital image processing", IEEE TASSP 29(6), 1981.
     """
 
     name = "resolution"
-    # The ISP's upscale, so the sensor's noise (a stage before it) is upsampled with the image, as the camera's is:
-    # on lowcost-robot-sim's held-out crops, noise added after the upscale left the top band 0.85 log2 too strong.
+    # The ISP's upscale, so the sensor's noise (a stage before it) is upsampled with the image, as the camera's is;
+    # noise added after the upscale is too strong in the top band (docs/results.md, *lowcost-robot-sim*).
     stage = "isp"
     explains = ("frequency",)
     fit_budget = 16
@@ -87,7 +89,7 @@ class Resolution(Effect):
         """The scale (of ``scales``, or the full resolution) whose ``up(down(source))`` is nearest ``target`` in mean
         squared error. Exact on a target made by one of them (tested); it needs the
         source to hold the detail the sensor lost, so after a fitted network it is not the way to find one
-        (:mod:`camdegrade.fitting.resolution` is)."""
+        (:mod:`camdegrade.fitting.steps.resolution` is)."""
         pairs = as_pairs(source, target)
 
         def error(scale: float) -> float:

@@ -14,16 +14,17 @@ from camdegrade.effects.base import Effect, Pairs, check_range, register_effect
 from camdegrade.functional.analysis import hann2d, luma
 from camdegrade.functional.response import frequency_response_image, knot_coordinates
 
-#: Knots per axis of a new response: cells of 0.05 cycles/pixel. On City100 the captures' excess over the built-in's
-#: texture peaks at a radius of 0.25 on the diagonals (gains 3–4) and at 0.2–0.25 on the axes (gains about 2), so
-#: the response is a grid over (|f_y|, |f_x|), not a function of the radius.
+__all__ = ["DEFAULT_KNOTS", "DETAIL_FROM", "LATTICE", "FrequencyResponse"]
+
+#: Knots per axis of a new response: cells of 0.05 cycles/pixel. A phone's excess texture differs on the diagonals
+#: and on the axes, so the response is a grid over (|f_y|, |f_x|), not a function of the radius (docs/results.md,
+#: *Why the camera's fine detail is not learned*).
 DEFAULT_KNOTS = 11
 #: Below this radius (cycles/pixel) the response is 1: tone and shading are the network's, not detail.
 DETAIL_FROM = 0.03
 #: The 4-pixel lattice: a fitted gain at a knot on a multiple of this frequency (cycles/pixel) along both axes is at
-#: most 1 (``lattice=True``). A network's or a codec's fixed pattern lives there (City100's clean frames carry 9.2×
-#: the capture's 4×4 pattern), and amplifying it prints a grid: on the held-out City100 scenes the grid ratio is
-#: well above 1.5 with the fitted gains there and below it with them capped (``examples/response_city100.py``).
+#: most 1 (``lattice=True``). A network's or a codec's fixed pattern lives there, and amplifying it prints a grid
+#: (measured with and without the cap: docs/results.md, *Why the camera's fine detail is not learned*).
 LATTICE = 0.25
 
 
@@ -109,9 +110,9 @@ class FrequencyResponse(Effect):
         with ``lattice``, at most 1 on the 4-pixel lattice (:data:`LATTICE`).
 
         Distribution, not least squares: the pairs need not be aligned, and detail whose position the source does
-        not predict (City100's captures are coherent with the clean image at 0.06 at 0.23–0.25 cycles/pixel) keeps
-        its power instead of being shrunk away. The mean over frames of the log ratio is what the fidelity bands
-        average (:func:`~camdegrade.measures.fidelity.band_log2_ratios`). Recovery on synthetic pairs
+        not predict (a phone's, above about 0.16 cycles/pixel: docs/results.md, *Why the camera's fine detail is not
+        learned*) keeps its power instead of being shrunk away. The mean over frames of the log ratio is what the
+        fidelity bands average (:func:`~camdegrade.measures.fidelity.band_log2_ratios`). Recovery on synthetic pairs
         (``tests/test_frequency_response.py``): gains within 10 % of a known smooth response, a target that is
         the source gives gains within 3 % of 1.
         """

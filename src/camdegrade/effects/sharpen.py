@@ -18,6 +18,8 @@ from camdegrade.effects.base import Effect, Pairs, check_range, register_effect
 from camdegrade.effects.blur import fit_margin
 from camdegrade.functional.sharpen import coring, unsharp_mask_image
 
+__all__ = ["Sharpen"]
+
 #: Where :meth:`Sharpen.fit` starts: every sigma × amount (threshold 0), then every threshold at the best of those.
 _GRID_SIGMAS = (0.5, 0.8, 1.2, 1.8, 2.7, 4.0)
 _GRID_AMOUNTS = (0.0, 0.25, 0.5, 1.0, 2.0)

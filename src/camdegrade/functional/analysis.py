@@ -9,6 +9,30 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
+__all__ = [
+    "FLAT_ERODE",
+    "FLAT_LEVELS",
+    "FLAT_SIGMA",
+    "LUMA_WEIGHTS",
+    "MIN_NOISE_SPREAD",
+    "NOISE_GRADIENT_PIXELS",
+    "NOISE_HIGH_PASS",
+    "NOISE_ROBUST_SIGMAS",
+    "NOISE_TILE",
+    "NOISE_TILE_QUANTILE",
+    "RAYLEIGH_Q99_OVER_MEDIAN",
+    "box_mean",
+    "flat_mask",
+    "flattest_window",
+    "gaussian_gradient_magnitude",
+    "gradient_energy",
+    "hann2d",
+    "high_pass",
+    "luma",
+    "noisy_flat_mask",
+    "relative_flat_mask",
+]
+
 #: Rec. 601 luma weights of R, G, B.
 LUMA_WEIGHTS = (0.299, 0.587, 0.114)
 

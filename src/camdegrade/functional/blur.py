@@ -11,6 +11,19 @@ from torch import Tensor
 from camdegrade.functional._utils import ParamLike, apply_float, check_image, flat_param
 from camdegrade.functional.color import linear_to_srgb, linear_to_srgb_, srgb_to_linear
 
+__all__ = [
+    "FFT_RADIUS",
+    "MOTION_SAMPLES",
+    "NEGLIGIBLE_TAP",
+    "TRUNCATE",
+    "blur_image",
+    "blur_planes",
+    "convolve_image",
+    "convolve_separable",
+    "psf_kernel",
+    "separable_taps",
+]
+
 #: Gaussian support in standard deviations; the mass left out is below 1e-4, far under one 8-bit level.
 TRUNCATE = 4.0
 #: Separable blurs leave out outer taps lighter than this (each direction's taps sum to 1). For images in [0, 1]

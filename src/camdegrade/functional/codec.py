@@ -12,6 +12,8 @@ from torch import Tensor
 from camdegrade._pixels import bytes_to_unit, unit_to_bytes
 from camdegrade.functional._utils import ParamLike, check_image, compute_dtype, flat_param, restore, to_float
 
+__all__ = ["check_quality", "jpeg_image"]
+
 
 def check_quality(quality: Tensor) -> None:
     """Raise unless every value is an integer from 1 to 100."""

@@ -14,6 +14,15 @@ from torch import Tensor
 
 from camdegrade.functional._utils import ParamLike, apply_float, check_image, per_sample
 
+__all__ = [
+    "color_matrix_image",
+    "linear_to_srgb",
+    "linear_to_srgb_",
+    "srgb_to_linear",
+    "srgb_to_linear_",
+    "white_balance_image",
+]
+
 _SRGB_KNEE = 0.04045
 _LINEAR_KNEE = 0.0031308
 

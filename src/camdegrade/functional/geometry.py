@@ -15,6 +15,25 @@ from camdegrade._pixels import bytes_to_unit, unit_to_bytes
 from camdegrade.functional._utils import ParamLike, apply_float, check_image, flat_param, per_sample
 from camdegrade.functional.color import linear_to_srgb, srgb_to_linear
 
+__all__ = [
+    "centered_coordinates",
+    "chromatic_aberration_image",
+    "distortion_fold",
+    "distortion_image",
+    "distortion_source",
+    "distortion_target",
+    "misalignment_image",
+    "misalignment_source",
+    "misalignment_target",
+    "radial_polynomial",
+    "relative_radius",
+    "remap_image",
+    "remap_labels",
+    "shrink_to_max_side",
+    "vignetting_gain",
+    "vignetting_image",
+]
+
 
 def centered_coordinates(height: int, width: int, dtype: torch.dtype, device: torch.device) -> tuple[Tensor, Tensor]:
     """Pixel-centre coordinates ``(x, y)``, each ``(H, W)``, in pixels from the centre (y points down)."""

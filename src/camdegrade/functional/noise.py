@@ -10,6 +10,17 @@ from torch import Tensor
 from camdegrade.functional._utils import ParamLike, apply_float, check_image, per_sample
 from camdegrade.functional.color import linear_to_srgb, linear_to_srgb_, srgb_to_linear
 
+__all__ = [
+    "add_noise_",
+    "add_poisson_gaussian_noise_",
+    "channel_param",
+    "correlated_field",
+    "interpolate_levels",
+    "mix_channels",
+    "noise_std",
+    "poisson_gaussian_noise_image",
+]
+
 
 def channel_param(value: ParamLike, image: Tensor, name: str) -> Tensor:
     """A per-channel parameter (scalar, ``(3,)`` or per-sample ``(N, 3)``) viewed as ``(*lead, 3, 1, 1)``."""

@@ -20,6 +20,8 @@ from torch import Tensor
 
 from camdegrade.functional.analysis import NOISE_HIGH_PASS, box_mean
 
+__all__ = ["BINS", "HIGH_PASS", "LAGS", "MIN_LINES", "MIN_LINE_PIXELS", "MIN_PIXELS", "NoiseSums", "measure_set"]
+
 #: Side of the local mean removed from the image (17×17: real noise is correlated over a few pixels; a smaller
 #: window would remove part of it). Defined beside the flat masks, which read the noise's gradient on it too.
 HIGH_PASS = NOISE_HIGH_PASS

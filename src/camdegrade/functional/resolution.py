@@ -18,6 +18,8 @@ import torch.nn.functional as F
 
 from camdegrade.functional._utils import apply_float, check_image
 
+__all__ = ["UPSAMPLERS", "resolution_image", "sensor_size"]
+
 #: How the ISP brings the sensor's samples back to the output size (``torch.nn.functional.interpolate`` modes).
 UPSAMPLERS: tuple[str, ...] = ("bicubic", "bilinear")
 

@@ -21,6 +21,16 @@ from torch import Tensor
 from camdegrade.functional._utils import apply_float, check_image
 from camdegrade.functional.analysis import luma as luma_of
 
+__all__ = [
+    "MAPS_KEPT",
+    "PAD",
+    "cached_response_map",
+    "filter_planes",
+    "frequency_response_image",
+    "knot_coordinates",
+    "response_map",
+]
+
 #: Rows and columns of mirrored border added on each side before the FFT, so that the filter's wrap-around reads a
 #: reflection of the image rather than its opposite edge (the fitted responses' kernels are a few pixels wide).
 PAD = 16

@@ -15,6 +15,8 @@ from camdegrade.functional._utils import ParamLike, apply_float, as_channel_view
 from camdegrade.functional.analysis import luma as luma_of
 from camdegrade.functional.blur import blur_image
 
+__all__ = ["coring", "denoise_image", "faint_part", "unsharp_mask_image"]
+
 
 def coring(detail: Tensor, threshold: Tensor) -> Tensor:
     """``detail · d² / (d² + threshold²)``: detail well above ``threshold`` passes, detail well below it is zeroed,

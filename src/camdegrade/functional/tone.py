@@ -8,6 +8,8 @@ from torch import Tensor
 from camdegrade.functional._utils import ParamLike, apply_float, as_channel_view, check_image, per_sample
 from camdegrade.functional.color import linear_to_srgb, linear_to_srgb_, srgb_to_linear, srgb_to_linear_
 
+__all__ = ["exposed_", "levels_gamma_", "tone_curve", "tone_curve_image"]
+
 
 def tone_curve_image(
     image: Tensor,

@@ -9,3 +9,5 @@ dataset as it is, and ``examples/lightning_datamodule.py`` wires ``set_epoch`` t
 
 This package imports nothing itself, so ``import camdegrade`` never imports albumentations, datasets or Lightning.
 """
+
+__all__: list[str] = []  # the adapters are imported by module: camdegrade.integrations.albumentations

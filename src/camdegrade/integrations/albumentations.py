@@ -27,6 +27,8 @@ from camdegrade.inference import Precision
 from camdegrade.profile import CameraProfile, EffectParams
 from camdegrade.transform import CameraDegrade
 
+__all__ = ["AlbumentationsCameraDegrade"]
+
 #: Seeds for the torch generator are drawn from ``[0, 2**63)``, a range ``torch.Generator.manual_seed`` accepts.
 _SEED_BOUND = 2**63
 #: The targets that move with the image when the profile moves pixels.

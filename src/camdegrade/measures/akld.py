@@ -24,6 +24,8 @@ from torch import Tensor
 
 from camdegrade._pixels import as_unit
 
+__all__ = ["MIN_VARIANCE", "RATIO_RANGE", "WINDOW", "Images", "akld", "gaussian_window", "local_noise_variance"]
+
 #: Side of the Gaussian window of the local variance; its sigma is OpenCV's default for that side
 #: (``0.3 · ((side − 1) / 2 − 1) + 0.8`` = 1.4), as in DANet's evaluation.
 WINDOW = 7

@@ -19,6 +19,8 @@ from camdegrade.measures.base import MeasuredPair, PairedFamily, register_family
 if TYPE_CHECKING:
     from camdegrade.measures.statistics import StatisticSet
 
+__all__ = ["SHIFT_TILES", "Alignment"]
+
 SHIFT_TILES = 4
 
 

@@ -33,6 +33,18 @@ from camdegrade.functional.analysis import flat_mask
 if TYPE_CHECKING:
     from camdegrade.measures.statistics import StatisticSet
 
+__all__ = [
+    "FAMILIES",
+    "NO_REFERENCE",
+    "Family",
+    "FamilyClass",
+    "MeasuredPair",
+    "NoReferenceFamily",
+    "PairedFamily",
+    "check_explains",
+    "register_family",
+]
+
 T = TypeVar("T")
 
 

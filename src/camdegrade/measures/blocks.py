@@ -14,6 +14,8 @@ from camdegrade.measures.base import MeasuredPair, PairedFamily, register_family
 if TYPE_CHECKING:
     from camdegrade.measures.statistics import StatisticSet
 
+__all__ = ["Blocks", "block_excess", "block_phase_energy"]
+
 
 def block_phase_energy(image: Tensor) -> tuple[Tensor, Tensor]:
     """``(16,)`` mean luma gradient at each of the 8 column, then 8 row phases of the 8×8 grid, and ``(16,)`` the

@@ -33,6 +33,34 @@ from torch import Tensor, nn
 from camdegrade._seeds import derive_seed, derived_generator
 from camdegrade.functional.analysis import box_mean, flat_mask, gradient_energy
 
+__all__ = [
+    "BATCH",
+    "BOOTSTRAP_ROUNDS",
+    "FLAT_SHARE",
+    "GRID",
+    "IMAGE_ONLY_PLANES",
+    "INTENSITY_EDGES",
+    "LEARNING_RATE",
+    "PATCH",
+    "PATCHES_PER_PAIR",
+    "PLANES",
+    "RADIUS_EDGES",
+    "SPLIT_PASSES",
+    "STEPS",
+    "CriticNet",
+    "CriticResult",
+    "CriticSpread",
+    "Patches",
+    "alternate_scenes",
+    "critic_test",
+    "logits",
+    "repeated_critic_test",
+    "score",
+    "score_logits",
+    "split_critic_test",
+    "train_critic",
+]
+
 PATCH = 32
 GRID = 8
 #: Patches drawn from each pair (the same positions for its real and its simulated image).

@@ -42,6 +42,23 @@ from camdegrade.measures.critic import (
     train_critic,
 )
 
+__all__ = [
+    "GROUPINGS",
+    "LABELS",
+    "TERCILES",
+    "CriticExplanation",
+    "SurePatch",
+    "accuracy_by_group",
+    "crossfit_critic_test",
+    "explain_critic",
+    "explained_critic_test",
+    "groups_from_logits",
+    "render_surest",
+    "surest_from_logits",
+    "surest_patches",
+    "surest_png",
+]
+
 #: The groups of the breakdown: the attribute of :class:`~camdegrade.measures.critic.Patches` each is read from,
 #: and the names of its terciles (lowest first).
 GROUPINGS = {

@@ -32,6 +32,22 @@ from torch import Tensor
 from camdegrade.functional.analysis import box_mean, flat_mask, hann2d, luma
 from camdegrade.functional.noise_stats import NoiseSums
 
+__all__ = [
+    "BAND_EDGES",
+    "GRID_HIGH_PASS",
+    "GRID_PERIOD",
+    "MIN_BAND_POWER",
+    "MIN_ROW_STD_LEVELS",
+    "FidelityReport",
+    "band_log2_ratios",
+    "band_power",
+    "grid_phases",
+    "grid_rms",
+    "luma_spectrum",
+    "measure_fidelity",
+    "noise_ratios",
+]
+
 #: Period (pixels) of the grid that two stride-2 transposed convolutions print.
 GRID_PERIOD = 4
 #: Side of the local mean taken off before the grid is averaged (smooth content is not a grid).

@@ -14,6 +14,8 @@ from camdegrade.measures.base import MeasuredPair, PairedFamily, register_family
 if TYPE_CHECKING:
     from camdegrade.measures.statistics import StatisticSet
 
+__all__ = ["BANDS", "MIN_POWER", "Frequency", "band_index"]
+
 BANDS = 8
 #: Clean-image power in a band (summed over pairs) below which the transfer is not measured: float rounding of a
 #: flat image gives about 1e-13; 8-bit quantisation alone of a 64² image about 1e-4.

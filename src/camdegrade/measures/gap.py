@@ -17,6 +17,8 @@ from torch import Tensor
 from camdegrade.measures.base import FAMILIES
 from camdegrade.measures.statistics import StatisticSet
 
+__all__ = ["MAX_MISSING", "Scale", "bootstrap_indices", "family_gaps", "gap", "gap_spread", "measurement_scale"]
+
 #: A component missing (too few pixels) from more than this share of the bootstrap resamples is left out.
 MAX_MISSING = 0.1
 

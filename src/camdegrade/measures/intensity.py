@@ -13,6 +13,8 @@ from camdegrade.measures.base import MeasuredPair, PairedFamily, register_family
 if TYPE_CHECKING:
     from camdegrade.measures.statistics import StatisticSet
 
+__all__ = ["INTENSITY_BINS", "Intensity"]
+
 INTENSITY_BINS = 16
 
 

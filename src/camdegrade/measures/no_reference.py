@@ -16,6 +16,8 @@ from camdegrade.measures.intensity import Intensity
 from camdegrade.measures.noise import NoiseLevel
 from camdegrade.measures.spatial import Spatial
 
+__all__ = ["NOISE_LEVELS", "RINGS", "BlockEnergy", "ColorRatios", "FlatNoise", "Radial", "Spectrum", "ToneQuantiles"]
+
 RINGS = 8
 NOISE_LEVELS = 4
 

@@ -22,6 +22,18 @@ if TYPE_CHECKING:
     from camdegrade.effects import Effect
     from camdegrade.measures.statistics import StatisticSet
 
+__all__ = [
+    "LINE_FLOOR",
+    "MIN_ENERGY",
+    "NOISE_BINS",
+    "NOISE_FLOOR",
+    "Banding",
+    "NoiseCorrelation",
+    "NoiseLevel",
+    "flat_pixels",
+    "noise_stage_text",
+]
+
 NOISE_BINS = 8
 #: Noise levels are compared as ``log sqrt(std² + floor²)``; the floor (0.5 level, above 8-bit quantisation's
 #: 0.29) keeps a missing noise stage finite.

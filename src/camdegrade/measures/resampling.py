@@ -28,6 +28,19 @@ from torch import Tensor
 from camdegrade._pixels import as_unit
 from camdegrade.functional.analysis import luma
 
+__all__ = [
+    "CODEC_EXCESS",
+    "CODEC_SHIFTS",
+    "CONTROL_SHIFTS",
+    "EDGE",
+    "MIN_EXCESS",
+    "PERIODS",
+    "ResamplingTrace",
+    "cyclic_coherence",
+    "cyclic_coherences",
+    "resampling_trace",
+]
+
 #: The upscales looked for: a sensor of 1/2, 1/3 or 1/4 of the output's pixels per axis (their images repeat at
 #: multiples of 1/q cycles/pixel; a non-integer factor such as 2/3 repeats beyond Nyquist and is not found).
 PERIODS: tuple[int, ...] = (2, 3, 4)

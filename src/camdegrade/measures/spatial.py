@@ -14,6 +14,8 @@ from camdegrade.measures.base import MeasuredPair, PairedFamily, register_family
 if TYPE_CHECKING:
     from camdegrade.measures.statistics import StatisticSet
 
+__all__ = ["TILES", "Spatial", "tile_radius"]
+
 TILES = 8
 _CHANNELS = ("R", "G", "B")
 

@@ -10,6 +10,8 @@ from torch import Tensor
 
 from camdegrade.measures.base import FAMILIES, NO_REFERENCE, MeasuredPair
 
+__all__ = ["StatisticSet", "image_statistics", "pair_statistics"]
+
 
 def pair_statistics(image: Tensor, clean: Tensor, mask: Tensor | None = None) -> dict[str, tuple[Tensor, Tensor]]:
     """Every paired family's sums for one image ``(3, H, W)`` against its clean image, float in [0, 1]; ``mask`` is

@@ -22,6 +22,18 @@ from torch import Tensor
 
 from camdegrade.measures.fidelity import BAND_EDGES, GRID_PERIOD, MIN_BAND_POWER, band_power, grid_rms
 
+__all__ = [
+    "GRID_FLOOR",
+    "GRID_MIN_LEVELS",
+    "GRID_RATIO",
+    "SIGNIFICANCE",
+    "TEXTURE_LOG2",
+    "GridComparison",
+    "TextureComparison",
+    "compare_grid",
+    "compare_texture",
+]
+
 #: Standard errors (of the mean per-frame difference) a look must exceed to count.
 SIGNIFICANCE = 3.0
 #: The simulation's grid must be at least this many times the camera's to count ...

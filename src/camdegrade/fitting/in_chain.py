@@ -1,0 +1,79 @@
+"""A stage fitted where it sits in a profile's chain (:meth:`Effect.fit_in_chain`): the profile's deterministic
+output is the source, and the profile with the stage in place is simulated on demand, so that a stage whose look
+depends on the stages after it (noise, through the tone curve and the codec) is calibrated through them."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import torch
+from torch import Tensor
+
+from camdegrade._pixels import as_unit
+from camdegrade.effects import Effect, Noise
+from camdegrade.inference import run_network
+from camdegrade.profile import CameraProfile
+
+__all__ = ["CALIBRATION_PAIRS", "fit_noise_stage", "fit_stage_in_chain", "replace_stage"]
+
+#: A stage that calibrates itself by simulation uses about this many pairs (every ⌊N / this⌋-th of N pairs, so
+#: between this many and twice as many): about 1 Mpixel at 256².
+CALIBRATION_PAIRS = 32
+
+
+def fit_stage_in_chain(
+    profile: CameraProfile,
+    kind: type[Effect],
+    cleans: Sequence[Tensor],
+    captures: Sequence[Tensor],
+    *,
+    seed: int = 0,
+    calibration_pairs: int | None = None,
+    sources: Sequence[Tensor] | None = None,
+) -> Effect:
+    """A stage of ``kind`` for ``profile`` (its stages of that kind that draw only noise are replaced), fitted by
+    ``kind.fit_in_chain`` on ``(profile's deterministic output, capture)`` pairs. ``sources``: that output, when
+    the caller already has it (it draws nothing, so any seed gives the same images)."""
+    if sources is None:
+        sources = profile.simulate(cleans, seed, stream="noise-sources", deterministic=True)
+    network_outputs: dict[int, Tensor] = {}
+
+    def simulate_with(effect: Effect, indices: Sequence[int]) -> list[Tensor]:
+        # The network's output does not change between candidates: computed once per image, the stages run on it.
+        for index in indices:
+            if index not in network_outputs:
+                network_outputs[index] = _network_output(profile, cleans[index])
+        stages = CameraProfile(None, replace_stage(profile, effect).effects)
+        return stages.simulate([network_outputs[index] for index in indices], seed, stream="noise-calibration")
+
+    return kind.fit_in_chain(
+        list(cleans), list(sources), list(captures), simulate_with, seed=seed, calibration_pairs=calibration_pairs
+    )
+
+
+def fit_noise_stage(
+    profile: CameraProfile,
+    cleans: Sequence[Tensor],
+    captures: Sequence[Tensor],
+    *,
+    seed: int = 0,
+    calibration_pairs: int | None = None,
+) -> Effect:
+    """The noise stage for ``profile`` (any it has is replaced), calibrated through the stages after it on every
+    ``⌊N / calibration_pairs⌋``-th of the N pairs (:meth:`Noise.fit_in_chain`; all when ``None``)."""
+    return fit_stage_in_chain(profile, Noise, cleans, captures, seed=seed, calibration_pairs=calibration_pairs)
+
+
+def _network_output(profile: CameraProfile, clean: Tensor) -> Tensor:
+    """What ``profile``'s network makes of ``clean`` (float in [0, 1]; the clean image itself without a network)."""
+    with torch.no_grad():
+        if profile.network is None:
+            return as_unit(clean)
+        return run_network(profile.network, clean[None])[0]
+
+
+def replace_stage(profile: CameraProfile, effect: Effect) -> CameraProfile:
+    """``profile`` with ``effect`` at its stage, in place of the stages of its kind that draw only noise (a fitted
+    noise stage is the whole of the noise, not an addition to it)."""
+    chain = [e for e in profile.effects if not (type(e) is type(effect) and type(e).draws_only_noise())]
+    return profile.with_chain(chain).with_effects(effect)

@@ -1,0 +1,96 @@
+"""The effect stages after a fit's network: each fitted on the training pairs at its place in the chain, kept only
+where the validation pairs show that the camera has it (:mod:`camdegrade.fitting.steps.noise_evidence`), and
+recorded with that evidence (``fitted['effects'][name]``)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+from camdegrade._recipes import DEFAULT_EFFECTS
+from camdegrade.effects import EFFECTS, STAGES, Effect, Resolution, check_effect_names
+from camdegrade.fitting.in_chain import CALIBRATION_PAIRS, fit_stage_in_chain
+from camdegrade.fitting.steps.base import FitStep, PairedFit, Verdict
+from camdegrade.fitting.steps.noise_evidence import noise_evidence, relative_gain
+
+__all__ = ["DEFAULT_EFFECTS", "EffectStage", "EffectStages"]
+
+#: A position-dependent stage is kept where it removes at least this share of the held-out mean squared error.
+MIN_RELATIVE_GAIN = 0.01
+
+
+@dataclass(frozen=True)
+class EffectStages(FitStep):
+    """The effects step: the stages ``names`` (effects of the registry; ``()``: none), each an
+    :class:`EffectStage` in the order light meets them; its record is theirs by name."""
+
+    name: ClassVar[str] = "effects"
+    names: tuple[str, ...] = DEFAULT_EFFECTS
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "names", tuple(check_effect_names(self.names)))
+        if Resolution.name in self.names:
+            raise ValueError(
+                "effects: 'resolution' is not fitted after the network (it would blur twice); the network is trained "
+                "through it: use sensor_scale (--sensor-scale): 'auto' finds it in the captures, or a scale such as 0.5"
+            )
+
+    def run(self, fit: PairedFit) -> dict[str, Any]:
+        ordered = sorted(self.names, key=lambda name: STAGES.index(EFFECTS[name].stage))
+        return {name: EffectStage(EFFECTS[name]).run(fit) for name in ordered}
+
+
+@dataclass(frozen=True)
+class EffectStage(FitStep):
+    """One effect stage: proposed by its class at its place in the profile's chain, fitted on (the profile's
+    deterministic output, capture) of the training pairs (:meth:`Effect.fit_in_chain`: within its fitter's budget;
+    noise calibrated through the stages already in the profile); judged on the validation pairs (the training pairs
+    when there are none)."""
+
+    kind: type[Effect]
+
+    @property
+    def name(self) -> str:  # type: ignore[override]
+        return self.kind.name
+
+    def propose(self, fit: PairedFit) -> Effect | Verdict:
+        cleans = [clean for clean, _ in fit.train_pairs]
+        captured = [target for _, target in fit.train_pairs]
+        simulated = fit.profile.simulate(cleans, seed=0, deterministic=True)
+        try:
+            return fit_stage_in_chain(
+                fit.profile, self.kind, cleans, captured, calibration_pairs=CALIBRATION_PAIRS, sources=simulated
+            )
+        except ValueError as error:  # e.g. too few pixels to estimate it
+            fit.say(f"effect {self.kind.name}: not fitted ({error})")
+            return Verdict({"kept": False, "reason": str(error)})
+
+    def judge(self, fit: PairedFit, effect: Effect) -> dict[str, Any]:
+        """The stage kept (``effect``, ``effect`` less its banding, or none) and its record. A stage that draws
+        only noise is judged by :func:`~camdegrade.fitting.steps.noise_evidence.noise_evidence` on the validation
+        pairs (on the training pairs when there are none, or they hold too few flat pixels); a position-dependent
+        one is kept where it lowers the validation error by :data:`MIN_RELATIVE_GAIN`; any other is kept."""
+        kept, record, line = self._evidence(fit, effect)
+        fit.say(f"effect {self.kind.name}: {line}")
+        if kept is not None:
+            fit.keep(True, kept)
+        return record
+
+    def _evidence(self, fit: PairedFit, effect: Effect) -> tuple[Effect | None, dict[str, Any], str]:
+        held_out, fit_pairs = fit.val_pairs, fit.train_pairs
+        pairs, label = (held_out, "validation") if held_out else (fit_pairs, "training")
+        if type(effect).draws_only_noise():
+            kept, evidence = noise_evidence(fit.profile, effect, *zip(*pairs, strict=True), eight_bit=fit.eight_bit)
+            if evidence.capture_noise is None and held_out:
+                kept, evidence = noise_evidence(
+                    fit.profile, effect, *zip(*fit_pairs, strict=True), eight_bit=fit.eight_bit
+                )
+                label = "training (the validation pairs hold too few flat pixels)"
+            return kept, {**evidence.to_dict(), "evidence": label}, f"{evidence.describe()} [evidence: {label}]"
+        if effect.position_dependent:
+            gain = relative_gain(fit.profile, effect, *zip(*pairs, strict=True))
+            kept = gain >= MIN_RELATIVE_GAIN
+            note = {"kept": kept, "relative_mse_gain": round(gain, 4), "evidence": label}
+            line = f"relative MSE gain {gain:.2%} on {len(pairs)} {label} pair(s) -> {'kept' if kept else 'dropped'}"
+            return (effect if kept else None), note, line
+        return effect, {"kept": True}, f"fitted ({effect.extra_repr()})"

@@ -1,0 +1,142 @@
+"""An unpaired fit in progress: the two sets and what is measured of them once (:class:`Measured`), the stages kept
+so far in the chain's order, every step's record, and why a step does not run (the loop of
+:mod:`camdegrade.fitting.steps.base`)."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+from torch import Tensor
+
+from camdegrade.effects import (
+    JPEG,
+    Blur,
+    Color,
+    Effect,
+    FrequencyResponse,
+    Noise,
+    Resolution,
+    Sharpen,
+    Tone,
+    Vignetting,
+)
+from camdegrade.fitting.steps.base import FitStep
+from camdegrade.fitting.unpaired.images import ImageSet
+from camdegrade.functional.noise_stats import NoiseSums
+from camdegrade.profile import CameraProfile
+
+__all__ = ["CHAIN_ORDER", "NEEDS_CLEAN", "Log", "Measured", "UnpairedFit", "UnpairedStep"]
+
+#: The stages' order in the fitted chain (physical: optics, sensor, ISP, codec; the ISP's upscale last before the
+#: codec, so the sensor's noise and the ISP's sharpening are upsampled with the image).
+CHAIN_ORDER = tuple(
+    kind.name for kind in (Blur, Vignetting, Noise, Color, Tone, Sharpen, FrequencyResponse, Resolution, JPEG)
+)
+#: Why a step that needs the clean set is not fitted without one.
+NEEDS_CLEAN = "needs a clean set (--clean)"
+
+Log = Callable[[str], None]
+
+
+class UnpairedStep(FitStep):
+    """A step of the unpaired fit: it runs where one of its effect ``kinds`` is asked for, with the clean set where
+    it ``needs_clean``, and (a step that fits again) where it :meth:`applies`."""
+
+    kinds: ClassVar[tuple[type[Effect], ...]] = ()
+    needs_clean: ClassVar[bool] = False
+
+    def applies(self, fit: UnpairedFit) -> bool:
+        return True
+
+
+@dataclass
+class Measured:
+    """What an unpaired fit measures of its sets once: the clean images (or stand-ins) the noise is simulated on
+    and the crops the spectrum is compared on, the captures' flat-pixel noise, both sets averaged down (colour,
+    tone, vignetting) with their ring profiles, and the captures' log spectra and their mean."""
+
+    noise_crops: list[Tensor]
+    spectrum_crops: list[Tensor]
+    real_noise: NoiseSums
+    small_captures: list[Tensor]
+    small_cleans: list[Tensor]
+    real_rings: Tensor
+    clean_rings: Tensor
+    real_spectra: Tensor
+    real_spectrum: Tensor
+
+
+class UnpairedFit:
+    """The state of one unpaired fit: the stages so far, each step's record, and the sets it simulates."""
+
+    def __init__(
+        self, captures: ImageSet, cleans: ImageSet | None, measured: Measured, wanted: list[str], seed: int, say: Log
+    ) -> None:
+        self.captures, self.cleans, self.sets = captures, cleans, measured
+        self.wanted, self.seed, self.say = wanted, seed, say
+        self.stages: dict[str, Effect] = {}
+        self.records: dict[str, Any] = {}
+        self.not_fitted: dict[str, str] = {}
+        self.warnings: list[str] = []
+        self.block_ratio: float | None = None
+
+    def chain(self, **replaced: Effect | None) -> list[Effect]:
+        """The kept stages in the chain's order, with ``replaced`` ones in place (``None``: left out)."""
+        stages = {**self.stages, **replaced}
+        return [stages[key] for key in CHAIN_ORDER if stages.get(key) is not None]
+
+    def deterministic(self, *, optics_only: bool = False, **replaced: Effect | None) -> list[Effect]:
+        """The chain's deterministic centre without its codec (what the set statistics of colour, tone and
+        vignetting see), or only its optics stages."""
+        chain = [effect.without_randomness() for effect in self.chain(jpeg=None, **replaced)]
+        return [effect for effect in chain if effect is not None and (effect.stage == "optics" or not optics_only)]
+
+    def simulate(self, chain: list[Effect] | CameraProfile, images: Sequence[Tensor], stream: str) -> list[Tensor]:
+        """``images`` through ``chain`` (:meth:`CameraProfile.simulate`: image ``i`` seeded by ``(seed, stream, i)``),
+        stored as 8-bit values."""
+        profile = chain if isinstance(chain, CameraProfile) else CameraProfile(None, chain)
+        return profile.simulate(images, self.seed, stream=stream, eight_bit=True)
+
+    def stages_after(self, kind: type[Effect]) -> list[str]:
+        """The kept stages that come after ``kind``'s place in the chain."""
+        later = CHAIN_ORDER[CHAIN_ORDER.index(kind.name) + 1 :]
+        return [name for name in later if self.stages.get(name) is not None]
+
+    def wants(self, *kinds: type[Effect]) -> bool:
+        """Whether any of these stages is to be fitted."""
+        return any(kind.name in self.wanted for kind in kinds)
+
+    def keep(self, stage: Effect | None, *kinds: type[Effect]) -> None:
+        """``stage`` in the chain (nothing for ``None``), in place of the stages of ``kinds`` (their refit), once its
+        values are in the stage's range (:meth:`~camdegrade.effects.Effect.check_values`, what saving the profile
+        checks): a value out of range stops the fit at the step that made it, naming it."""
+        for kind in kinds:
+            self.stages.pop(kind.name, None)
+        if stage is None:
+            return
+        try:
+            stage.check_values()
+        except ValueError as error:
+            raise ValueError(
+                f"unpaired fit: the {stage.name} stage fitted to these images is outside its range ({error}); the "
+                "captures are beyond what the stage models: check that they are the camera's photos of scenes like "
+                "the clean images', or leave the stage out (effects)"
+            ) from None
+        self.stages[stage.name] = stage
+
+    def not_fit(self, kinds: Sequence[type[Effect]], reason: str) -> None:
+        """Record why the asked-for stages of ``kinds`` are not fitted."""
+        for kind in kinds:
+            if self.wants(kind):
+                self.not_fitted[kind.name] = reason
+
+    def unmet(self, step: UnpairedStep) -> str | None:
+        if not step.applies(self) or not self.wants(*step.kinds):
+            return ""
+        return NEEDS_CLEAN if step.needs_clean and self.cleans is None else None
+
+    def skip(self, step: UnpairedStep, reason: str) -> None:
+        if reason:
+            self.not_fit(step.kinds, reason)

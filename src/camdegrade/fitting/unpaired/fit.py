@@ -1,0 +1,344 @@
+"""``fit_unpaired``: a camera profile from the camera's own photos and, optionally, a clean image set of *other*
+scenes of similar content — no screen rig, no correspondence between the two sets.
+
+Every stage is fitted by matching a distribution of the captures (an effects-only profile: no network):
+
+- ``jpeg``: the quality read from the captures' own quantisation tables, when they are JPEG files
+  (:mod:`camdegrade.fitting.unpaired.jpeg`); for lossless files that show 8×8 block
+  edges (JPEGs saved again: the tables are gone) a quality is estimated from their spectrum, with a
+  warning;
+- ``color``, ``tone``: white-balance gains and a tone curve by quantile matching of the two sets;
+- ``vignetting``: the captures' mean radial luma profile over the clean set's (over a flat field without one);
+- ``blur``, ``sharpen``: the PSF and the unsharp mask whose simulation of the clean set has the captures' radial
+  power spectrum (noise and codec simulated too, so the noise floor is not read as sharpness);
+- ``frequency_response``: what every other stage leaves of that spectrum's mismatch (a phone's detail processing
+  has no Gaussian-plus-unsharp shape), as a gain per radial band, kept where that is more than a floor and a
+  response fitted on each half of the sets also brings the other half's spectrum closer;
+- ``noise``: level per channel and intensity, spatial and chroma correlation, banding, from the captures' flat
+  regions (:mod:`camdegrade.fitting.unpaired.noise`), calibrated through the whole chain.
+
+The fit runs the paired fit's loop of steps (:func:`~camdegrade.fitting.steps.base.run_steps`) over
+:data:`UNPAIRED_STEPS`, each step judged by random halves of the two sets (:mod:`camdegrade.fitting.unpaired.judges`)
+or its floor. Without a clean set only ``jpeg``, ``vignetting`` (against a flat field) and ``noise`` (simulated on
+the captures smoothed) are fitted. Geometric stages are not identifiable without correspondence and are never fitted
+(:data:`NOT_IDENTIFIABLE`). The profile records ``fitted['unpaired']``, how many images each side had and each
+stage's evidence, and ``quality['unpaired_fidelity']``: the simulated clean set against the captures (flat-noise
+ratio, band log2 power differences of the set means).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass, replace
+from typing import Any, ClassVar
+
+import torch
+from tqdm.auto import tqdm
+
+from camdegrade._checks import check_seed
+from camdegrade.effects import (
+    JPEG,
+    Blur,
+    ChromaticAberration,
+    Color,
+    Distortion,
+    Effect,
+    FrequencyResponse,
+    Misalignment,
+    Noise,
+    Resolution,
+    Sharpen,
+    Tone,
+    Vignetting,
+)
+from camdegrade.effects._fitting import downscale
+from camdegrade.effects.base import evenly_spaced
+from camdegrade.errors import CamdegradeError
+from camdegrade.fitting.record import machine_record
+from camdegrade.fitting.steps.base import Verdict, run_steps
+from camdegrade.fitting.steps.resolution import sensor_trace, sensor_verdict
+from camdegrade.fitting.unpaired.bench import Measured, UnpairedFit, UnpairedStep
+from camdegrade.fitting.unpaired.color_tone import ColorToneMatch
+from camdegrade.fitting.unpaired.images import MIN_IMAGES, ImageSet, Source, check_count, load_images, load_sides
+from camdegrade.fitting.unpaired.jpeg import JpegFromBlocks, JpegTables
+from camdegrade.fitting.unpaired.judges import self_check_warnings
+from camdegrade.fitting.unpaired.noise import NoiseMatch, flat_sums
+from camdegrade.fitting.unpaired.spectrum import (
+    SPECTRUM_SIDE,
+    DetailResponseMatch,
+    TransferMatch,
+    centre_crop,
+    log_spectrum,
+    mean_spectrum,
+)
+from camdegrade.fitting.unpaired.vignetting import RINGS, VignettingMatch, ring_profiles
+from camdegrade.functional.blur import blur_image
+from camdegrade.measures.fidelity import BAND_EDGES, band_power
+from camdegrade.measures.resampling import ResamplingTrace
+from camdegrade.profile import CameraProfile
+
+__all__ = [
+    "MIN_IMAGES",
+    "NOT_IDENTIFIABLE",
+    "UNPAIRED_EFFECTS",
+    "UNPAIRED_STEPS",
+    "check_unpaired_effects",
+    "fit_unpaired",
+    "unpaired_fidelity",
+]
+
+#: The stages :func:`fit_unpaired` fits by default, in the order they are fitted.
+UNPAIRED_EFFECTS: tuple[str, ...] = tuple(
+    kind.name for kind in (Resolution, JPEG, Color, Tone, Vignetting, Noise, Blur, Sharpen, FrequencyResponse)
+)
+#: Stages that need to know where each clean pixel landed in the capture: an unpaired set cannot show them.
+NOT_IDENTIFIABLE: dict[str, str] = {
+    Misalignment.name: "a shift between clean image and capture is invisible without the same scene on both sides",
+    Distortion.name: "the lens's radial warp needs straight scene lines or a correspondence to be seen",
+    ChromaticAberration.name: "a channel's scale is seen against the same scene's other channels at edges only "
+    "with a reference; set statistics do not show it",
+}
+#: The noise is calibrated on at most ``NOISE_IMAGES`` clean images, whole (their flat pixels are selected as the
+#: captures' are: a window chosen for its flatness would hold less texture than the captures' flat pixels do);
+#: the spectrum compared on centre crops of at most ``SPECTRUM_IMAGES``.
+NOISE_IMAGES = 16
+SPECTRUM_IMAGES = 24
+#: Colour, tone and vignetting are read from the images averaged down to this side (noise averaged out).
+SMALL_SIDE = 256
+#: Without a clean set the noise is simulated on the captures smoothed by a Gaussian of this sigma (px).
+STAND_IN_SIGMA = 2.0
+
+Log = Callable[[str], None]
+
+
+@dataclass(frozen=True)
+class SensorStep(UnpairedStep):
+    """The resolution step, first so every later stage is fitted through it: an upscale the captures show and the
+    clean set does not (:func:`~camdegrade.fitting.steps.resolution.sensor_trace`; without a clean set, the
+    captures' trace alone), judged against the trace's null and the codec's grid; or the ``scale`` given."""
+
+    name: ClassVar[str] = "resolution"
+    kinds: ClassVar[tuple[type[Effect], ...]] = (Resolution,)
+    scale: float | None = None
+
+    def propose(self, fit: UnpairedFit) -> ResamplingTrace | Verdict:
+        if self.scale is not None:  # given: kept as it is, below 1
+            fit.keep(Resolution(self.scale) if self.scale < 1 else None)
+            return Verdict({"kept": self.scale < 1, "scale": self.scale, "given": True})
+        return sensor_trace(fit.cleans.images if fit.cleans else None, fit.captures.images)
+
+    def judge(self, fit: UnpairedFit, trace: ResamplingTrace) -> dict[str, Any]:
+        stage, record = sensor_verdict(trace, fit.say)
+        fit.keep(stage)
+        return record
+
+
+#: The unpaired fit's steps in the order they run, each with the label a progress bar shows: the chain before a
+#: stage stands when it is fitted, so stages that depend on later ones are fitted again once those stand.
+UNPAIRED_STEPS: tuple[tuple[str, UnpairedStep], ...] = (
+    ("resolution", SensorStep()),
+    ("jpeg", JpegTables()),
+    ("vignetting", VignettingMatch()),
+    ("colour and tone", ColorToneMatch(test=False)),
+    ("vignetting again", VignettingMatch(simulated=True)),
+    ("noise", NoiseMatch()),
+    ("blur and sharpening", TransferMatch()),
+    ("jpeg quality without tables", JpegFromBlocks()),
+    ("blur and sharpening with it", TransferMatch(refit=True)),
+    ("jpeg quality again", JpegFromBlocks()),
+    ("colour and tone through the blur", ColorToneMatch()),
+    ("vignetting through the blur", VignettingMatch(simulated=True)),
+    ("noise again", NoiseMatch()),
+    ("detail response", DetailResponseMatch()),
+    ("noise through the detail response", NoiseMatch(refit=True)),
+)
+
+
+def check_unpaired_effects(effects: Sequence[str]) -> list[str]:
+    """``effects`` as a list, each one :func:`fit_unpaired` can fit; a ``ValueError`` naming the first that is
+    not identifiable unpaired (and why) or unknown."""
+    names = [effects] if isinstance(effects, str) else list(effects)
+    for name in names:
+        if name in NOT_IDENTIFIABLE:
+            raise ValueError(f"effects: {name!r} cannot be fitted unpaired: {NOT_IDENTIFIABLE[name]}")
+        if name not in UNPAIRED_EFFECTS:
+            raise ValueError(f"effects must be names from {list(UNPAIRED_EFFECTS)}, got {name!r}")
+    return names
+
+
+def fit_unpaired(
+    captured: Source,
+    clean: Source | None = None,
+    *,
+    effects: Sequence[str] = UNPAIRED_EFFECTS,
+    seed: int = 0,
+    sensor_scale: float | str = "auto",
+    max_images: int | None = None,
+    strict: bool = False,
+    progress: bool = False,
+    name: str = "",
+    description: str = "",
+    log: Log | None = None,
+) -> CameraProfile:
+    """Fit an effects-only camera profile from the camera's photos ``captured`` and an optional ``clean`` set of
+    other scenes of similar content (each a folder, or a list of ``(3, H, W)`` tensors, ``(H, W, 3)`` numpy arrays
+    or PIL images; images of any sizes from 16 px a side).
+
+    Args:
+        effects: the stages to fit (default :data:`UNPAIRED_EFFECTS`); each is kept only where the captures differ
+            from the clean set by more than its floor (see :mod:`camdegrade.fitting.unpaired.judges`).
+        seed: the simulations' seed (same seed, same profile).
+        sensor_scale: ``"auto"``: an upscale found from the captures (:func:`~camdegrade.fitting.steps.resolution.
+            sensor_trace`); a number from 0.125 to 1: the sensor's resolution relative to the output, given (1: none).
+        max_images: read at most this many images of each side.
+        strict: refuse instead of warning: an unreadable file (before any fitting), or a result with a warning.
+        progress: a progress bar over the steps.
+
+    Raises:
+        PairsError: fewer than :data:`MIN_IMAGES` usable images on a side (unreadable files and images under 16 px
+            a side are skipped), not a folder, a side without contrast, the same images on both sides; with
+            ``strict``, a skipped file.
+        CamdegradeError: with ``strict``, a result with a warning.
+        TypeError, ValueError: an image of a list that is not an RGB image in [0, 1] or uint8 (named by its
+            index), a seed that is not an int.
+        ValueError: an effect that needs correspondence (:data:`NOT_IDENTIFIABLE`), or captures with too few flat
+            pixels to measure their noise.
+    """
+    say = log or (lambda message: None)
+    wanted = check_unpaired_effects(effects)
+    steps = _with_sensor(UNPAIRED_STEPS, check_sensor_scale(sensor_scale))
+    for label, text in (("name", name), ("description", description)):
+        if not isinstance(text, str):
+            raise TypeError(f"{label} must be a str, got {label}={text!r} ({type(text).__name__})")
+    check_seed(seed)
+    started = time.perf_counter()
+    captures, cleans, warnings = load_sides(captured, clean, max_images, strict)
+    say(f"unpaired fit: {len(captures.images)} captures, {len(cleans.images) if cleans else 'no'} clean images")
+    fit = UnpairedFit(captures, cleans, measure(captures, cleans), wanted, seed, say)
+    fit.warnings += warnings
+    with tqdm(total=len(steps), desc="unpaired fit", unit="step", disable=not progress) as bar:
+        run_steps(_shown(steps, bar), fit)
+    profile = CameraProfile(None, fit.chain(), name=name, description=description)
+    profile.quality = {"unpaired_fidelity": set_fidelity(fit)}
+    fit.warnings += self_check_warnings(profile.quality["unpaired_fidelity"], wanted, with_clean=cleans is not None)
+    profile.fitted = _record(fit, time.perf_counter() - started)
+    for warning in fit.warnings:
+        say(f"warning: {warning}")
+    if strict and fit.warnings:
+        raise CamdegradeError(f"{fit.warnings[0]}; strict: no profile (fix the input, or run without strict)")
+    return profile
+
+
+def check_sensor_scale(value: Any) -> float | None:
+    """``sensor_scale`` as a number, or ``None`` for ``"auto"``; a ``ValueError`` for anything else."""
+    number = not isinstance(value, bool) and isinstance(value, (int, float))
+    if value == "auto":
+        return None
+    if not (number and Resolution.MIN_SCALE <= value <= 1):
+        raise ValueError(
+            f"sensor_scale must be 'auto' or a number from {Resolution.MIN_SCALE} to 1, got sensor_scale={value!r}"
+        )
+    return float(value)
+
+
+def _with_sensor(steps: Sequence[tuple[str, UnpairedStep]], scale: float | None) -> list[tuple[str, UnpairedStep]]:
+    """``steps`` with the resolution step's ``scale`` (``None``: found from the captures)."""
+    return [(label, replace(step, scale=scale) if isinstance(step, SensorStep) else step) for label, step in steps]
+
+
+#: Where a profile's simulation of the clean set agrees with the captures in the statistics the fit matches: the
+#: flat-noise ratio inside this range and every band's log2 power difference within this many log2 units.
+NOISE_RATIO_RANGE = (0.8, 1.25)
+BAND_TOLERANCE = 0.5
+
+
+def unpaired_fidelity(
+    profile: CameraProfile, captured: Source, clean: Source, *, seed: int = 0, max_images: int | None = None
+) -> dict[str, Any]:
+    """The statistics :func:`fit_unpaired` matches, of ``profile``'s simulation of ``clean`` against ``captured``:
+    what it records as ``quality["unpaired_fidelity"]`` (the same images, crops and seeds give the same numbers),
+    plus ``agrees``: the noise ratio within :data:`NOISE_RATIO_RANGE` and every band within
+    :data:`BAND_TOLERANCE`. The unpaired diagnosis reports it beside its own statistics."""
+    captures, cleans = load_images(captured, "captured", max_images), load_images(clean, "clean", max_images)
+    check_count(captures, "captured")
+    check_count(cleans, "clean")
+    fit = UnpairedFit(captures, cleans, measure(captures, cleans), [], seed, lambda message: None)
+    fidelity = set_fidelity(fit, profile)
+    low, high = NOISE_RATIO_RANGE
+    ratio = fidelity["noise_ratio"]
+    fidelity["agrees"] = (ratio is None or low <= ratio <= high) and all(
+        abs(value) <= BAND_TOLERANCE for value in fidelity["bands"]
+    )
+    return fidelity
+
+
+def set_fidelity(fit: UnpairedFit, profile: CameraProfile | None = None) -> dict[str, Any]:
+    """The simulated clean set (through ``profile``, or the fitted chain) against the captures: flat-noise ratio
+    (pooled std), the set means' log2 band power differences
+    (:data:`~camdegrade.measures.fidelity.BAND_EDGES`) and the spectrum mismatch."""
+    chain = fit.chain() if profile is None else profile
+    noisy = flat_sums(fit.simulate(chain, fit.sets.noise_crops, "unpaired-check"))
+    real_std = fit.sets.real_noise.pooled_std()
+    ratio = noisy.pooled_std() / real_std if real_std > 0 else math.nan
+    sims = fit.simulate(chain, fit.sets.spectrum_crops, "unpaired-check")
+    sim_bands = torch.stack([band_power(image)[0] for image in sims]).clamp_min(1e-8).log2().mean(0)
+    real_crops = [centre_crop(image, SPECTRUM_SIDE) for image in fit.captures.images]
+    real_bands = torch.stack([band_power(image)[0] for image in real_crops]).clamp_min(1e-8).log2().mean(0)
+    mismatch = float((mean_spectrum(sims) - fit.sets.real_spectrum).pow(2).mean())
+    return {
+        "noise_ratio": round(ratio, 3) if math.isfinite(ratio) else None,
+        "bands": [round(float(value), 3) for value in sim_bands - real_bands],
+        "band_edges": list(BAND_EDGES),
+        "spectrum_mismatch": round(mismatch, 4),
+    }
+
+
+def measure(captures: ImageSet, cleans: ImageSet | None) -> Measured:
+    """What the fit measures of its sets once (:class:`~camdegrade.fitting.unpaired.bench.Measured`); without a
+    clean set the noise and the spectrum are simulated on the captures smoothed (:data:`STAND_IN_SIGMA`)."""
+    stand_ins = cleans.images if cleans else [blur_image(image, STAND_IN_SIGMA) for image in captures.images]
+    small_captures = [downscale(image, SMALL_SIDE) for image in captures.images]
+    small_cleans = [downscale(image, SMALL_SIDE) for image in cleans.images] if cleans else []
+    real_spectra = torch.stack([log_spectrum(centre_crop(image, SPECTRUM_SIDE)) for image in captures.images])
+    return Measured(
+        noise_crops=evenly_spaced(stand_ins, NOISE_IMAGES),
+        spectrum_crops=[centre_crop(image, SPECTRUM_SIDE) for image in evenly_spaced(stand_ins, SPECTRUM_IMAGES)],
+        real_noise=flat_sums(captures.images),
+        small_captures=small_captures,
+        small_cleans=small_cleans,
+        real_rings=ring_profiles(small_captures),
+        clean_rings=ring_profiles(small_cleans) if cleans else torch.zeros(0, RINGS, dtype=torch.float64),
+        real_spectra=real_spectra,
+        real_spectrum=real_spectra.mean(0),
+    )
+
+
+def _record(fit: UnpairedFit, seconds: float) -> dict[str, Any]:
+    """The profile's ``fitted``: the sets, every stage's evidence, what was kept and why the rest was not."""
+    skipped = fit.captures.skipped + (fit.cleans.skipped if fit.cleans else [])
+    out = {
+        "unpaired": True,
+        "captures": len(fit.captures.images),
+        "clean_images": len(fit.cleans.images) if fit.cleans else 0,
+        "unreadable": skipped,
+        "effects": fit.records,
+        "kept": [effect.name for effect in fit.chain()],
+        "not_fitted": fit.not_fitted,
+        "not_identifiable": sorted(NOT_IDENTIFIABLE),
+        "seed": fit.seed,
+        "fit_minutes": round(seconds / 60, 2),
+        **machine_record(),
+    }
+    if fit.warnings:
+        out["warnings"] = list(fit.warnings)
+    return out
+
+
+def _shown(steps: Sequence[tuple[str, UnpairedStep]], bar: tqdm) -> Iterator[UnpairedStep]:
+    """``steps`` one after the other, each shown on ``bar`` while it runs."""
+    for label, step in steps:
+        bar.set_postfix_str(label)
+        yield step
+        bar.update(1)
