@@ -37,7 +37,6 @@ from foreign_bench import DEFAULT_OUT, Pairs, fitted_profile, held_out_pairs, st
 from PIL import Image, ImageDraw
 from scipy import ndimage
 
-from camdegrade.fitting.pairset import simulate
 from camdegrade.metrics import psnr
 from foreign_cameras import CAMERAS, camera
 
@@ -87,10 +86,6 @@ def skipped_codes(images: list[torch.Tensor]) -> int:
     return int((~used[low : high + 1]).sum())
 
 
-def _rounded(images: list[torch.Tensor]) -> list[torch.Tensor]:
-    return [image.clamp(0, 1).mul(255).round().div(255) for image in images]
-
-
 def _fidelity(profile: Any) -> dict[str, Any]:
     """The fit's own fidelity record, the critics reduced to their accuracies."""
     record = dict((profile.quality or {}).get("fidelity") or {})
@@ -106,8 +101,8 @@ def measure(name: str, args: argparse.Namespace) -> dict[str, Any]:
     held = held_out_pairs(camera(name), args.held_out, args.size)
     cleans = [clean.float().div(255.0) for clean, _ in held]
     reals = [captured.float().div(255.0) for _, captured in held]
-    sampled = _rounded(simulate(profile, cleans, seed=0, stream="foreign-held-out"))
-    mean = _rounded(simulate(profile, cleans, seed=0, stream="foreign-held-out", deterministic=True))
+    sampled = profile.simulate(cleans, 0, stream="foreign-held-out", eight_bit=True)
+    mean = profile.simulate(cleans, 0, stream="foreign-held-out", deterministic=True, eight_bit=True)
     sigma, colour_map = fit_blur_colour_map(train_pairs(name, args.fit_pairs, args.size))
     baseline = [blur_colour_map(_unit(clean), sigma, colour_map) for clean, _ in held]
     fitted = profile.fitted or {}
@@ -192,7 +187,7 @@ def evidence_tiles(name: str, profile: Any, args: argparse.Namespace) -> list[Im
         windows = {index: _window(held[index][0].permute(1, 2, 0).numpy(), crop, flattest) for index in indices}
         index = (min if flattest else max)(windows, key=lambda i: windows[i][1])
         clean, captured = held[index]
-        sim = _rounded(simulate(profile, [clean.float().div(255.0)], seed=0, stream="foreign-png"))[0]
+        sim = profile.simulate([clean.float().div(255.0)], 0, stream="foreign-png", eight_bit=True)[0]
         trio = [image.permute(1, 2, 0).numpy() for image in (clean, captured, sim.mul(255).round().byte())]
         tiles += [_tile(image, windows[index][0], crop, zoom) for image in trio]
     return tiles
