@@ -12,13 +12,16 @@ kept in ``OUT/fits/`` and reused by ``bench_foreign_diagnosis.py``). On held-out
   channels and pairs): a tone table on 8-bit values skips codes, a float simulation does not.
 
 Beside them, the fit's own fidelity record (``profile.quality['fidelity']``, on its validation split): the critics
-(image-only, paired), the band log2 power ratios, the flat-noise and banding ratios, the 4-pixel grid ratio.
+(image-only, paired), the band log2 power ratios, the flat-noise and banding ratios, the 4-pixel grid ratio; the same
+image-only critic (same seeds) trained and scored on the held-out pairs; whether the fit warned
+(``profile.fitted['warnings']``).
 
 Run from the repo root::
 
     OMP_NUM_THREADS=1 .venv/bin/python bench/bench_foreign_fit.py             # 8 cameras, 120 training pairs each
     OMP_NUM_THREADS=1 .venv/bin/python bench/bench_foreign_fit.py --quick     # 2 cameras, 48 pairs
-    OMP_NUM_THREADS=1 .venv/bin/python bench/bench_foreign_fit.py --png docs/foreign_cameras.png
+    OMP_NUM_THREADS=1 .venv/bin/python bench/bench_foreign_fit.py --png docs/foreign_cameras.png  # capture | fit |
+                                                                             # blur + colour map, 2x and 1:1
 
 Writes ``OUT/fit/CAMERA.json`` per camera (``--table-only`` prints the table of those already written).
 """
@@ -37,6 +40,8 @@ from foreign_bench import DEFAULT_OUT, Pairs, fitted_profile, held_out_pairs, st
 from PIL import Image, ImageDraw
 from scipy import ndimage
 
+from camdegrade.fitting.quality import FIT_CRITIC_SEEDS
+from camdegrade.measures.critic import repeated_critic_test
 from camdegrade.metrics import psnr
 from foreign_cameras import CAMERAS, camera
 
@@ -95,9 +100,17 @@ def _fidelity(profile: Any) -> dict[str, Any]:
     return record
 
 
+def held_out_critic(cleans: list[torch.Tensor], reals: list[torch.Tensor], sampled: list[torch.Tensor]) -> float:
+    """The image-only critic of the fit's fidelity record (same seeds) on the held-out pairs, each its own scene."""
+    scenes = [f"held-out-{index}" for index in range(len(cleans))]
+    result = repeated_critic_test((cleans, reals, sampled), scenes, FIT_CRITIC_SEEDS, image_only=True)
+    return round(float(result.to_dict()["accuracy"]), 3)
+
+
 def measure(name: str, args: argparse.Namespace) -> dict[str, Any]:
     """One camera's row: its default fit, held-out PSNRs, the baseline, skipped codes and the fit's own record."""
-    profile, record = fitted_profile(name, args.fit_pairs, args.size, args.out)
+    log = (lambda line: print(f"[{name}] {line}", flush=True)) if args.verbose else None
+    profile, record = fitted_profile(name, args.fit_pairs, args.size, args.out, log=log)
     held = held_out_pairs(camera(name), args.held_out, args.size)
     cleans = [clean.float().div(255.0) for clean, _ in held]
     reals = [captured.float().div(255.0) for _, captured in held]
@@ -122,7 +135,9 @@ def measure(name: str, args: argparse.Namespace) -> dict[str, Any]:
         "psnr_mean": mean_psnr(mean),
         "psnr_identity": mean_psnr(cleans),
         "psnr_blur_colour_map": mean_psnr(baseline),
+        "critic_held_out_image_only": held_out_critic(cleans, reals, sampled),
         "blur_sigma": sigma,
+        "colour_map": np.round(colour_map, 6).tolist(),
         "skipped_codes": {"capture": skipped_codes([real for _, real in held]), "profile": skipped_codes(sampled)},
         "fidelity": _fidelity(profile),
         "fit_psnr": {key: value for key, value in (profile.quality or {}).items() if key.endswith("_psnr_db")},
@@ -140,8 +155,8 @@ def table(rows: list[dict[str, Any]]) -> str:
     lines = [
         "| camera | stages kept | held-out PSNR sampled / mean / blur+colour map / clean (dB) | critic image-only "
         "/ paired | bands log2 sim/real | flat noise / banding ratio | grid ratio | skipped codes capture / sim "
-        "| fit s |",
-        "|---|---|---|---|---|---|---|---|---:|",
+        "| held-out critic image-only | fit warns | fit s |",
+        "|---|---|---|---|---|---|---|---|---|---|---:|",
     ]
     for row in rows:
         fidelity = row["fidelity"]
@@ -152,7 +167,8 @@ def table(rows: list[dict[str, Any]]) -> str:
             f"| {_number(fidelity.get('critic_image_only'))} / {_number(fidelity.get('critic_paired'))} | {bands} "
             f"| {_number(fidelity.get('noise_ratio'))} / {_number(fidelity.get('banding_ratio'))} "
             f"| {_number(fidelity.get('grid_ratio'))} | {row['skipped_codes']['capture']} / "
-            f"{row['skipped_codes']['profile']} | {row['fit_seconds']:.0f} |"
+            f"{row['skipped_codes']['profile']} | {_number(row.get('critic_held_out_image_only'))} "
+            f"| {'yes' if row['warnings'] else 'no'} | {row['fit_seconds']:.0f} |"
         )
     return "\n".join(lines)
 
@@ -177,19 +193,30 @@ def _tile(image: np.ndarray, corner: tuple[int, int], side: int, zoom: int) -> I
     return crop.resize((side * zoom, side * zoom), Image.Resampling.NEAREST)
 
 
+def baseline_of(name: str, args: argparse.Namespace) -> tuple[float, np.ndarray]:
+    """The camera's blur + colour-map baseline: read from its row (``OUT/fit/CAMERA.json``), else fitted."""
+    path = args.out / "fit" / f"{name}.json"
+    row = json.loads(path.read_text()) if path.is_file() else {}
+    if "colour_map" in row:
+        return row["blur_sigma"], np.asarray(row["colour_map"])
+    return fit_blur_colour_map(train_pairs(name, args.fit_pairs, args.size))
+
+
 def evidence_tiles(name: str, profile: Any, args: argparse.Namespace) -> list[Image.Image]:
-    """On held-out pairs: clean | capture | default-fit simulation of the flattest 96² window of the walls scenes
-    at 1:1, and of the most textured 48² window of the photo crops at 2× nearest-neighbour."""
+    """On held-out pairs: capture | default-fit simulation | blur + colour-map baseline of the most textured 48²
+    window of the photo crops at 2× nearest-neighbour, then of the flattest 96² window of the walls scenes at 1:1."""
     held = held_out_pairs(camera(name), 8, args.size)
+    sigma, colour_map = baseline_of(name, args)
     side = min(96, args.size)
     tiles = []
-    for indices, zoom, crop, flattest in (((1, 5), 1, side, True), ((0, 2, 4, 6), 2, side // 2, False)):
+    for indices, zoom, crop, flattest in (((0, 2, 4, 6), 2, side // 2, False), ((1, 5), 1, side, True)):
         windows = {index: _window(held[index][0].permute(1, 2, 0).numpy(), crop, flattest) for index in indices}
         index = (min if flattest else max)(windows, key=lambda i: windows[i][1])
         clean, captured = held[index]
         sim = profile.simulate([clean.float().div(255.0)], 0, stream="foreign-png", eight_bit=True)[0]
-        trio = [image.permute(1, 2, 0).numpy() for image in (clean, captured, sim.mul(255).round().byte())]
-        tiles += [_tile(image, windows[index][0], crop, zoom) for image in trio]
+        base = blur_colour_map(_unit(clean), sigma, colour_map)
+        trio = [captured, sim.mul(255).round().byte(), base.mul(255).round().byte()]
+        tiles += [_tile(image.permute(1, 2, 0).numpy(), windows[index][0], crop, zoom) for image in trio]
     return tiles
 
 
@@ -204,7 +231,7 @@ def evidence_png(names: list[str], args: argparse.Namespace, path: Path) -> None
 
 
 def _compose(rows: list[tuple[str, list[Image.Image]]], path: Path) -> None:
-    labels = ["clean", "capture", "default fit", "clean 2x", "capture 2x", "default fit 2x"]
+    labels = ["capture 2x", "default fit 2x", "blur+map 2x", "capture 1:1", "default fit 1:1", "blur+map 1:1"]
     gap, head, side = 4, 14, rows[0][1][0].width
     canvas = Image.new("RGB", (6 * (side + gap) + 90, len(rows) * (side + gap) + head), "white")
     draw = ImageDraw.Draw(canvas)
@@ -227,9 +254,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--size", type=int, default=128)
     parser.add_argument("--quick", action="store_true", help="webcam and phone, 48 training and 16 held-out pairs")
     parser.add_argument("--png", type=Path, default=None, help="write the crops of --png-cameras' fits to this PNG")
-    parser.add_argument("--png-cameras", nargs="*", default=["webcam", "phone", "zoom-lanczos"])
+    parser.add_argument("--png-cameras", nargs="*", default=list(CAMERAS))
     parser.add_argument("--table-only", action="store_true", help="print the table of the rows already written")
     parser.add_argument("--out", type=Path, default=DEFAULT_OUT)
+    parser.add_argument("--verbose", action="store_true", help="print the fit's log")
     args = parser.parse_args(argv)
     torch.set_num_threads(1)
     if args.quick:
