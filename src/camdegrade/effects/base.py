@@ -4,13 +4,12 @@ from __future__ import annotations
 
 import copy
 from collections.abc import Callable, Iterable, Mapping, Sequence
-from typing import TYPE_CHECKING, Any, ClassVar, Literal, TypeAlias
+from typing import Any, ClassVar, Literal, TypeAlias
 
 import torch
 from torch import Tensor, nn
 
-if TYPE_CHECKING:
-    from camdegrade.effects.linear import LinearFilter
+from camdegrade.effects.linear import Encoding, LinearFilter
 
 __all__ = [
     "EFFECTS",
@@ -30,8 +29,6 @@ __all__ = [
 #: Physical order of stages in a camera: light passes the optics, hits the sensor, is processed, then encoded.
 STAGES: tuple[str, ...] = ("optics", "sensor", "isp", "codec")
 Stage = Literal["optics", "sensor", "isp", "codec"]
-#: How float values encode light: sRGB-encoded (what images hold) or linear light (what sensors and lenses act on).
-Encoding = Literal["srgb", "linear"]
 
 #: What a fitter accepts: a float ``(N, 3, H, W)`` batch in [0, 1], or a sequence of ``(3, H, W)`` images
 #: that may differ in size from pair to pair (uint8 is accepted too and scaled to [0, 1]).

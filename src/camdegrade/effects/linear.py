@@ -19,12 +19,12 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Literal
 
 import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from camdegrade.effects.base import Encoding
 from camdegrade.functional.analysis import LUMA_WEIGHTS
 from camdegrade.functional.filtering import SeparableTerm, convolve_spectrum, convolve_terms, luma_plane, terms_radius
 
@@ -33,12 +33,16 @@ __all__ = [
     "NEGLIGIBLE_TAP",
     "SPECTRUM_PAD",
     "ZERO",
+    "Encoding",
     "Gains",
     "Kernel",
     "LinearFilter",
     "gaussian_term",
     "taps_kernel",
 ]
+
+#: How float values encode light: sRGB-encoded (what images hold) or linear light (what sensors and lenses act on).
+Encoding = Literal["srgb", "linear"]
 
 #: Gains of a kernel on the ``rfft2`` grid of an ``h × w`` frame (complex128 ``(h, w // 2 + 1)``).
 Gains = Callable[[int, int], Tensor]

@@ -7,8 +7,9 @@ import json
 import os
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
+import torch
 from safetensors import SafetensorError, safe_open
 from safetensors.torch import save_file
 from torch import Tensor
@@ -18,13 +19,22 @@ from camdegrade.errors import CamdegradeError
 
 __all__ = ["TwoSampleState", "load_state", "save_state"]
 
-if TYPE_CHECKING:
-    from camdegrade.fitting.two_sample.train import _Game
-
 STATE_KEY = "camdegrade_two_sample"
 #: The state dicts and optimizers a checkpoint holds, by the prefix of their tensors' keys.
 MODULES = ("stage", "average", "critic")
 OPTIMIZERS = ("stage_optimizer", "critic_optimizer")
+
+
+class Game(Protocol):
+    """What a checkpoint reads and sets of the running fit (the trainer's game): its modules and optimizers by the
+    names in :data:`MODULES` and :data:`OPTIMIZERS`, its generator, step and history, and what it was started with."""
+
+    options: Any
+    steps: int
+    seed: int
+    step: int
+    history: list[dict[str, float]]
+    generator: torch.Generator
 
 
 @dataclass
@@ -41,7 +51,7 @@ class TwoSampleState:
     history: list[dict[str, float]] = field(default_factory=list)
 
     @classmethod
-    def capture(cls, game: _Game, fingerprint: str) -> TwoSampleState:
+    def capture(cls, game: Game, fingerprint: str) -> TwoSampleState:
         tensors: dict[str, Tensor] = {"generator": game.generator.get_state()}
         for name in MODULES:
             tensors.update({f"{name}.{key}": value for key, value in getattr(game, name).state_dict().items()})
@@ -62,7 +72,7 @@ class TwoSampleState:
             history=list(game.history),
         )
 
-    def check_matches(self, game: _Game, fingerprint: str, path: str | os.PathLike[str]) -> None:
+    def check_matches(self, game: Game, fingerprint: str, path: str | os.PathLike[str]) -> None:
         """Raise ``ValueError`` naming the first of options, seed, steps and data that differs from ``game``'s."""
         now = {"options": asdict(game.options), "seed": game.seed, "steps": game.steps, "data": fingerprint}
         saved = {"options": self.options, "seed": self.seed, "steps": self.steps, "data": self.fingerprint}
@@ -73,7 +83,7 @@ class TwoSampleState:
                     "the same ones, or start a new fit without resume"
                 )
 
-    def restore(self, game: _Game) -> None:
+    def restore(self, game: Game) -> None:
         """Set ``game``'s modules, optimizers, generator, step and history to this state."""
         for name in MODULES:
             prefix = f"{name}."
