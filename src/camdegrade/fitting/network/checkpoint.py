@@ -20,7 +20,16 @@ from camdegrade._files import atomic_path
 from camdegrade.errors import CamdegradeError
 from camdegrade.pairs.pairset import ImagePair
 
-__all__ = ["CHECKPOINT_KEY", "REQUIRED_KEYS", "TrainingState", "capture_state", "load_checkpoint", "save_checkpoint"]
+__all__ = [
+    "CHECKPOINT_KEY",
+    "REQUIRED_KEYS",
+    "TrainingState",
+    "capture_state",
+    "load_checkpoint",
+    "read_tensor_file",
+    "save_checkpoint",
+    "write_tensor_file",
+]
 
 CHECKPOINT_KEY = "camdegrade_checkpoint"
 #: Metadata keys every checkpoint holds (and the tensor ``generator``).
@@ -62,19 +71,32 @@ def save_checkpoint(state: TrainingState, path: str | os.PathLike[str]) -> Path:
         "scheduler": state.scheduler,
         "data": state.data,
     }
+    return write_tensor_file(path, tensors, CHECKPOINT_KEY, metadata)
+
+
+def write_tensor_file(path: str | os.PathLike[str], tensors: dict[str, Tensor], key: str, metadata: Any) -> Path:
+    """``tensors`` and ``metadata`` (JSON under ``key``) written to ``path`` as safetensors, atomically: an
+    interrupted write never replaces a good checkpoint."""
     with atomic_path(path) as temporary:
-        save_file(tensors, str(temporary), metadata={CHECKPOINT_KEY: json.dumps(metadata, sort_keys=True)})
+        save_file(tensors, str(temporary), metadata={key: json.dumps(metadata, sort_keys=True)})
     return Path(path)
 
 
-def load_checkpoint(path: str | os.PathLike[str]) -> TrainingState:
-    """Read a checkpoint written by :func:`save_checkpoint` (safetensors only; never unpickles)."""
+def read_tensor_file(path: str | os.PathLike[str]) -> tuple[dict[str, str], dict[str, Tensor]]:
+    """The string metadata and the tensors of a safetensors checkpoint (never unpickles); a ``CamdegradeError``
+    naming the file when it cannot be read."""
     try:
         with safe_open(str(path), framework="pt", device="cpu") as handle:
             raw = handle.metadata() or {}
             tensors = {key: handle.get_tensor(key) for key in handle.keys()}  # noqa: SIM118
     except (SafetensorError, OSError) as error:
         raise CamdegradeError(f"cannot read checkpoint {str(path)!r}: {error}") from error
+    return raw, tensors
+
+
+def load_checkpoint(path: str | os.PathLike[str]) -> TrainingState:
+    """Read a checkpoint written by :func:`save_checkpoint` (safetensors only; never unpickles)."""
+    raw, tensors = read_tensor_file(path)
     if CHECKPOINT_KEY not in raw:
         raise CamdegradeError(f"{str(path)!r} is not a camdegrade training checkpoint")
     try:

@@ -10,12 +10,10 @@ from pathlib import Path
 from typing import Any, Protocol
 
 import torch
-from safetensors import SafetensorError, safe_open
-from safetensors.torch import save_file
 from torch import Tensor
 
-from camdegrade._files import atomic_path
 from camdegrade.errors import CamdegradeError
+from camdegrade.fitting.network.checkpoint import read_tensor_file, write_tensor_file
 
 __all__ = ["TwoSampleState", "load_state", "save_state"]
 
@@ -111,19 +109,12 @@ def save_state(state: TwoSampleState, path: str | os.PathLike[str]) -> Path:
         "param_groups": state.param_groups,
         "history": state.history,
     }
-    with atomic_path(path) as temporary:
-        save_file(state.tensors, str(temporary), metadata={STATE_KEY: json.dumps(metadata, sort_keys=True)})
-    return Path(path)
+    return write_tensor_file(path, state.tensors, STATE_KEY, metadata)
 
 
 def load_state(path: str | os.PathLike[str]) -> TwoSampleState:
     """Read a checkpoint written by :func:`save_state`; a ``CamdegradeError`` naming the file for anything else."""
-    try:
-        with safe_open(str(path), framework="pt", device="cpu") as handle:
-            raw = handle.metadata() or {}
-            tensors = {key: handle.get_tensor(key) for key in handle.keys()}  # noqa: SIM118
-    except (SafetensorError, OSError) as error:
-        raise CamdegradeError(f"cannot read checkpoint {str(path)!r}: {error}") from error
+    raw, tensors = read_tensor_file(path)
     try:
         metadata = json.loads(raw[STATE_KEY])
         return TwoSampleState(
