@@ -105,3 +105,11 @@ def test_city100_captures_shrunk_to_256_px_get_no_jpeg_stage(real_pairs_dir: Pat
             shrunk.append(picture.convert("RGB").resize((256, 183), Image.BICUBIC))
     profile = fit_unpaired(_save(shrunk, tmp_path / "cap", [None] * len(shrunk)), effects=("jpeg",))
     assert _jpeg(profile) is None and profile.fitted["effects"]["jpeg"]["uncompressed_images"] == 20
+
+
+@pytest.mark.slow
+def test_pngs_upscaled_by_pil_get_neither_a_jpeg_nor_a_sharpen_stage_by_default(tmp_path: Path) -> None:
+    """The red team's 2× upscaled PNGs got jpeg q75 and sharpen 2.0 (the spectrum refit around the false codec)."""
+    upscaled = [crop.resize((192, 192), Image.BICUBIC) for crop in _crops(MIN_IMAGES, 96)]
+    profile = fit_unpaired(_save(upscaled, tmp_path / "cap", [None] * MIN_IMAGES))
+    assert not {"jpeg", "sharpen"} & set(profile.effect_names), profile.effect_names
