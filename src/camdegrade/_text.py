@@ -3,6 +3,8 @@ can move the cursor, clear the screen, reverse the text's direction or start a l
 
 from __future__ import annotations
 
+import os
+
 
 def printable(text: object) -> str:
     """``str(text)`` with every character that is not printable (control characters such as ESC and newline, format
@@ -30,3 +32,9 @@ def _escape(char: str) -> str:
     if code < 0x100:
         return {"\n": "\\n", "\r": "\\r", "\t": "\\t"}.get(char, f"\\x{code:02x}")
     return f"\\u{code:04x}" if code < 0x10000 else f"\\U{code:08x}"
+
+
+def not_an_option(path: str) -> str:
+    """``path`` as an argument of a suggested command line: prefixed ``./`` when it starts with ``-``, so that the
+    command does not read it as an option (quote the whole line with :func:`shlex.join`)."""
+    return os.path.join(".", path) if path.startswith("-") else path

@@ -233,9 +233,9 @@ def _write(profile, args: argparse.Namespace, checkpoint: Path) -> None:
 
 def _next_step(profile, args: argparse.Namespace) -> None:
     """The exact diagnose command, quoted, when the fit's validation critic tells the profile from the captures."""
-    from camdegrade.fitting.critic_warning import critic_warning, diagnose_command
+    from camdegrade.fitting.critic_warning import critic_tells, diagnose_command
 
-    if args.pairs is not None and critic_warning(profile.quality.get("fidelity"), None):
+    if args.pairs is not None and critic_tells(profile.quality.get("fidelity")):
         command = diagnose_command(str(args.output), str(args.pairs))
         print(f"camdegrade fit: to look for the cause: {printable(command)}", file=sys.stderr)
 

@@ -9,6 +9,7 @@ import shlex
 from collections.abc import Callable, Iterable
 
 from camdegrade._checks import check_seed
+from camdegrade._text import not_an_option
 from camdegrade.diagnose.attribute import Attribution, attribute, check_candidates, keeping
 from camdegrade.diagnose.changes import KINDS, Change, check_kinds, effect_params
 from camdegrade.diagnose.critic_check import CriticCheck, check_changes
@@ -190,13 +191,9 @@ def refit_command(profile: str, pairs: str) -> str:
     """The shell command that refits ``profile``'s network on ``pairs``, every argument quoted for a POSIX shell
     (:func:`shlex.join`): a name or path holding ``;``, ``$( )``, quotes or line breaks stays one argument when the
     command is pasted, and one starting with ``-`` is not read as an option."""
-    arguments = ["camdegrade", "fit", _not_an_option(pairs), *REFIT_OPTIONS[:2]]
-    arguments += ["--init-from", _not_an_option(profile), *REFIT_OPTIONS[2:]]
+    arguments = ["camdegrade", "fit", not_an_option(pairs), *REFIT_OPTIONS[:2]]
+    arguments += ["--init-from", not_an_option(profile), *REFIT_OPTIONS[2:]]
     return shlex.join(arguments)
-
-
-def _not_an_option(path: str) -> str:
-    return os.path.join(".", path) if path.startswith("-") else path
 
 
 def _reference(given: object, placeholder: str) -> str:

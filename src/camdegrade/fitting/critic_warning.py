@@ -13,7 +13,9 @@ import shlex
 from collections.abc import Mapping
 from typing import Any
 
-__all__ = ["CRITIC_WARNING_ACCURACY", "critic_warning", "diagnose_command", "differing_statistics"]
+from camdegrade._text import not_an_option
+
+__all__ = ["CRITIC_WARNING_ACCURACY", "critic_tells", "critic_warning", "diagnose_command", "differing_statistics"]
 
 #: Image-only critic accuracy above which a fit warns. 0.5 is a critic that cannot tell; the City100 built-in reads
 #: 0.64, its eight single critics 0.55–0.83 (docs/results.md): three quarters is beyond a single critic's noise.
@@ -30,9 +32,9 @@ def critic_warning(fidelity: Mapping[str, Any] | None, pairs: str | None) -> lis
     """The warning (a list of at most one) for a fit whose validation image-only critic is above
     :data:`CRITIC_WARNING_ACCURACY`; ``fidelity``: :func:`~camdegrade.fitting.quality.validation_quality`'s record,
     ``pairs``: the path the pairs were given as (``None``: tensors, named ``PAIRS``)."""
-    critic = (fidelity or {}).get("critic_image_only")
-    if not isinstance(critic, Mapping) or not critic.get("accuracy", 0.0) > CRITIC_WARNING_ACCURACY:
+    if not critic_tells(fidelity):
         return []
+    critic = (fidelity or {})["critic_image_only"]
     named = differing_statistics(fidelity or {})
     found = (
         "the statistics that differ most: " + ", ".join(text for _, text in named)
@@ -47,6 +49,12 @@ def critic_warning(fidelity: Mapping[str, Any] | None, pairs: str | None) -> lis
         f"{CRITIC_WARNING_ACCURACY:g}: a model trained on the simulation can tell it from the camera); {found}; "
         f"look for the cause with `{diagnose_command(None, pairs)}`, best on pairs the fit did not see"
     ]
+
+
+def critic_tells(fidelity: Mapping[str, Any] | None) -> bool:
+    """Whether the validation image-only critic of ``fidelity`` is above :data:`CRITIC_WARNING_ACCURACY`."""
+    critic = (fidelity or {}).get("critic_image_only")
+    return isinstance(critic, Mapping) and critic.get("accuracy", 0.0) > CRITIC_WARNING_ACCURACY
 
 
 def differing_statistics(fidelity: Mapping[str, Any]) -> list[tuple[float, str]]:
@@ -70,4 +78,4 @@ def diagnose_command(profile: str | None, pairs: str | None) -> str:
     """``camdegrade diagnose PROFILE PAIRS`` with each path quoted for a POSIX shell (a placeholder where unknown;
     a path starting with ``-`` is prefixed ``./`` so that it is not read as an option)."""
     names = [profile or PROFILE_PLACEHOLDER, pairs or PAIRS_PLACEHOLDER]
-    return shlex.join(["camdegrade", "diagnose", *(f"./{name}" if name.startswith("-") else name for name in names)])
+    return shlex.join(["camdegrade", "diagnose", *(not_an_option(name) for name in names)])
