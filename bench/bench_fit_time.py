@@ -37,9 +37,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from machine import cpu_description, load_text
 
 import camdegrade.fitting.fit as fit_module
-from camdegrade._pixels import as_unit
+from camdegrade._support.pixels import as_unit
 from camdegrade.fitting import FitConfig, PairSet, discover_pairs, filter_pairs, fit_profile, load_pair
-from camdegrade.metrics import psnr
+from camdegrade.measures.metrics import psnr
 
 ROOT = Path(__file__).resolve().parents[1]
 #: Issue 46's targets: wall seconds on 2 idle cores.

@@ -42,7 +42,7 @@ from scipy import ndimage
 
 from camdegrade.fitting.quality import FIT_CRITIC_SEEDS
 from camdegrade.measures.critic import repeated_critic_test
-from camdegrade.metrics import psnr
+from camdegrade.measures.metrics import psnr
 from foreign_cameras import CAMERAS, camera
 
 #: σ (pixels) tried for the baseline's Gaussian blur.

@@ -57,7 +57,7 @@ from machine import cpu_description, load_text
 from camdegrade import CameraDegrade, list_profiles, load_profile
 from camdegrade.effects.chain import apply_effects
 from camdegrade.effects.plan import FilterRun, chain_plan
-from camdegrade.inference import native_bfloat16, resolve_precision, run_network
+from camdegrade.network.inference import native_bfloat16, resolve_precision, run_network
 
 SIZE = 224
 

@@ -23,7 +23,7 @@ from bench_cli import cpu_name
 from PIL import Image
 
 from camdegrade import CameraProfile
-from camdegrade._pixels import unit_to_bytes
+from camdegrade._support.pixels import unit_to_bytes
 from camdegrade.effects import Blur, Color, Noise, Tone, Vignetting
 from camdegrade.fitting.unpaired import UNPAIRED_EFFECTS, fit_unpaired
 from camdegrade.synthetic import dead_leaves_images

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import torch
 
-from camdegrade.inference import native_bfloat16
+from camdegrade.network.inference import native_bfloat16
 
 
 def cpu_description() -> str:

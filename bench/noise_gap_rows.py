@@ -37,8 +37,8 @@ import torch
 from torch import Tensor
 
 from camdegrade import fit_profile
-from camdegrade._pixels import as_unit
-from camdegrade._seeds import derived_generator
+from camdegrade._support.pixels import as_unit
+from camdegrade._support.seeds import derived_generator
 from camdegrade.effects import Noise
 from camdegrade.fitting import FitConfig, PairSet
 from camdegrade.functional.analysis import flat_mask

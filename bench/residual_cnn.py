@@ -15,7 +15,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from camdegrade._seeds import derived_generator
+from camdegrade._support.seeds import derived_generator
 
 #: The seed streams of the initialisation and the windows (named when the network was the noise bench's denoiser;
 #: kept so that its numbers reproduce).

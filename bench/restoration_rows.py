@@ -26,7 +26,7 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from camdegrade import load_profile
-from camdegrade._pixels import as_unit, unit_to_bytes
+from camdegrade._support.pixels import as_unit, unit_to_bytes
 from camdegrade.effects import Blur
 from camdegrade.errors import PairsError
 from camdegrade.fitting.unpaired import fit_unpaired

@@ -16,11 +16,10 @@ import torch
 from torchvision.transforms.v2 import functional as TF
 from torchvision.utils import make_grid
 
-from camdegrade import CameraDegrade, list_profiles, load_profile
+from camdegrade import CameraDegrade, list_profiles, load_profile, profile_summary
 from camdegrade.functional.analysis import flat_mask
 from camdegrade.io import write_image
-from camdegrade.metrics import psnr
-from camdegrade.summary import profile_summary
+from camdegrade.measures.metrics import psnr
 
 SIZE = 256
 

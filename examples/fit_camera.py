@@ -14,9 +14,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from camdegrade import CameraDegrade, FitConfig, PairSet, fit_profile, simulate_pairs
+from camdegrade import CameraDegrade, FitConfig, PairSet, fit_profile, profile_summary, simulate_pairs
 from camdegrade.io import write_image
-from camdegrade.summary import profile_summary
 from camdegrade.synthetic import dead_leaves_images
 
 

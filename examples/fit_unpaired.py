@@ -18,9 +18,8 @@ from pathlib import Path
 
 import torch
 
-from camdegrade import VirtualCamera, fit_unpaired
+from camdegrade import VirtualCamera, fit_unpaired, profile_summary
 from camdegrade.effects import Blur, Color, Noise, Tone, Vignetting
-from camdegrade.summary import profile_summary
 from camdegrade.synthetic import dead_leaves_images
 
 #: The demo's camera: vignetting, lens blur, 4 levels of sensor noise, a white balance and a tone curve.

@@ -34,7 +34,7 @@ from camdegrade import CameraProfile, load_profile
 from camdegrade.effects import EFFECTS, Effect, Noise
 from camdegrade.fitting import discover_pairs, filter_pairs, load_pair
 from camdegrade.fitting.in_chain import fit_noise_stage
-from camdegrade.metrics import psnr, ssim
+from camdegrade.measures.metrics import psnr, ssim
 
 DEFAULT_DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "real-pairs"
 HELD_OUT = {f"{n:03d}" for n in range(56, 71)} | {"098"}

@@ -28,7 +28,7 @@ from PIL import Image, ImageDraw
 from torch import Tensor
 
 from camdegrade import CameraDegrade, CameraProfile, load_profile
-from camdegrade._pixels import as_unit
+from camdegrade._support.pixels import as_unit
 from camdegrade.fitting import discover_pairs, filter_pairs, load_pair
 from camdegrade.functional.analysis import flat_mask, flattest_window, gradient_energy
 from camdegrade.functional.noise_stats import NoiseSums

@@ -20,7 +20,7 @@ from pathlib import Path
 from fit_city100 import DEFAULT_DATA, city100_iphone_pairs, load
 
 from camdegrade import load_profile
-from camdegrade._pixels import as_unit
+from camdegrade._support.pixels import as_unit
 from camdegrade.fitting.in_chain import CALIBRATION_PAIRS, fit_noise_stage
 from camdegrade.fitting.steps.noise_evidence import as_stored
 from camdegrade.functional.analysis import flat_mask

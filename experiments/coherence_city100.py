@@ -32,7 +32,7 @@ import torch
 from torch import Tensor
 
 from camdegrade import CameraDegrade, load_profile
-from camdegrade._pixels import as_unit
+from camdegrade._support.pixels import as_unit
 from camdegrade.fitting import discover_pairs, filter_pairs, load_pair
 from camdegrade.functional.analysis import hann2d, luma
 

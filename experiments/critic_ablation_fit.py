@@ -44,7 +44,7 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from camdegrade import CameraDegrade, CameraProfile, load_profile
-from camdegrade._pixels import as_unit
+from camdegrade._support.pixels import as_unit
 from camdegrade.effects import Denoise
 from camdegrade.fitting import discover_pairs, filter_pairs, load_pair
 from camdegrade.fitting.network.baseline import apply_linear_baseline, fit_linear_baseline

@@ -43,7 +43,7 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from camdegrade import CameraDegrade, CameraProfile, load_profile
-from camdegrade._pixels import as_unit, unit_to_bytes
+from camdegrade._support.pixels import as_unit, unit_to_bytes
 from camdegrade.effects import Blur
 from camdegrade.fitting import discover_pairs, filter_pairs, load_pair
 from camdegrade.functional.analysis import luma

@@ -23,7 +23,7 @@ import statistics
 from simulated_camera_fidelity import pairs
 
 from camdegrade import load_profile
-from camdegrade._pixels import as_unit
+from camdegrade._support.pixels import as_unit
 from camdegrade.measures.critic import repeated_critic_test
 
 

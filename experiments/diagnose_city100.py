@@ -21,7 +21,7 @@ from pathlib import Path
 
 import torch
 
-from camdegrade._pixels import as_unit
+from camdegrade._support.pixels import as_unit
 from camdegrade.diagnose import diagnose
 from camdegrade.fitting import discover_pairs, filter_pairs, load_pair
 from camdegrade.measures.critic import repeated_critic_test

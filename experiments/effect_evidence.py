@@ -23,7 +23,7 @@ import torch
 import torch.nn.functional as F
 from PIL import Image
 
-from camdegrade._pixels import unit_to_bytes
+from camdegrade._support.pixels import unit_to_bytes
 from camdegrade.effects import Blur, Noise, Tone
 from camdegrade.fitting import FitConfig, PairSet, fit_profile
 from camdegrade.sim import VirtualCamera

@@ -37,7 +37,7 @@ from PIL import Image, ImageDraw
 from torch import Tensor
 
 from camdegrade import CameraDegrade, load_profile
-from camdegrade._pixels import as_unit, unit_to_bytes
+from camdegrade._support.pixels import as_unit, unit_to_bytes
 from camdegrade.fitting import discover_pairs, filter_pairs, load_pair
 from camdegrade.functional.analysis import flat_mask, gradient_energy, hann2d, luma
 from camdegrade.functional.blur import blur_image

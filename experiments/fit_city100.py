@@ -21,7 +21,7 @@ import torch
 from camdegrade import CameraProfile
 from camdegrade.fitting import FitConfig, Pair, discover_pairs, filter_pairs, load_pair
 from camdegrade.fitting.network.training import evaluate_psnr, fit_network
-from camdegrade.metrics import psnr, ssim
+from camdegrade.measures.metrics import psnr, ssim
 
 DEFAULT_DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "real-pairs"
 HELD_OUT = {f"{n:03d}" for n in range(56, 71)} | {"098"}

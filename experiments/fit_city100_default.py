@@ -29,12 +29,12 @@ from pathlib import Path
 import torch
 
 from camdegrade import CameraDegrade
-from camdegrade._pixels import as_unit
-from camdegrade._recipes import CURVES, TEXTURES, UPSAMPLINGS
+from camdegrade._support.pixels import as_unit
+from camdegrade._support.recipes import CURVES, TEXTURES, UPSAMPLINGS
 from camdegrade.fitting import FitConfig, PairSet, discover_pairs, filter_pairs, fit_profile, load_pair
 from camdegrade.measures.critic import repeated_critic_test
 from camdegrade.measures.fidelity import measure_fidelity
-from camdegrade.metrics import psnr
+from camdegrade.measures.metrics import psnr
 
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_DATA = ROOT.parent / "shared" / "data" / "real-pairs"

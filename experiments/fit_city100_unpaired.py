@@ -30,7 +30,7 @@ from PIL import Image, ImageDraw
 from torch import Tensor
 
 from camdegrade import load_profile
-from camdegrade._pixels import as_unit, unit_to_bytes
+from camdegrade._support.pixels import as_unit, unit_to_bytes
 from camdegrade.fitting import discover_pairs, filter_pairs, load_pair
 from camdegrade.fitting.unpaired import fit_unpaired
 from camdegrade.functional.analysis import flat_mask, gradient_energy

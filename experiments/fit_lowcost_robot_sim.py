@@ -31,7 +31,7 @@ from camdegrade import CameraProfile
 from camdegrade.fitting import FitConfig, discover_pairs, fit_profile, load_pair
 from camdegrade.io import write_image
 from camdegrade.measures.fidelity import measure_fidelity
-from camdegrade.metrics import psnr, ssim
+from camdegrade.measures.metrics import psnr, ssim
 from camdegrade.sim import PRESETS, simulate_pairs
 
 PRESET = "lowcost-robot"

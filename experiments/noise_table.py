@@ -31,7 +31,7 @@ from pathlib import Path
 import torch
 from torch import Tensor
 
-from camdegrade._pixels import as_unit
+from camdegrade._support.pixels import as_unit
 from camdegrade.effects import Noise
 from camdegrade.functional.analysis import flat_mask
 from camdegrade.functional.noise_stats import NoiseSums

@@ -20,7 +20,7 @@ from pathlib import Path
 from torch import Tensor
 
 from camdegrade import CameraDegrade, CameraProfile, load_profile
-from camdegrade._pixels import as_unit
+from camdegrade._support.pixels import as_unit
 from camdegrade.effects import FrequencyResponse
 from camdegrade.fitting import discover_pairs, filter_pairs, load_pair
 from camdegrade.measures.critic import repeated_critic_test

@@ -23,7 +23,7 @@ import torch
 from noise_table import default_real_pairs_dir
 from simulated_camera_fidelity import pairs as simulated_pairs
 
-from camdegrade._pixels import unit_to_bytes
+from camdegrade._support.pixels import unit_to_bytes
 from camdegrade.effects import JPEG, Blur, Noise
 from camdegrade.functional import resolution_image
 from camdegrade.io import read_image

@@ -32,7 +32,7 @@ from PIL import Image, ImageDraw
 from torch import Tensor
 
 from camdegrade import CameraProfile, load_profile
-from camdegrade._pixels import as_unit, unit_to_bytes
+from camdegrade._support.pixels import as_unit, unit_to_bytes
 from camdegrade.effects import Sharpen
 from camdegrade.effects.base import evenly_spaced
 from camdegrade.fitting import discover_pairs, filter_pairs, load_pair

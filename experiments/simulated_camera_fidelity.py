@@ -33,15 +33,15 @@ import torch
 from effect_evidence import SIZE, chart
 from PIL import Image
 
-from camdegrade._pixels import as_unit, unit_to_bytes
-from camdegrade._recipes import CURVES, TEXTURES, UPSAMPLINGS
+from camdegrade._support.pixels import as_unit, unit_to_bytes
+from camdegrade._support.recipes import CURVES, TEXTURES, UPSAMPLINGS
 from camdegrade.diagnose import diagnose
 from camdegrade.effects import Blur, Color, Noise, Tone
 from camdegrade.fitting import FitConfig, fit_profile
 from camdegrade.fitting.network.baseline import apply_linear_baseline, fit_linear_baseline
 from camdegrade.measures.critic import repeated_critic_test
 from camdegrade.measures.fidelity import measure_fidelity
-from camdegrade.metrics import psnr
+from camdegrade.measures.metrics import psnr
 from camdegrade.sim import VirtualCamera
 from camdegrade.synthetic import dead_leaves_images
 

@@ -28,13 +28,13 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from camdegrade import CameraDegrade, load_profile
-from camdegrade._pixels import as_unit
+from camdegrade._support.pixels import as_unit
 from camdegrade.fitting import discover_pairs, filter_pairs, load_pair
 from camdegrade.functional import blur_image
 from camdegrade.functional.analysis import hann2d, luma
 from camdegrade.measures.critic import repeated_critic_test
 from camdegrade.measures.fidelity import measure_fidelity
-from camdegrade.metrics import psnr
+from camdegrade.measures.metrics import psnr
 
 DEFAULT_DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "real-pairs"
 HELD_OUT = {f"{n:03d}" for n in range(56, 71)} | {"098"}

@@ -32,7 +32,7 @@ from PIL import Image, ImageDraw
 from torch import Tensor
 
 from camdegrade import CameraProfile, load_profile
-from camdegrade._pixels import as_unit, unit_to_bytes
+from camdegrade._support.pixels import as_unit, unit_to_bytes
 from camdegrade.fitting import discover_pairs, filter_pairs, load_pair
 from camdegrade.fitting.two_sample.gate import fit_learned_stage
 from camdegrade.fitting.two_sample.train import TwoSampleOptions, fit_two_sample

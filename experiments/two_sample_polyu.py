@@ -25,7 +25,7 @@ import torch
 from PIL import Image
 
 from camdegrade import CameraProfile
-from camdegrade._pixels import as_unit
+from camdegrade._support.pixels import as_unit
 from camdegrade.fitting import Pair, discover_pairs, filter_pairs, load_pair
 from camdegrade.fitting.two_sample.gate import fit_learned_stage, set_statistics
 from camdegrade.fitting.two_sample.train import TwoSampleOptions, fit_two_sample

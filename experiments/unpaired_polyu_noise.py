@@ -25,7 +25,7 @@ import torch
 from PIL import Image
 
 from camdegrade import CameraProfile
-from camdegrade._pixels import as_unit
+from camdegrade._support.pixels import as_unit
 from camdegrade.fitting.unpaired import fit_unpaired
 from camdegrade.functional.analysis import flat_mask
 from camdegrade.functional.noise_stats import NoiseSums

@@ -20,7 +20,7 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
 from camdegrade import VirtualCamera
-from camdegrade._seeds import derived_generator
+from camdegrade._support.seeds import derived_generator
 from camdegrade.effects import Blur, Color, FrequencyResponse, Noise, Sharpen, Tone, Vignetting
 from camdegrade.fitting.unpaired import UNPAIRED_EFFECTS, fit_unpaired
 from camdegrade.functional.tone import tone_curve

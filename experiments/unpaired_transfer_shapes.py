@@ -30,7 +30,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from fit_city100_unpaired import CAPTURED_SCENES, CLEAN_SCENES, DEFAULT_DATA, HELD_OUT, city100
 
 from camdegrade import CameraProfile
-from camdegrade._pixels import as_unit
+from camdegrade._support.pixels import as_unit
 from camdegrade.effects import JPEG, Blur, Effect, FrequencyResponse, Resolution, Sharpen
 from camdegrade.effects.base import evenly_spaced
 from camdegrade.fitting.unpaired.spectrum import SPECTRUM_SIDE, band_centres, centre_crop, mean_spectrum

@@ -15,7 +15,7 @@ import pytest
 import torch
 
 import camdegrade
-from camdegrade._seeds import derive_seed, derived_generator
+from camdegrade._support.seeds import derive_seed, derived_generator
 from camdegrade.effects import EFFECTS, Effect
 from camdegrade.effects.base import STAGES
 from camdegrade.measures import FAMILIES
@@ -123,7 +123,7 @@ def test_seed_scheme_is_a_fixed_formula() -> None:
 
 @pytest.mark.slow
 def test_seed_scheme_is_the_same_in_another_process() -> None:
-    code = "from camdegrade._seeds import derive_seed; print(derive_seed(7, 'dataloader-worker', 3))"
+    code = "from camdegrade._support.seeds import derive_seed; print(derive_seed(7, 'dataloader-worker', 3))"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert int(out) == derive_seed(7, "dataloader-worker", 3)
 
@@ -137,8 +137,8 @@ FORBIDDEN = {
     "data": ("fitting", "diagnose", "sim"),
     "fitting": ("diagnose", "transform", "data"),
     "measures": ("profile", "engine", "transform", "data", "fitting", "diagnose", "sim"),
-    "synthetic": ("effects", "profile", "engine", "transform", "data", "fitting", "diagnose", "network", "inference"),
-    "inference": ("effects", "profile", "engine", "transform", "data", "fitting", "diagnose", "sim", "io"),
+    "synthetic": ("effects", "profile", "engine", "transform", "data", "fitting", "diagnose", "network"),
+    "network": ("effects", "profile", "engine", "transform", "data", "fitting", "diagnose", "sim", "io"),
     "pairs": ("effects", "profile", "engine", "transform", "data", "fitting", "diagnose", "network", "measures", "sim"),
 }
 
@@ -169,7 +169,10 @@ def test_the_policy_module_imports_only_leaf_helpers() -> None:
         modules = {node.module for node in ast.walk(tree) if isinstance(node, ast.ImportFrom)}
         modules |= {alias.name for node in ast.walk(tree) if isinstance(node, ast.Import) for alias in node.names}
         inside = {m for m in modules if m and m.startswith("camdegrade")}
-        assert inside <= {"camdegrade._checks", "camdegrade._seeds", "camdegrade.data._keys"}, (name, inside)
+        assert inside <= {"camdegrade._support.checks", "camdegrade._support.seeds", "camdegrade.data._keys"}, (
+            name,
+            inside,
+        )
         assert not {m for m in modules if m and m.split(".")[0] in ("torchvision", "PIL")}
 
 
@@ -306,7 +309,6 @@ TOO_BIG: dict[str, str] = {
     "_profile_format/check.py": "the torch-free checks of every header field; left for later (issue 45)",
     "diagnose/core.py": "diagnose() and its verdict in words; the verdict's own module is left for later (issue 45)",
     "diagnose/report.py": "the report and its HTML; left for later (issue 45)",
-    "./": "the package's leaf helpers and top rooms; sorting them into folders is left for later (issue 45)",
     "effects/": "one module per effect (the registry's rule); grouping by stage is left for later (issue 45)",
     "functional/": "one module per kernel family; left for later (issue 45)",
     "measures/": "one module per statistic family and the critics; left for later (issue 45)",

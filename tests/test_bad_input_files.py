@@ -10,8 +10,8 @@ from pathlib import Path
 
 import pytest
 
-import camdegrade._files as files
-from camdegrade._files import atomic_path
+import camdegrade._support.files as files
+from camdegrade._support.files import atomic_path
 
 
 def test_the_file_is_fsynced_before_the_rename_and_the_folder_after(tmp_path: Path, monkeypatch) -> None:

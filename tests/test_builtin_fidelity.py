@@ -14,7 +14,7 @@ import pytest
 import torch
 
 from camdegrade import CameraDegrade, load_profile
-from camdegrade._pixels import as_unit
+from camdegrade._support.pixels import as_unit
 from camdegrade.fitting import discover_pairs, filter_pairs, load_pair
 from camdegrade.measures.fidelity import FidelityReport, measure_fidelity
 from conftest import PAPER_BUILT_IN, REPOSITORY

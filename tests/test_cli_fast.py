@@ -22,9 +22,9 @@ from camdegrade._profile_format.check import (
     effect_facts,
 )
 from camdegrade._profile_format.header import read_header, running_versions
+from camdegrade._profile_format.summary import profile_summary
 from camdegrade.effects import EFFECTS
 from camdegrade.network import MAX_WIDTH, DomainShiftNet
-from camdegrade.summary import profile_summary
 from profiles_for_tests import deterministic_profile, stochastic_profile
 
 HEAVY = ("torch", "torchvision")

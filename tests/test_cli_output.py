@@ -14,7 +14,7 @@ import pytest
 import torch
 
 from bad_inputs import run_cli
-from camdegrade._text import printable
+from camdegrade._support.text import printable
 from camdegrade.io import write_image
 from camdegrade.pairs.discovery import discover_pairs
 from profiles_for_tests import deterministic_profile

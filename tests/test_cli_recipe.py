@@ -16,7 +16,7 @@ import pytest
 import camdegrade
 import camdegrade.fitting.network.training as training_module
 import camdegrade.pairs.discovery as pairs_module
-from camdegrade._recipes import FAST, FIELDS, PAPER, TRAINING_FIELDS, recipe_default
+from camdegrade._support.recipes import FAST, FIELDS, PAPER, TRAINING_FIELDS, recipe_default
 from camdegrade.cli import diagnose as diagnose_command
 from camdegrade.cli import distill as distill_command
 from camdegrade.cli import main, main_parser

@@ -17,7 +17,7 @@ import pytest
 import torch
 
 from camdegrade import CameraDegrade, load_profile
-from camdegrade._pixels import as_unit
+from camdegrade._support.pixels import as_unit
 from camdegrade.diagnose import DiagnosisReport, diagnose
 from camdegrade.functional.analysis import flattest_window
 from camdegrade.measures.critic import critic_test

@@ -12,7 +12,7 @@ from camdegrade import CameraDegrade, load_profile
 from camdegrade.effects import Blur, Denoise, FrequencyResponse, Noise, Sharpen, Tone
 from camdegrade.effects.chain import apply_effects, apply_stages
 from camdegrade.effects.plan import ChainPlan, FilterRun, chain_plan
-from camdegrade.inference import run_network
+from camdegrade.network.inference import run_network
 from effects_images import photo_batch
 
 BUILT_INS = ("city100-iphonex", "city100-iphonex-fast", "lowcost-robot-sim")

@@ -45,11 +45,11 @@ def test_examples_use_public_names_only(path: Path) -> None:
 
 def test_the_import_check_can_fail() -> None:
     assert _private_uses(
-        "from camdegrade._pixels import as_unit\nfrom camdegrade.io import _x\nimport camdegrade._seeds"
+        "from camdegrade._support.pixels import as_unit\nfrom camdegrade.io import _x\nimport camdegrade._support.seeds"
     ) == [
-        "from camdegrade._pixels import as_unit",
+        "from camdegrade._support.pixels import as_unit",
         "from camdegrade.io import _x",
-        "camdegrade._seeds",
+        "camdegrade._support.seeds",
     ]
     assert _private_uses("import camdegrade\ncamdegrade._LAZY\nfrom camdegrade.fitting import fit_profile") == [
         "camdegrade._LAZY"

@@ -9,7 +9,7 @@ import torch
 from skimage import data
 
 from camdegrade import CameraDegrade, load_profile
-from camdegrade.inference import (
+from camdegrade.network.inference import (
     SPARSE_MAX_LIVE,
     CpuInference,
     native_bfloat16,

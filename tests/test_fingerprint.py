@@ -5,7 +5,7 @@ from __future__ import annotations
 import torch
 
 from camdegrade import load_profile
-from camdegrade._fingerprint import module_tensors, tensors_fingerprint
+from camdegrade._support.fingerprint import module_tensors, tensors_fingerprint
 
 
 def test_module_tensors_are_the_parameters_and_buffers():

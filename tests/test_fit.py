@@ -12,7 +12,7 @@ import torch
 import torch.nn.functional as F
 
 from camdegrade import CameraDegrade, CameraProfile, DomainShiftNet, LocalAffineNet, ProfileError, load_profile
-from camdegrade._seeds import derived_generator
+from camdegrade._support.seeds import derived_generator
 from camdegrade.cli import main
 from camdegrade.fitting.fit import fit_profile
 from camdegrade.fitting.network.training import fit_network, random_crop_batch

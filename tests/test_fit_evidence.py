@@ -11,7 +11,8 @@ import torch.nn.functional as F
 import camdegrade.fitting.steps.effects as effects_step
 from bad_inputs import run_cli
 from camdegrade import CameraProfile
-from camdegrade._pixels import bytes_to_unit, unit_to_bytes
+from camdegrade._profile_format.summary import quality_lines
+from camdegrade._support.pixels import bytes_to_unit, unit_to_bytes
 from camdegrade.effects import Blur, Noise, Tone
 from camdegrade.fitting import FitConfig, fit_profile
 from camdegrade.fitting.steps import PairedFit
@@ -21,7 +22,6 @@ from camdegrade.io import write_image
 from camdegrade.measures.critic import repeated_critic_test, split_critic_test
 from camdegrade.pairs import PairSet
 from camdegrade.sim import VirtualCamera
-from camdegrade.summary import quality_lines
 from camdegrade.synthetic import dead_leaves_images
 from steps_for_tests import paired_fit, run_step
 

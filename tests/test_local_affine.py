@@ -8,7 +8,7 @@ import torch.nn.functional as F
 
 from camdegrade import CameraProfile, load_profile
 from camdegrade import network as network_module
-from camdegrade._recipes import ARCHS, FAST, PAPER, UPSAMPLINGS
+from camdegrade._support.recipes import ARCHS, FAST, PAPER, UPSAMPLINGS
 from camdegrade.errors import ProfileError
 from camdegrade.fitting import FitConfig
 from camdegrade.fitting.network.baseline import apply_linear_baseline, baseline_psnr, fit_linear_baseline

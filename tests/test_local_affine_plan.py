@@ -9,15 +9,15 @@ import torch
 from skimage import data
 
 from camdegrade import load_profile
-from camdegrade.inference import cpu_inference, run_network
-from camdegrade.inference_local_affine import (
+from camdegrade.network import FIELD_UPSAMPLING, SIZE_MULTIPLE, LocalAffineNet, piecewise_linear, smoothed
+from camdegrade.network.inference import cpu_inference, run_network
+from camdegrade.network.inference_local_affine import (
     BILINEAR_PHASES,
     ColourFilter,
     CurveTable,
     LocalAffineInference,
     upsampled_field,
 )
-from camdegrade.network import FIELD_UPSAMPLING, SIZE_MULTIPLE, LocalAffineNet, piecewise_linear, smoothed
 
 #: Largest difference from the module: the plan only sums in another order.
 TOLERANCE = 2e-6

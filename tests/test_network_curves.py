@@ -10,12 +10,12 @@ import torch.nn.functional as F
 from camdegrade import CameraProfile, load_profile
 from camdegrade import network as network_module
 from camdegrade._profile_format import check
-from camdegrade._recipes import CURVES, FAST, PAPER
+from camdegrade._support.recipes import CURVES, FAST, PAPER
 from camdegrade.errors import ProfileError
 from camdegrade.fitting import FitConfig
 from camdegrade.fitting.network.training import fit_network, new_network
 from camdegrade.functional import srgb_to_linear
-from camdegrade.metrics import psnr
+from camdegrade.measures.metrics import psnr
 from camdegrade.network import CURVE_KNOTS, LocalAffineNet, build_network, piecewise_linear
 from camdegrade.synthetic import dead_leaves_images
 from test_profile_validation import ProfileParts

@@ -8,8 +8,8 @@ import pytest
 import torch
 
 from camdegrade import CameraProfile
-from camdegrade._outputs import OUTPUTS
-from camdegrade._seeds import derived_generator
+from camdegrade._runtime.outputs import OUTPUTS
+from camdegrade._support.seeds import derived_generator
 from camdegrade.effects import Noise, Tone
 from camdegrade.errors import PairsError
 from camdegrade.io import write_image

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import torch
 
-from camdegrade._pixels import bytes_to_unit, unit_to_bytes
+from camdegrade._support.pixels import bytes_to_unit, unit_to_bytes
 
 
 def test_bytes_to_unit_divides_by_255():

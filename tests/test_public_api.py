@@ -69,8 +69,8 @@ PUBLIC = _public_modules()
 
 def test_the_walk_finds_the_public_modules_and_leaves_out_the_private_ones() -> None:
     names = {_module_name(path) for path in PUBLIC}
-    assert {"camdegrade", "camdegrade.transform", "camdegrade.summary", "camdegrade.fitting"} <= names
-    assert not {"camdegrade._pixels", "camdegrade.cli._common", "camdegrade.__main__"} & names
+    assert {"camdegrade", "camdegrade.transform", "camdegrade.network.inference", "camdegrade.fitting"} <= names
+    assert not {"camdegrade._support.pixels", "camdegrade.cli._common", "camdegrade.__main__"} & names
     assert len(names) > 90
 
 

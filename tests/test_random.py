@@ -6,8 +6,8 @@ import pytest
 import torch
 from torch.utils.data import DataLoader, Dataset
 
-from camdegrade import _random
-from camdegrade._random import BLOCK, MIN_BLOCKS, standard_normal
+from camdegrade._support import gaussian_fields as _random
+from camdegrade._support.gaussian_fields import BLOCK, MIN_BLOCKS, standard_normal
 
 
 @pytest.fixture

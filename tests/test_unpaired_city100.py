@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 import torch
 
-from camdegrade._pixels import as_unit
+from camdegrade._support.pixels import as_unit
 from camdegrade.measures.fidelity import measure_fidelity
 from conftest import load_script
 

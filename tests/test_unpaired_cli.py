@@ -157,7 +157,9 @@ def test_an_option_the_unpaired_fit_does_not_use_is_refused_by_name(
 def test_a_device_other_than_the_cpu_is_refused(
     tmp_path: Path, recorded: list[dict[str, Any]], capsys: pytest.CaptureFixture, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    monkeypatch.setattr("camdegrade._device.check_device", lambda device, name="device": device)  # as if it existed
+    monkeypatch.setattr(
+        "camdegrade._runtime.device.check_device", lambda device, name="device": device
+    )  # as if it existed
     code, _, err = run_cli(_command(tmp_path, "--device", "cuda:0"), capsys)
     assert code == 1 and "--device cuda:0 is not used with --unpaired" in one_line_error(err) and recorded == []
 

@@ -13,8 +13,8 @@ from PIL import Image
 
 from camdegrade import CameraProfile, VirtualCamera
 from camdegrade.__main__ import main
-from camdegrade._pixels import unit_to_bytes
-from camdegrade._seeds import derived_generator
+from camdegrade._support.pixels import unit_to_bytes
+from camdegrade._support.seeds import derived_generator
 from camdegrade.diagnose.unpaired import diagnose_unpaired
 from camdegrade.effects import JPEG, Blur, Color, FrequencyResponse, Noise, Sharpen, Tone, Vignetting
 from camdegrade.errors import PairsError

@@ -2,7 +2,7 @@
 
 Public API::
 
-    from camdegrade import CameraDegrade, CameraProfile, load_profile, list_profiles
+    from camdegrade import CameraDegrade, CameraProfile, load_profile, list_profiles, profile_summary
     from camdegrade import DegradedDataset, BatchDegrade, VirtualCamera
     from camdegrade import PairSet, FitConfig, fit_profile, fit_unpaired, distill_profile, diagnose
 
@@ -11,8 +11,8 @@ Public API::
 
 ``import camdegrade`` imports neither torch nor torchvision (which take seconds): each public name is imported from
 its module when it is first used (PEP 562), so ``camdegrade --help``, ``list`` and ``info`` answer at once. The
-errors, ``__version__`` and ``list_profiles`` need no torch at all. Subpackages and modules (``camdegrade.profile``,
-...) are imported on first attribute access too.
+errors, ``__version__``, ``list_profiles`` and ``profile_summary`` need no torch at all. Subpackages and modules
+(``camdegrade.profile``, ...) are imported on first attribute access too.
 """
 
 from __future__ import annotations
@@ -24,6 +24,7 @@ import types
 from typing import TYPE_CHECKING, Any
 
 from camdegrade._profile_format.header import list_profiles
+from camdegrade._profile_format.summary import profile_summary
 from camdegrade._version import __version__
 from camdegrade.errors import (
     BatchError,
@@ -93,6 +94,7 @@ __all__ = [
     "fit_unpaired",
     "list_profiles",
     "load_profile",
+    "profile_summary",
     "simulate_pairs",
 ]
 

@@ -13,11 +13,11 @@ import threading
 import torch
 from torch import Tensor
 
-from camdegrade._fingerprint import module_tensors, tensors_fingerprint
-from camdegrade._pixels import NOT_FINITE, SCALE_HINT, as_unit, off_unit_scale, unit_to_bytes
+from camdegrade._support.fingerprint import module_tensors, tensors_fingerprint
+from camdegrade._support.pixels import NOT_FINITE, SCALE_HINT, as_unit, off_unit_scale, unit_to_bytes
 from camdegrade.effects.chain import chain_moved_points, chain_source_points, moves_pixels
 from camdegrade.functional.geometry import centered_coordinates, remap_labels
-from camdegrade.inference import Precision
+from camdegrade.network.inference import Precision
 from camdegrade.profile import CameraProfile, EffectParams
 
 __all__ = [
@@ -66,7 +66,7 @@ def check_image_shape(image: Tensor, who: str = "CameraDegrade()") -> None:
 
 def check_image_tensor(image: Tensor, who: str = "CameraDegrade()") -> None:
     """:func:`check_image_shape`, and for floats: finite values within 0.1 of [0, 1] (one ``aminmax`` pass,
-    :func:`camdegrade._pixels.off_unit_scale`)."""
+    :func:`camdegrade._support.pixels.off_unit_scale`)."""
     check_image_shape(image, who)
     if image.dtype == torch.uint8 or image.numel() == 0:
         return

@@ -16,8 +16,8 @@ import torch
 from PIL import ExifTags, Image, ImageOps
 from torch import Tensor
 
-from camdegrade._files import atomic_path, folder_relation
-from camdegrade._pixels import NOT_FINITE, SCALE_HINT, as_unit, off_unit_scale, unit_to_bytes
+from camdegrade._support.files import atomic_path, folder_relation
+from camdegrade._support.pixels import NOT_FINITE, SCALE_HINT, as_unit, off_unit_scale, unit_to_bytes
 from camdegrade.errors import ImageError
 
 __all__ = [

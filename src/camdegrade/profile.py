@@ -14,9 +14,6 @@ from safetensors import SafetensorError, safe_open
 from safetensors.torch import save_file
 from torch import Tensor, nn
 
-from camdegrade._files import atomic_path
-from camdegrade._outputs import OUTPUTS, ProfileKeys, image_key
-from camdegrade._pixels import bytes_to_unit, unit_to_bytes
 from camdegrade._profile_format.check import listing, network_class, network_config
 from camdegrade._profile_format.header import FORMAT_NAME as FORMAT_NAME
 from camdegrade._profile_format.header import FORMAT_VERSION as FORMAT_VERSION
@@ -27,13 +24,16 @@ from camdegrade._profile_format.header import list_profiles as list_profiles
 from camdegrade._profile_format.header import read_header
 from camdegrade._profile_format.header import resolve_profile_path as resolve_profile_path
 from camdegrade._profile_format.header import serialize_metadata as serialize_metadata
-from camdegrade._seeds import derived_generator
+from camdegrade._runtime.outputs import OUTPUTS, ProfileKeys, image_key
+from camdegrade._support.files import atomic_path
+from camdegrade._support.pixels import bytes_to_unit, unit_to_bytes
+from camdegrade._support.seeds import derived_generator
 from camdegrade._version import __version__
 from camdegrade.effects import STAGES, Effect, build_effect
 from camdegrade.effects.chain import apply_effects, check_chain, check_params
 from camdegrade.errors import ProfileError
-from camdegrade.inference import Precision, run_network
 from camdegrade.network import ARCHITECTURES, ShiftNetwork
+from camdegrade.network.inference import Precision, run_network
 
 __all__ = ["CameraProfile", "EffectParams", "as_profile", "check_profile_values", "load_profile"]
 
@@ -106,7 +106,7 @@ class CameraProfile(nn.Module):
 
     def forward(self, image: Tensor, params: EffectParams | None = None, *, precision: Precision = "float32") -> Tensor:
         """Degrade ``image``; ``params`` from :meth:`make_params` (drawn from the global RNG when omitted);
-        ``precision`` of the network (see :func:`camdegrade.inference.run_network`)."""
+        ``precision`` of the network (see :func:`camdegrade.network.inference.run_network`)."""
         if params is None:
             params = self.make_params(image.shape)
         check_params(self.effects, params)
@@ -136,14 +136,14 @@ class CameraProfile(nn.Module):
         eight_bit: bool = False,
     ) -> list[Tensor]:
         """This profile applied to each image ``(3, H, W)``, image ``i`` drawing from ``(seed, stream, i)``
-        (:func:`~camdegrade._seeds.derived_generator`): the same images for the same seed in any process, whatever
-        else is simulated around them. The one seeded simulation of fitting, diagnosis and the unpaired fit.
+        (:func:`~camdegrade._support.seeds.derived_generator`): the same images for the same seed in any process,
+        whatever else is simulated around them. The one seeded simulation of fitting, diagnosis and the unpaired fit.
 
         ``deterministic`` runs the deterministic part (:meth:`without_randomness`): the conditional mean that
         candidate stages are fitted against. ``eight_bit`` rounds each output to 8-bit values, as a file stores it.
 
-        Outputs computed before come from :mod:`camdegrade._outputs` (the same bytes): a profile that draws nothing
-        gives an image one output whatever the seed or stream, and every profile with one network gives it one
+        Outputs computed before come from :mod:`camdegrade._runtime.outputs` (the same bytes): a profile that draws
+        nothing gives an image one output whatever the seed or stream, and every profile with one network gives it one
         network output.
         """
         profile = self.without_randomness() if deterministic else self

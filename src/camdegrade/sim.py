@@ -17,10 +17,10 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from camdegrade._checks import check_int, check_seed
-from camdegrade._files import atomic_path, check_outputs_spare_inputs
-from camdegrade._pixels import as_unit, unit_to_bytes
-from camdegrade._seeds import derived_generator
+from camdegrade._support.checks import check_int, check_seed
+from camdegrade._support.files import atomic_path, check_outputs_spare_inputs
+from camdegrade._support.pixels import as_unit, unit_to_bytes
+from camdegrade._support.seeds import derived_generator
 from camdegrade.effects import EFFECTS, STAGES, Effect
 from camdegrade.effects.chain import apply_effects, check_chain, check_params
 from camdegrade.errors import BatchError, UnknownPresetError

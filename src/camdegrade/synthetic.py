@@ -21,8 +21,8 @@ import torch
 from PIL import Image, ImageDraw
 from torch import Tensor
 
-from camdegrade._pixels import bytes_to_unit, unit_to_bytes
-from camdegrade._seeds import derived_generator
+from camdegrade._support.pixels import bytes_to_unit, unit_to_bytes
+from camdegrade._support.seeds import derived_generator
 
 __all__ = ["COVERAGE", "MIN_RADIUS", "dead_leaves_image", "dead_leaves_images"]
 

@@ -17,8 +17,8 @@ from torchvision import tv_tensors
 from torchvision.transforms.v2 import Transform
 from torchvision.transforms.v2 import functional as TF
 
-from camdegrade._checks import check_probability, check_seed
-from camdegrade._seeds import derive_seed
+from camdegrade._support.checks import check_probability, check_seed
+from camdegrade._support.seeds import derive_seed
 from camdegrade.engine import (
     DeviceCopies,
     check_image_shape,
@@ -30,7 +30,7 @@ from camdegrade.engine import (
     warp_mask,
 )
 from camdegrade.errors import PlainTensorsWarning
-from camdegrade.inference import Precision, resolve_precision
+from camdegrade.network.inference import Precision, resolve_precision
 from camdegrade.profile import CameraProfile, EffectParams, as_profile
 
 __all__ = ["TARGETS", "CameraDegrade"]

@@ -23,7 +23,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol
 
 from camdegrade._profile_format.effect_facts import BUILT_IN, json_value, short_repr
-from camdegrade._recipes import UPSAMPLINGS
+from camdegrade._support.recipes import UPSAMPLINGS
 from camdegrade._version import __version__
 from camdegrade.errors import ProfileError, ProfileTypeError
 

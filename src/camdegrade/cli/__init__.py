@@ -5,8 +5,8 @@ One module per command (``add_parser`` and ``run``); this one builds the parser 
 never import torch. User errors print one line on stderr, never a traceback: exit status 2 for a bad argument
 (checked while parsing, before any work), 1 for everything else. Batches (a folder for ``apply`` or ``simulate``)
 process every readable file and list the others at the end, with status 1. Names that come from files are printed
-escaped (:func:`camdegrade._text.printable`). A reader that stops reading (``camdegrade list | head -1``) ends the
-command quietly, with status 0.
+escaped (:func:`camdegrade._support.text.printable`). A reader that stops reading (``camdegrade list | head -1``) ends
+the command quietly, with status 0.
 """
 
 from __future__ import annotations
@@ -55,7 +55,7 @@ def main(cli_args: Sequence[str] | None = None, prog: str | None = None) -> int:
     args = parser.parse_args(cli_args)
     try:
         if getattr(args, "device", None) is not None:
-            from camdegrade._device import check_device
+            from camdegrade._runtime.device import check_device
 
             try:
                 check_device(args.device, "--device")

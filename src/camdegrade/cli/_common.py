@@ -14,8 +14,8 @@ from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import NoReturn
 
-from camdegrade._checks import check_seed
-from camdegrade._text import printable, printable_lines
+from camdegrade._support.checks import check_seed
+from camdegrade._support.text import printable, printable_lines
 from camdegrade.errors import BatchError
 
 
@@ -114,7 +114,7 @@ def add_threads(parser: argparse.ArgumentParser) -> None:
 
 
 def _thread_count(text: str) -> int:
-    from camdegrade._threads import MAX_THREADS
+    from camdegrade._runtime.threads import MAX_THREADS
 
     value = positive_int(text)
     if value > MAX_THREADS:
@@ -128,7 +128,7 @@ def threads(count: int | None) -> Iterator[None]:
     if count is None:
         yield
         return
-    from camdegrade._threads import torch_threads
+    from camdegrade._runtime.threads import torch_threads
 
     with torch_threads(count):
         yield
@@ -136,7 +136,7 @@ def threads(count: int | None) -> Iterator[None]:
 
 def check_outputs(outputs: dict[str, Path | None], inputs: Sequence[Path]) -> None:
     """Before any work: no output is an input file, no two outputs are one file, and each can be written."""
-    from camdegrade._files import check_outputs_spare_inputs, check_writable, same_file
+    from camdegrade._support.files import check_outputs_spare_inputs, check_writable, same_file
 
     given = {option: path for option, path in outputs.items() if path is not None}
     check_outputs_spare_inputs([(source, path) for source in inputs for path in given.values()])

@@ -1,8 +1,8 @@
-"""The recipe options of ``fit`` and ``distill``, derived from the recipe fields (:data:`camdegrade._recipes.FIELDS`:
-each a :class:`~camdegrade.fitting.FitConfig` field, an option of a fit step such as ``--effects`` and
-``--sensor-scale``, or ``--texture``, which says whether some steps run): each field's option, type, help and the
-default it shows come from there, so a new recipe field cannot be forgotten here. Left out, an option keeps the
-recipe's value; given, ``FitConfig.replace`` puts it where the table says."""
+"""The recipe options of ``fit`` and ``distill``, derived from the recipe fields
+(:data:`camdegrade._support.recipes.FIELDS`: each a :class:`~camdegrade.fitting.FitConfig` field, an option of a fit
+step such as ``--effects`` and ``--sensor-scale``, or ``--texture``, which says whether some steps run): each field's
+option, type, help and the default it shows come from there, so a new recipe field cannot be forgotten here. Left out,
+an option keeps the recipe's value; given, ``FitConfig.replace`` puts it where the table says."""
 
 from __future__ import annotations
 
@@ -10,12 +10,12 @@ import argparse
 from collections.abc import Callable, Mapping
 from typing import Any
 
-from camdegrade._recipes import FIELDS, MIN_SENSOR_SCALE, RECIPES, recipe_default
+from camdegrade._support.recipes import FIELDS, MIN_SENSOR_SCALE, RECIPES, recipe_default
 from camdegrade.cli._common import non_negative_int, number, positive_int, positive_number, seed, share
 
 
 def sensor_scale(text: str) -> str | float:
-    """``auto`` or a sensor scale from :data:`~camdegrade._recipes.MIN_SENSOR_SCALE` to 1."""
+    """``auto`` or a sensor scale from :data:`~camdegrade._support.recipes.MIN_SENSOR_SCALE` to 1."""
     if text == "auto":
         return text
     try:

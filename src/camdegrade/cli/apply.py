@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from camdegrade._text import printable
+from camdegrade._support.text import printable
 from camdegrade.cli._common import add_profile, add_threads, list_failures, probability, seed
 from camdegrade.errors import BatchError
 
@@ -30,7 +30,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from camdegrade._files import check_outputs_spare_inputs
+    from camdegrade._support.files import check_outputs_spare_inputs
     from camdegrade.io import read_image, write_image
     from camdegrade.transform import CameraDegrade
 

@@ -8,7 +8,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from camdegrade._text import printable
+from camdegrade._support.text import printable
 from camdegrade.cli._common import (
     add_profile,
     add_threads,

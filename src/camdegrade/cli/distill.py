@@ -7,7 +7,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from camdegrade._text import printable
+from camdegrade._support.text import printable
 from camdegrade.cli._common import add_profile, add_threads, check_outputs, check_suffix, image_files, say
 from camdegrade.cli._recipe import add_recipe_options, check_schedule_options, recipe_changes
 from camdegrade.errors import CamdegradeError

@@ -11,8 +11,9 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from camdegrade._recipes import FIELDS
-from camdegrade._text import printable
+from camdegrade._profile_format.summary import quality_lines
+from camdegrade._support.recipes import FIELDS
+from camdegrade._support.text import printable
 from camdegrade.cli._common import (
     add_threads,
     check_outputs,
@@ -24,7 +25,6 @@ from camdegrade.cli._common import (
 from camdegrade.cli._pairs import PAIRS_LAYOUTS, add_pair_options, discover, report_files
 from camdegrade.cli._recipe import add_recipe_options, check_schedule_options, recipe_changes
 from camdegrade.errors import CamdegradeError
-from camdegrade.summary import quality_lines
 
 __all__ = ["add_parser", "run"]
 
@@ -113,7 +113,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     import torch.distributed
 
-    from camdegrade._distributed import is_distributed, is_main_process
+    from camdegrade._runtime.distributed import is_distributed, is_main_process
     from camdegrade.fitting.fit import fit_profile, init_distributed_from_env
     from camdegrade.fitting.network.training import FitInterrupted
     from camdegrade.fitting.recipe import FitConfig

@@ -1,7 +1,7 @@
 """``camdegrade info PROFILE`` and ``camdegrade list``: what a profile file says about itself, read without torch
-(:mod:`camdegrade.summary`): a short summary for people, or with ``--json`` the full record. Names and descriptions
-come from files, so every one is shown escaped (:func:`~camdegrade._text.printable`; JSON escapes its own): no
-profile can clear the screen or forge a line of the output."""
+(:mod:`camdegrade._profile_format.summary`): a short summary for people, or with ``--json`` the full record. Names and
+descriptions come from files, so every one is shown escaped (:func:`~camdegrade._support.text.printable`; JSON escapes
+its own): no profile can clear the screen or forge a line of the output."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import argparse
 import json
 import sys
 
-from camdegrade._text import printable
+from camdegrade._support.text import printable
 from camdegrade.cli._common import add_profile
 
 __all__ = ["add_parsers", "run_info", "run_list"]
@@ -28,7 +28,7 @@ def add_parsers(commands: argparse._SubParsersAction) -> None:
 
 def run_info(args: argparse.Namespace) -> int:
     from camdegrade._profile_format.header import read_header
-    from camdegrade.summary import profile_record, profile_summary
+    from camdegrade._profile_format.summary import profile_record, profile_summary
 
     if args.json:
         print(json.dumps(profile_record(args.profile), indent=1, sort_keys=True))

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from camdegrade._text import printable
+from camdegrade._support.text import printable
 from camdegrade.cli._common import add_threads, list_failures, positive_int, seed
 from camdegrade.errors import BatchError
 

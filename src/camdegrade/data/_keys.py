@@ -1,6 +1,6 @@
 """Stable per-item randomness: one key per (seed, epoch, item, stream), whatever process computes it.
 
-Keys come from :func:`camdegrade._seeds.derive_seed` (the package's one seed scheme), so every worker and every
+Keys come from :func:`camdegrade._support.seeds.derive_seed` (the package's one seed scheme), so every worker and every
 rank derives the same key, decision and ``torch.Generator`` for the same item.
 """
 
@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import torch
 
-from camdegrade._checks import check_int
-from camdegrade._seeds import derive_seed, derived_generator
+from camdegrade._support.checks import check_int
+from camdegrade._support.seeds import derive_seed, derived_generator
 
 #: Stream numbers: the keep/degrade decision and the degradation's own random values never share draws.
 DECISION_STREAM = 1

@@ -10,8 +10,8 @@ from typing import Any
 import torch
 from torch.utils.data import Dataset, IterableDataset, get_worker_info
 
-from camdegrade._checks import check_seed
-from camdegrade._distributed import rank_and_world_size
+from camdegrade._runtime.distributed import rank_and_world_size
+from camdegrade._support.checks import check_seed
 from camdegrade.data._keys import SharedEpoch, item_generator
 from camdegrade.data.policies import Decision, MixPolicy, resolve_policy
 from camdegrade.profile import CameraProfile

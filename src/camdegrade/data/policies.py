@@ -10,7 +10,7 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from typing import ClassVar
 
-from camdegrade._checks import check_int, check_probability
+from camdegrade._support.checks import check_int, check_probability
 from camdegrade.data._keys import item_uniform
 
 __all__ = [

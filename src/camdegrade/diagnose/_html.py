@@ -11,7 +11,7 @@ from typing import Any
 from PIL import Image
 from torch import Tensor
 
-from camdegrade._pixels import unit_to_bytes
+from camdegrade._support.pixels import unit_to_bytes
 
 
 def table(rows: Sequence[Sequence[Any]], header: Sequence[str]) -> str:

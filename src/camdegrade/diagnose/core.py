@@ -8,8 +8,8 @@ import os
 import shlex
 from collections.abc import Callable, Iterable
 
-from camdegrade._checks import check_seed
-from camdegrade._text import not_an_option
+from camdegrade._support.checks import check_seed
+from camdegrade._support.text import not_an_option
 from camdegrade.diagnose.attribute import Attribution, attribute, check_candidates, keeping
 from camdegrade.diagnose.changes import KINDS, Change, check_kinds, effect_params
 from camdegrade.diagnose.critic_check import CriticCheck, check_changes

@@ -19,7 +19,7 @@ from typing import Any
 import torch
 from torch import Tensor
 
-from camdegrade._files import atomic_path
+from camdegrade._support.files import atomic_path
 from camdegrade.diagnose._html import image_url, png_url, table
 from camdegrade.diagnose.critic_html import critic_section
 from camdegrade.functional.analysis import flattest_window

@@ -18,7 +18,7 @@ from pathlib import Path
 import torch
 from torch import Tensor
 
-from camdegrade._pixels import as_unit
+from camdegrade._support.pixels import as_unit
 from camdegrade.diagnose.report import DiagnosisReport
 from camdegrade.fitting.unpaired import MIN_IMAGES, unpaired_fidelity
 from camdegrade.measures import NO_REFERENCE, image_statistics

@@ -9,7 +9,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from camdegrade._pixels import as_unit
+from camdegrade._support.pixels import as_unit
 from camdegrade.effects.base import Pairs
 from camdegrade.functional.analysis import gradient_energy
 

@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING
 import torch
 from torch import Tensor
 
-from camdegrade._seeds import derived_generator
+from camdegrade._support.seeds import derived_generator
 from camdegrade.effects._fitting import as_pairs
 from camdegrade.effects.base import Pairs
 from camdegrade.functional.analysis import flat_mask

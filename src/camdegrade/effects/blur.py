@@ -10,8 +10,8 @@ from typing import Any, ClassVar
 import torch
 from torch import Tensor
 
-from camdegrade._checks import check_non_negative
-from camdegrade._fingerprint import module_tensors, tensors_fingerprint
+from camdegrade._support.checks import check_non_negative
+from camdegrade._support.fingerprint import module_tensors, tensors_fingerprint
 from camdegrade.effects._common import batch_shape, resolve_params, scalar
 from camdegrade.effects._fitting import PairList, affine_residual, as_pairs, grid_search, minimize, textured_crops
 from camdegrade.effects.base import Effect, Encoding, Pairs, check_range, register_effect

@@ -9,7 +9,7 @@ from typing import Any
 import torch
 from torch import Tensor
 
-from camdegrade._pixels import unit_to_bytes
+from camdegrade._support.pixels import unit_to_bytes
 from camdegrade.effects._common import batch_shape, resolve_params, scalar
 from camdegrade.effects._fitting import as_pairs
 from camdegrade.effects.base import Effect, Pairs, check_range, register_effect, shown

@@ -9,7 +9,7 @@ from typing import Any
 import torch
 from torch import Tensor
 
-from camdegrade._checks import check_non_negative
+from camdegrade._support.checks import check_non_negative
 from camdegrade.effects._common import batch_shape, resolve_params, scalar
 from camdegrade.effects._fitting import as_pairs, downscale, huber_weights, minimize, robust_lstsq
 from camdegrade.effects.base import Effect, Encoding, Pairs, check_range, register_effect, shown

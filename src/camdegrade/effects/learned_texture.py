@@ -12,7 +12,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from camdegrade._checks import check_non_negative
+from camdegrade._support.checks import check_non_negative
 from camdegrade.effects._common import batch_shape, resolve_params
 from camdegrade.effects.base import Effect, check_range, register_effect
 from camdegrade.functional.blur import blur_image

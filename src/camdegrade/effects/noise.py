@@ -10,8 +10,8 @@ from typing import Any, Literal
 import torch
 from torch import Tensor
 
-from camdegrade._checks import check_non_negative
-from camdegrade._random import standard_normal
+from camdegrade._support.checks import check_non_negative
+from camdegrade._support.gaussian_fields import standard_normal
 from camdegrade.effects._common import batch_shape, resolve_params, vector
 from camdegrade.effects._noise_fit import calibrate, fit_noise, flat_noise_sums
 from camdegrade.effects.base import Effect, Encoding, Pairs, check_range, register_effect

@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 
 from torch import Tensor
 
-from camdegrade._fingerprint import module_tensors, tensors_fingerprint
+from camdegrade._support.fingerprint import module_tensors, tensors_fingerprint
 from camdegrade.effects.base import Effect, Encoding
 from camdegrade.effects.linear import LinearFilter
 from camdegrade.functional.color import linear_to_srgb_, srgb_to_linear_

@@ -3,7 +3,7 @@
 (:func:`distill_profile`); the network's training (:mod:`camdegrade.fitting.network`). The pairs themselves are
 :mod:`camdegrade.pairs`' (their names are here too). See ``docs/fitting.md``."""
 
-from camdegrade._recipes import DEFAULT_EFFECTS
+from camdegrade._support.recipes import DEFAULT_EFFECTS
 from camdegrade.fitting.fit import fit_profile
 from camdegrade.fitting.network.distill import distill_profile
 from camdegrade.fitting.network.training import EpochResult, FitInterrupted, fit_network

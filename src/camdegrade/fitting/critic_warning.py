@@ -13,7 +13,7 @@ import shlex
 from collections.abc import Mapping
 from typing import Any
 
-from camdegrade._text import not_an_option
+from camdegrade._support.text import not_an_option
 
 __all__ = ["CRITIC_WARNING_ACCURACY", "critic_tells", "critic_warning", "diagnose_command", "differing_statistics"]
 

@@ -21,9 +21,9 @@ from typing import Any
 import torch
 import torch.distributed as dist
 
-from camdegrade._device import check_device
-from camdegrade._distributed import is_main_process
-from camdegrade._threads import torch_threads
+from camdegrade._runtime.device import check_device
+from camdegrade._runtime.distributed import is_main_process
+from camdegrade._runtime.threads import torch_threads
 from camdegrade.fitting.critic_warning import critic_warning
 from camdegrade.fitting.network.training import EpochResult, training_dtype
 from camdegrade.fitting.quality import fit_warnings, validation_quality

@@ -9,9 +9,9 @@ from collections.abc import Sequence
 import torch
 from torch import Tensor
 
-from camdegrade._pixels import as_unit
+from camdegrade._support.pixels import as_unit
 from camdegrade.effects import Effect, Noise
-from camdegrade.inference import run_network
+from camdegrade.network.inference import run_network
 from camdegrade.profile import CameraProfile
 
 __all__ = ["CALIBRATION_PAIRS", "fit_noise_stage", "fit_stage_in_chain", "replace_stage"]

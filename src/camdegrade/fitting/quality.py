@@ -15,7 +15,7 @@ from camdegrade.fitting.recipe import FitConfig
 from camdegrade.fitting.steps.noise_evidence import as_stored
 from camdegrade.measures.critic import repeated_critic_test
 from camdegrade.measures.fidelity import measure_fidelity
-from camdegrade.metrics import psnr
+from camdegrade.measures.metrics import psnr
 from camdegrade.pairs.pairset import PairSet
 from camdegrade.profile import CameraProfile
 

@@ -1,6 +1,6 @@
 """A fitting recipe (:class:`FitConfig`): the network's training values, the share of scenes that validates, and the
 fit's steps in order, each with its options (:mod:`camdegrade.fitting.steps`). Every value is checked by the one
-recipe table (:data:`camdegrade._recipes.FIELDS`), from which the command line's options are made too."""
+recipe table (:data:`camdegrade._support.recipes.FIELDS`), from which the command line's options are made too."""
 
 from __future__ import annotations
 
@@ -9,7 +9,16 @@ from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, fields
 from typing import Any
 
-from camdegrade._recipes import FAST, FIELD, FIELDS, RECIPES, TRAINING_FIELDS, RecipeField, check_value, field_value
+from camdegrade._support.recipes import (
+    FAST,
+    FIELD,
+    FIELDS,
+    RECIPES,
+    TRAINING_FIELDS,
+    RecipeField,
+    check_value,
+    field_value,
+)
 from camdegrade.fitting.steps import STEPS, FitStep
 from camdegrade.network import MAX_WIDTH, SIZE_MULTIPLE
 
@@ -25,8 +34,8 @@ class FitConfig:
     the paper's squashed resizes); an epoch draws ``crops_per_pair`` windows from every training pair; a share
     ``val_fraction`` of the scenes validates; then the fit runs its ``steps`` in order.
 
-    The defaults are camdegrade's fast recipe (``RECIPES["fast"]``, :mod:`camdegrade._recipes`): batches of 8, Adam on
-    a cosine schedule, stopping early once the validation PSNR has not risen for ``patience`` epochs.
+    The defaults are camdegrade's fast recipe (``RECIPES["fast"]``, :mod:`camdegrade._support.recipes`): batches of 8,
+    Adam on a cosine schedule, stopping early once the validation PSNR has not risen for ``patience`` epochs.
     ``FitConfig.recipe("paper")`` is the paper's: 100 epochs, Adam at lr 0.01 halved every 30 epochs, batch 32,
     no early stopping. Either trains in bfloat16 where the device computes it natively (``precision="auto"``).
     Change values with :meth:`replace`, a step's options by their field's name as well:
@@ -35,17 +44,19 @@ class FitConfig:
     Args:
         patience: stop after this many epochs without a better validation PSNR (by at least 0.01 dB); 0 never
             stops early. The best epoch's weights are returned either way.
-        schedule: one of :data:`~camdegrade._recipes.SCHEDULES`: ``"step"`` halves the learning rate every
+        schedule: one of :data:`~camdegrade._support.recipes.SCHEDULES`: ``"step"`` halves the learning rate every
             ``lr_halving_epochs`` epochs (the paper's); ``"cosine"`` lowers it from ``lr`` to 0 along a half cosine
             over ``epochs``, one step per epoch.
-        precision: one of :data:`~camdegrade._recipes.TRAIN_PRECISIONS`: ``"bfloat16"`` autocasts the convolutions
+        precision: one of :data:`~camdegrade._support.recipes.TRAIN_PRECISIONS`: ``"bfloat16"`` autocasts the
+        convolutions
             (float32 weights, optimizer and loss); ``"auto"`` does so where the device computes bfloat16 natively.
         width: the network's width (the paper's 64).
         arch: the network (:data:`~camdegrade.network.ARCHITECTURES`): ``"local_affine"`` (the fast recipe's; no
             4-pixel grid) or ``"paper"`` (the paper recipe's, :class:`~camdegrade.network.DomainShiftNet`).
         upsample: how ``local_affine`` brings its colour field to full resolution, one of
             :data:`~camdegrade.network.FIELD_UPSAMPLING` (the paper network ignores it).
-        curves: ``local_affine``'s pointwise curves, one of :data:`~camdegrade._recipes.CURVES`: ``"channel"`` (the
+        curves: ``local_affine``'s pointwise curves, one of :data:`~camdegrade._support.recipes.CURVES`: ``"channel"``
+        (the
             fast recipe's) or ``"none"`` (the paper recipe's; the paper network ignores it).
         val_fraction: share of *scenes* held out for choosing the best epoch and judging the steps
             (``fit_profile``; ``distill_profile`` holds out that share of its images, at least one).
@@ -96,14 +107,14 @@ class FitConfig:
 
     @classmethod
     def recipe(cls, name: str = "fast", **overrides: Any) -> FitConfig:
-        """The named recipe of :data:`~camdegrade._recipes.RECIPES`, with ``overrides`` (as :meth:`replace`)."""
+        """The named recipe of :data:`~camdegrade._support.recipes.RECIPES`, with ``overrides`` (as :meth:`replace`)."""
         if name not in RECIPES:
             raise ValueError(f"recipe must be one of {tuple(RECIPES)}, got recipe={name!r}")
         return cls(**RECIPES[name]).replace(**overrides)
 
     def replace(self, **changes: Any) -> FitConfig:
         """This recipe with ``changes`` (``None`` values keep this recipe's), checked like a new one: any field of
-        the recipe table (:data:`~camdegrade._recipes.FIELDS`) by its name, a step's option too
+        the recipe table (:data:`~camdegrade._support.recipes.FIELDS`) by its name, a step's option too
         (``effects=("noise",)``, ``sensor_scale=0.5``, ``texture="none"``), and ``steps`` whole."""
         changes = {key: value for key, value in changes.items() if value is not None}
         unknown = sorted(set(changes) - set(FIELD) - {"steps"})
@@ -142,8 +153,8 @@ class FitConfig:
         return {field.name: getattr(self, field.name) for field in fields(self)}
 
     def training_dict(self) -> dict[str, Any]:
-        """The network's training values (:data:`~camdegrade._recipes.TRAINING_FIELDS`): what a profile records as
-        ``fitted['recipe']`` and a checkpoint must match to be resumed."""
+        """The network's training values (:data:`~camdegrade._support.recipes.TRAINING_FIELDS`): what a profile records
+        as ``fitted['recipe']`` and a checkpoint must match to be resumed."""
         return {name: getattr(self, name) for name in TRAINING_FIELDS}
 
 

@@ -2,7 +2,7 @@
 
 Kernels keep the input's dtype, device and shape, never modify their input (the in-place ``*_`` forms excepted)
 and draw no random numbers: noise kernels take pre-drawn standard normals, so every degradation can be replayed
-exactly. This package imports nothing from the rest of camdegrade but the leaf helper ``camdegrade._pixels``.
+exactly. This package imports nothing from the rest of camdegrade but the leaf helper ``camdegrade._support.pixels``.
 """
 
 from camdegrade.functional.blur import (

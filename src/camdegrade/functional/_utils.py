@@ -7,7 +7,7 @@ from collections.abc import Callable, Sequence
 import torch
 from torch import Tensor
 
-from camdegrade._pixels import bytes_to_unit, unit_to_bytes
+from camdegrade._support.pixels import bytes_to_unit, unit_to_bytes
 
 ParamLike = Tensor | float | int | Sequence[float]
 

@@ -9,7 +9,7 @@ import torch
 from PIL import Image
 from torch import Tensor
 
-from camdegrade._pixels import bytes_to_unit, unit_to_bytes
+from camdegrade._support.pixels import bytes_to_unit, unit_to_bytes
 from camdegrade.functional._utils import ParamLike, check_image, compute_dtype, flat_param, restore, to_float
 
 __all__ = ["check_quality", "jpeg_image"]

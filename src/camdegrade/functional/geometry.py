@@ -11,7 +11,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from camdegrade._pixels import bytes_to_unit, unit_to_bytes
+from camdegrade._support.pixels import bytes_to_unit, unit_to_bytes
 from camdegrade.functional._utils import ParamLike, apply_float, check_image, flat_param, per_sample
 from camdegrade.functional.color import linear_to_srgb, srgb_to_linear
 

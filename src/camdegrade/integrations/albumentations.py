@@ -21,9 +21,9 @@ except ModuleNotFoundError as error:  # pragma: no cover - only without the extr
         "camdegrade.integrations.albumentations needs albumentations>=2: pip install 'camdegrade[albumentations]'"
     ) from error
 
-from camdegrade._checks import check_probability
+from camdegrade._support.checks import check_probability
 from camdegrade.engine import one_warp, warp_boxes, warp_keypoints, warp_mask
-from camdegrade.inference import Precision
+from camdegrade.network.inference import Precision
 from camdegrade.profile import CameraProfile, EffectParams
 from camdegrade.transform import CameraDegrade
 

@@ -22,7 +22,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from camdegrade._pixels import as_unit
+from camdegrade._support.pixels import as_unit
 
 __all__ = ["MIN_VARIANCE", "RATIO_RANGE", "WINDOW", "Images", "akld", "gaussian_window", "local_noise_variance"]
 

@@ -30,7 +30,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from camdegrade._seeds import derive_seed, derived_generator
+from camdegrade._support.seeds import derive_seed, derived_generator
 from camdegrade.functional.analysis import box_mean, flat_mask, gradient_energy
 
 __all__ = [

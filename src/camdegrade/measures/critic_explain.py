@@ -27,7 +27,7 @@ import torch
 from PIL import Image, ImageDraw
 from torch import Tensor
 
-from camdegrade._pixels import unit_to_bytes
+from camdegrade._support.pixels import unit_to_bytes
 from camdegrade.measures.critic import (
     IMAGE_ONLY_PLANES,
     PLANES,

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from camdegrade._pixels import as_unit
+from camdegrade._support.pixels import as_unit
 
 __all__ = ["FREQUENCIES", "MIN_FREQUENCIES", "LatticeReading", "block_coefficients", "lattice_scores", "read_lattice"]
 

@@ -25,7 +25,7 @@ from dataclasses import dataclass, replace
 import torch
 from torch import Tensor
 
-from camdegrade._pixels import as_unit
+from camdegrade._support.pixels import as_unit
 from camdegrade.functional.analysis import luma
 
 __all__ = [

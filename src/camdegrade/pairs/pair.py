@@ -9,7 +9,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from camdegrade._text import printable
+from camdegrade._support.text import printable
 
 __all__ = ["Pair", "PairReport"]
 

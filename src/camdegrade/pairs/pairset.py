@@ -20,7 +20,7 @@ from typing import Literal
 
 from torch import Tensor
 
-from camdegrade._pixels import as_unit
+from camdegrade._support.pixels import as_unit
 from camdegrade.errors import PairsError
 from camdegrade.io import read_image
 from camdegrade.pairs.align import AlignmentResult, align_pair, format_shifts

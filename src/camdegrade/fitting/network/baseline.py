@@ -17,9 +17,9 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from camdegrade._pixels import as_unit
-from camdegrade._seeds import derived_generator
-from camdegrade.metrics import psnr
+from camdegrade._support.pixels import as_unit
+from camdegrade._support.seeds import derived_generator
+from camdegrade.measures.metrics import psnr
 from camdegrade.network import LINEAR_TAPS
 
 __all__ = ["PIXELS_PER_PAIR", "RIDGE", "ImagePair", "apply_linear_baseline", "baseline_psnr", "fit_linear_baseline"]

@@ -16,7 +16,7 @@ from safetensors import SafetensorError, safe_open
 from safetensors.torch import save_file
 from torch import Tensor
 
-from camdegrade._files import atomic_path
+from camdegrade._support.files import atomic_path
 from camdegrade.errors import CamdegradeError
 from camdegrade.pairs.pairset import ImagePair
 

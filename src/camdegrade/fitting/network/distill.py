@@ -27,17 +27,17 @@ from typing import Any
 import torch
 from torch import Tensor
 
-from camdegrade._pixels import as_unit
-from camdegrade._seeds import derived_generator
-from camdegrade._threads import torch_threads
+from camdegrade._runtime.threads import torch_threads
+from camdegrade._support.pixels import as_unit
+from camdegrade._support.seeds import derived_generator
 from camdegrade._version import __version__
 from camdegrade.effects.base import evenly_spaced
 from camdegrade.fitting.network.training import EpochResult, fit_network
 from camdegrade.fitting.recipe import FitConfig, resolve_recipe
 from camdegrade.fitting.record import record_quality
 from camdegrade.functional.geometry import shrink_to_max_side
-from camdegrade.inference import run_network
-from camdegrade.metrics import psnr
+from camdegrade.measures.metrics import psnr
+from camdegrade.network.inference import run_network
 from camdegrade.pairs.folder import read_folder
 from camdegrade.pairs.pairset import ImagePair
 from camdegrade.profile import CameraProfile, as_profile

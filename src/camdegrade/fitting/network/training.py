@@ -20,11 +20,11 @@ import torch.nn.functional as F
 from torch import Tensor
 from tqdm.auto import tqdm
 
-from camdegrade._distributed import is_distributed, rank_and_world_size
-from camdegrade._files import check_writable
-from camdegrade._pixels import as_unit
-from camdegrade._recipes import TRAIN_PRECISIONS
-from camdegrade._seeds import derive_seed, derived_generator
+from camdegrade._runtime.distributed import is_distributed, rank_and_world_size
+from camdegrade._support.files import check_writable
+from camdegrade._support.pixels import as_unit
+from camdegrade._support.recipes import TRAIN_PRECISIONS
+from camdegrade._support.seeds import derive_seed, derived_generator
 from camdegrade.effects import Resolution
 from camdegrade.errors import FitInterrupted
 from camdegrade.fitting.network.checkpoint import (
@@ -35,9 +35,9 @@ from camdegrade.fitting.network.checkpoint import (
     save_checkpoint,
 )
 from camdegrade.fitting.recipe import FitConfig
-from camdegrade.inference import native_bfloat16, run_network
-from camdegrade.metrics import psnr
+from camdegrade.measures.metrics import psnr
 from camdegrade.network import SIZE_MULTIPLE, ShiftNetwork, build_network
+from camdegrade.network.inference import native_bfloat16, run_network
 from camdegrade.pairs.pairset import ImagePair
 
 __all__ = [
@@ -318,7 +318,7 @@ def _sensor_crop(crop: int, sensor: Resolution) -> int:
 
 def training_dtype(precision: str, device: torch.device) -> torch.dtype:
     """The dtype the convolutions of a fit run in: bfloat16 when asked, or for ``"auto"`` where ``device``
-    computes it natively (:func:`camdegrade.inference.native_bfloat16`); float32 otherwise."""
+    computes it natively (:func:`camdegrade.network.inference.native_bfloat16`); float32 otherwise."""
     if precision not in TRAIN_PRECISIONS:
         raise ValueError(f"precision must be one of {TRAIN_PRECISIONS}, got precision={precision!r}")
     native = precision == "auto" and native_bfloat16(device)

@@ -27,14 +27,14 @@ from typing import ClassVar
 import torch
 from torch import Tensor
 
-from camdegrade._seeds import derived_generator
+from camdegrade._support.seeds import derived_generator
 from camdegrade.effects import Denoise
 from camdegrade.fitting.steps.base import FitStep, PairedFit, Verdict
 from camdegrade.fitting.steps.texture import band_errors, radial_powers
 from camdegrade.functional import blur_planes
 from camdegrade.functional.analysis import luma
 from camdegrade.functional.sharpen import denoised_with_detail, image_detail
-from camdegrade.metrics import psnr
+from camdegrade.measures.metrics import psnr
 from camdegrade.profile import CameraProfile
 
 __all__ = [

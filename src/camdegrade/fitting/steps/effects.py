@@ -8,7 +8,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
-from camdegrade._recipes import DEFAULT_EFFECTS
+from camdegrade._support.recipes import DEFAULT_EFFECTS
 from camdegrade.effects import EFFECTS, STAGES, Color, Effect, Resolution, check_effect_names
 from camdegrade.fitting.colour_shift import colour_shift
 from camdegrade.fitting.in_chain import CALIBRATION_PAIRS, fit_stage_in_chain

@@ -23,7 +23,7 @@ from camdegrade.fitting.network.training import EpochResult, fit_network, new_ne
 from camdegrade.fitting.recipe import FitConfig
 from camdegrade.fitting.record import finite_or_none
 from camdegrade.fitting.steps.base import FitStep, PairedFit, TrainedNetwork
-from camdegrade.metrics import psnr
+from camdegrade.measures.metrics import psnr
 from camdegrade.network import LocalAffineNet, ShiftNetwork
 from camdegrade.pairs.pairset import ImagePair, PairSet
 from camdegrade.profile import CameraProfile, as_profile

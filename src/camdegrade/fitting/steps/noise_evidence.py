@@ -27,14 +27,14 @@ from dataclasses import asdict, dataclass
 import torch
 from torch import Tensor
 
-from camdegrade._pixels import bytes_to_unit, unit_to_bytes
-from camdegrade._seeds import derived_generator
+from camdegrade._support.pixels import bytes_to_unit, unit_to_bytes
+from camdegrade._support.seeds import derived_generator
 from camdegrade.effects import Effect
 from camdegrade.fitting.in_chain import replace_stage
 from camdegrade.functional.analysis import flat_mask
 from camdegrade.functional.noise_stats import NoiseSums
-from camdegrade.inference import run_network
 from camdegrade.measures.fidelity import noise_ratios
+from camdegrade.network.inference import run_network
 from camdegrade.profile import CameraProfile
 
 __all__ = [

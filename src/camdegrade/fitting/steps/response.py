@@ -26,7 +26,7 @@ from camdegrade.fitting.steps.base import FitStep, PairedFit, Verdict
 from camdegrade.fitting.steps.denoise import eight_bit
 from camdegrade.fitting.steps.texture import MAX_PSNR_LOSS_DB, MIN_BAND_GAIN_LOG2, band_errors, radial_powers
 from camdegrade.measures.fidelity import grid_rms
-from camdegrade.metrics import psnr
+from camdegrade.measures.metrics import psnr
 from camdegrade.profile import CameraProfile
 
 __all__ = ["MAX_GRID_RATIO", "RESPONSE_PAIRS", "ResponseMatch", "judge_response"]

@@ -31,7 +31,7 @@ from camdegrade.effects import Blur, Effect, Sharpen
 from camdegrade.fitting.steps.base import FitStep, PairedFit, Verdict
 from camdegrade.functional.blur import TRUNCATE
 from camdegrade.measures.fidelity import BAND_EDGES, luma_spectrum
-from camdegrade.metrics import psnr
+from camdegrade.measures.metrics import psnr
 from camdegrade.profile import CameraProfile
 
 __all__ = [

@@ -41,8 +41,8 @@ import torch.nn.functional as F
 from torch import Tensor
 from tqdm.auto import tqdm
 
-from camdegrade._files import check_writable
-from camdegrade._seeds import derive_seed, derived_generator
+from camdegrade._support.files import check_writable
+from camdegrade._support.seeds import derive_seed, derived_generator
 from camdegrade.effects import LearnedTexture
 from camdegrade.errors import FitInterrupted
 from camdegrade.fitting.network.checkpoint import pairs_fingerprint

@@ -37,7 +37,7 @@ from typing import Any, ClassVar
 import torch
 from tqdm.auto import tqdm
 
-from camdegrade._checks import check_seed
+from camdegrade._support.checks import check_seed
 from camdegrade.effects import (
     JPEG,
     Blur,

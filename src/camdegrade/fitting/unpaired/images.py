@@ -17,8 +17,8 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from camdegrade._checks import check_int
-from camdegrade._pixels import NOT_FINITE, SCALE_HINT, as_unit, off_unit_scale
+from camdegrade._support.checks import check_int
+from camdegrade._support.pixels import NOT_FINITE, SCALE_HINT, as_unit, off_unit_scale
 from camdegrade.errors import PairsError
 from camdegrade.io import to_rgb
 from camdegrade.pairs.folder import read_folder

@@ -19,7 +19,7 @@ from typing import Any
 import torch
 from torch import Tensor
 
-from camdegrade._seeds import derived_generator
+from camdegrade._support.seeds import derived_generator
 
 __all__ = ["SIGNIFICANCE", "SPLITS", "self_check_warnings", "significant", "split_half_error"]
 

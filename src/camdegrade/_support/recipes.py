@@ -15,7 +15,7 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
-from camdegrade._checks import check_seed
+from camdegrade._support.checks import check_seed
 
 #: camdegrade's default recipe: many small steps on small windows (batches of 8 windows of 64², 32 per pair and
 #: epoch: the pixels of 8 windows of 128², in four times the steps), Adam on a cosine schedule over 10 epochs,

@@ -8,9 +8,9 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from camdegrade._onednn import FUSED_LINEAR, conv_relu, live_linear_relu, use_fused_kernels
-from camdegrade._pixels import bytes_to_unit
-from camdegrade.network import (
+from camdegrade._support.pixels import bytes_to_unit
+from camdegrade.network._onednn import FUSED_LINEAR, conv_relu, live_linear_relu, use_fused_kernels
+from camdegrade.network.nets import (
     FIELD_SMOOTHING,
     SIZE_MULTIPLE,
     LocalAffineNet,

@@ -10,8 +10,9 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from camdegrade._fingerprint import module_tensors, tensors_fingerprint
-from camdegrade._onednn import (
+from camdegrade._support.fingerprint import module_tensors, tensors_fingerprint
+from camdegrade._support.pixels import bytes_to_unit
+from camdegrade.network._onednn import (
     FUSED_LINEAR,
     SPARSE_MAX_LIVE,
     SPARSE_MIN_PIXELS,
@@ -20,9 +21,8 @@ from camdegrade._onednn import (
     live_linear_relu,
     use_fused_kernels,
 )
-from camdegrade._pixels import bytes_to_unit
-from camdegrade.inference_local_affine import LocalAffineInference
-from camdegrade.network import SIZE_MULTIPLE, DomainShiftNet, LocalAffineNet, ShiftNetwork, check_batch
+from camdegrade.network.inference_local_affine import LocalAffineInference
+from camdegrade.network.nets import SIZE_MULTIPLE, DomainShiftNet, LocalAffineNet, ShiftNetwork, check_batch
 from camdegrade.synthetic import dead_leaves_images
 
 __all__ = [

@@ -4,7 +4,7 @@ and the full record (``camdegrade info PROFILE --json``).
 The summary is one line per stage of the chain with its key values, the network (architecture, width, parameters),
 the recorded quality (PSNR from the clean image to the profile, fidelity, the critics) and the warnings, each line at
 most :data:`WIDTH` characters. Both read the file's header and its effect tensors (safetensors' numpy loader): no
-torch. Names and descriptions come from files, so they are shown escaped (:func:`~camdegrade._text.printable`).
+torch. Names and descriptions come from files, so they are shown escaped (:func:`~camdegrade._support.text.printable`).
 
 Examples:
     >>> print(profile_summary("city100-iphonex").splitlines()[0])
@@ -21,7 +21,7 @@ from typing import Any
 from camdegrade._profile_format import header as _header
 from camdegrade._profile_format.check import effect_facts, read_arrays
 from camdegrade._profile_format.header import ProfileHeader, read_header
-from camdegrade._text import printable
+from camdegrade._support.text import printable
 
 __all__ = ["WIDTH", "profile_record", "profile_summary", "quality_lines"]
 
