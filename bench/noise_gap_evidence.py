@@ -2,8 +2,8 @@
 held-out clean images against the camera's real noise there, measured the same way on the residual
 ``noisy − clean``.
 
-- on the clean images' flat pixels (:func:`~camdegrade.functional.analysis.flat_mask`) where the noisy image does
-  not clip, the residual less its 17×17 local mean (as :class:`~camdegrade.functional.noise_stats.NoiseSums`
+- on the clean images' flat pixels (:func:`~camdegrade.functional.analysis.images.flat_mask`) where the noisy image does
+  not clip, the residual less its 17×17 local mean (as :class:`~camdegrade.functional.analysis.noise.NoiseSums`
   takes it): the std per channel and intensity bin, the correlation with the neighbour 1 to 4 pixels away (mean of
   horizontal and vertical and of the channels), the mean correlation between channels, and the kurtosis (3 for
   Gaussian noise; per image, then the mean, so that images of different noise levels do not make a heavy-tailed
@@ -11,7 +11,8 @@ held-out clean images against the camera's real noise there, measured the same w
 - ``textured / flat``: the residual's std on the unclipped pixels that are not flat over its std on the flat ones
   (a camera's ISP sharpens and compresses at edges; additive noise is the same everywhere);
 - ``8x8``: the residual's luma gradient across the 8×8 grid's block boundaries over its mean gradient
-  (:func:`~camdegrade.measures.blocks.block_phase_energy`; 1: no grid; a JPEG quantises the noise block by block);
+  (:func:`~camdegrade.measures.families.blocks.block_phase_energy`; 1: no grid; a JPEG quantises the noise block by
+  block);
 - ``clipped``: the share of pixels at 0 or 255 in some channel (where noise is clipped, its mean shifts);
 - ``colour``: the share of the residual's luma power in each of the five radial bands of
   :data:`~camdegrade.measures.fidelity.BAND_EDGES` (cycles per pixel) on the flattest 128² window of each image, as
@@ -30,9 +31,9 @@ import torch.nn.functional as F
 from PIL import Image, ImageDraw
 from torch import Tensor
 
-from camdegrade.functional.analysis import box_mean, flat_mask, flattest_window, gradient_energy
-from camdegrade.functional.noise_stats import HIGH_PASS, NoiseSums
-from camdegrade.measures.blocks import block_phase_energy
+from camdegrade.functional.analysis.images import box_mean, flat_mask, flattest_window, gradient_energy
+from camdegrade.functional.analysis.noise import HIGH_PASS, NoiseSums
+from camdegrade.measures.families.blocks import block_phase_energy
 from camdegrade.measures.fidelity import band_power
 
 #: Side of the flattest window the bands are measured on (SIDD's smallest held-out image is 241²).

@@ -41,8 +41,8 @@ from camdegrade._support.pixels import as_unit
 from camdegrade._support.seeds import derived_generator
 from camdegrade.effects import Noise
 from camdegrade.fitting import FitConfig, PairSet
-from camdegrade.functional.analysis import flat_mask
-from camdegrade.functional.noise_stats import BINS, NoiseSums
+from camdegrade.functional.analysis.images import flat_mask
+from camdegrade.functional.analysis.noise import BINS, NoiseSums
 from camdegrade.io import read_image
 from camdegrade.profile import CameraProfile
 

@@ -25,7 +25,7 @@ import torch.nn.functional as F
 from aligned_scoring import Aligned
 from torch import Tensor
 
-from camdegrade.functional.analysis import gradient_energy
+from camdegrade.functional.analysis.images import gradient_energy
 from camdegrade.measures.fidelity import BAND_EDGES, band_power
 
 #: Side of the textured crops of the panel (shown at 2×, nearest).

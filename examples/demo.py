@@ -17,7 +17,7 @@ from torchvision.transforms.v2 import functional as TF
 from torchvision.utils import make_grid
 
 from camdegrade import CameraDegrade, list_profiles, load_profile, profile_summary
-from camdegrade.functional.analysis import flat_mask
+from camdegrade.functional.analysis.images import flat_mask
 from camdegrade.io import write_image
 from camdegrade.measures.metrics import psnr
 

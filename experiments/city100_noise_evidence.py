@@ -10,7 +10,7 @@ noise stage, and the clean image.
 
 It also writes ``docs/city100_noise.png``: for three scenes, a flat crop and a textured crop at 1:1, side by side
 as clean | real | simulated (built-in) | simulated (before); and it asks the learned critic of the diagnosis
-(``camdegrade.measures.critic``) how well it tells the real captures from each profile's samples: trained on 8 of
+(``camdegrade.measures.critic.core``) how well it tells the real captures from each profile's samples: trained on 8 of
 the scenes, scored on the other 8, each scene cut to its 256² window with the most flat pixels. Run from the repo
 root::
 
@@ -30,9 +30,9 @@ from torch import Tensor
 from camdegrade import CameraDegrade, CameraProfile, load_profile
 from camdegrade._support.pixels import as_unit
 from camdegrade.fitting import discover_pairs, filter_pairs, load_pair
-from camdegrade.functional.analysis import flat_mask, flattest_window, gradient_energy
-from camdegrade.functional.noise_stats import NoiseSums
-from camdegrade.measures.critic import critic_test
+from camdegrade.functional.analysis.images import flat_mask, flattest_window, gradient_energy
+from camdegrade.functional.analysis.noise import NoiseSums
+from camdegrade.measures.critic.core import critic_test
 
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_DATA = ROOT.parent / "shared" / "data" / "real-pairs"

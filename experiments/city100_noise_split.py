@@ -23,8 +23,8 @@ from camdegrade import load_profile
 from camdegrade._support.pixels import as_unit
 from camdegrade.fitting.in_chain import CALIBRATION_PAIRS, fit_noise_stage
 from camdegrade.fitting.steps.noise_evidence import as_stored
-from camdegrade.functional.analysis import flat_mask
-from camdegrade.functional.noise_stats import measure_set
+from camdegrade.functional.analysis.images import flat_mask
+from camdegrade.functional.analysis.noise import measure_set
 from camdegrade.measures.fidelity import noise_ratios
 
 #: The built-in city100-iphonex as shipped until 2026-11-27 (the paper's network + blur, noise, tone), which this

@@ -34,7 +34,7 @@ from torch import Tensor
 from camdegrade import CameraDegrade, load_profile
 from camdegrade._support.pixels import as_unit
 from camdegrade.fitting import discover_pairs, filter_pairs, load_pair
-from camdegrade.functional.analysis import hann2d, luma
+from camdegrade.functional.analysis.images import hann2d, luma
 
 DEFAULT_DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "real-pairs"
 HELD_OUT = {f"{n:03d}" for n in range(56, 71)} | {"098"}

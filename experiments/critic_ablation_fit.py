@@ -2,7 +2,7 @@
 
 Each row changes one thing, either in the real captures (how sensitive is the critic to that change?) or in a
 default-fit profile (does removing a suspect make the simulation harder to tell?), and re-runs the critic of
-:mod:`camdegrade.measures.critic` on pairs it never trained on: the 16 held-out scenes (056–070, 098; never used
+:mod:`camdegrade.measures.critic.core` on pairs it never trained on: the 16 held-out scenes (056–070, 098; never used
 in any fit), whole frames, trained on the even ones and scored on the odd ones and the other way round, for
 ``--seeds`` critic seeds (a seed draws the patches, the critic's start and its minibatches). Every image is
 rounded to 8 bits, as the captures are. Rows:
@@ -50,8 +50,8 @@ from camdegrade.fitting import discover_pairs, filter_pairs, load_pair
 from camdegrade.fitting.network.baseline import apply_linear_baseline, fit_linear_baseline
 from camdegrade.fitting.steps.denoise import amplitude_distance, detail_amplitudes
 from camdegrade.functional import blur_image, denoise_image, unsharp_mask_image
-from camdegrade.functional.analysis import flat_mask, luma
-from camdegrade.measures.critic import critic_test
+from camdegrade.functional.analysis.images import flat_mask, luma
+from camdegrade.measures.critic.core import critic_test
 from camdegrade.measures.fidelity import measure_fidelity
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -78,7 +78,7 @@ def eight_bit(image: Tensor) -> Tensor:
 
 def flat_fine_detail(images: list[Tensor], cleans: list[Tensor]) -> tuple[float, int]:
     """The std (8-bit levels) of the 8-bit luma minus its 3×3 mean, over the pixels that are flat in the clean images
-    (:func:`~camdegrade.functional.analysis.flat_mask`), and how many pixels that is."""
+    (:func:`~camdegrade.functional.analysis.images.flat_mask`), and how many pixels that is."""
     squares, count = 0.0, 0
     for image, clean in zip(images, cleans, strict=True):
         gray = luma(eight_bit(image)) * 255.0

@@ -1,7 +1,7 @@
 """What gives the simulation away to the learned critic (issues 23 and 24)?
 
 On the 16 held-out City100 iPhone X scenes (056–070, 098; never used in any fit), whole frames, the critic of
-:mod:`camdegrade.measures.critic` is trained on 8 scenes and scored on the other 8, image-only (what a model
+:mod:`camdegrade.measures.critic.core` is trained on 8 scenes and scored on the other 8, image-only (what a model
 trained on the simulation sees) and paired (it also sees the clean source), for every row below and for several
 critic seeds (a seed draws the patches, the critic's start and its minibatches), so that a difference between two
 rows can be set against the spread between seeds:
@@ -20,7 +20,7 @@ rows can be set against the spread between seeds:
 Every image is rounded to 8 bits, as the captures are. It prints the table (per row the grid RMS and the 4-pixel
 edge modulation of :func:`edge_modulation`, then per critic the mean over seeds, the seeds' spread, the mean
 bootstrap interval over held-out pairs and the difference from the built-in per seed), each row's accuracy on flat,
-mid and textured patches, the built-in critic's accuracy by group (:mod:`camdegrade.measures.critic_explain`,
+mid and textured patches, the built-in critic's accuracy by group (:mod:`camdegrade.measures.critic.explain`,
 pooled over seeds), and writes the surest patches of the built-in's image-only critic (seed 0) with the fine
 detail it saw to ``docs/critic_city100.png``. Run from the repo root::
 
@@ -46,10 +46,10 @@ from camdegrade import CameraDegrade, CameraProfile, load_profile
 from camdegrade._support.pixels import as_unit, unit_to_bytes
 from camdegrade.effects import Blur
 from camdegrade.fitting import discover_pairs, filter_pairs, load_pair
-from camdegrade.functional.analysis import luma
-from camdegrade.functional.blur import blur_image
-from camdegrade.measures.critic import STEPS
-from camdegrade.measures.critic_explain import GROUPINGS, explained_critic_test, surest_png
+from camdegrade.functional.analysis.images import luma
+from camdegrade.functional.optics.blur import blur_image
+from camdegrade.measures.critic.core import STEPS
+from camdegrade.measures.critic.explain import GROUPINGS, explained_critic_test, surest_png
 from camdegrade.measures.fidelity import GRID_PERIOD, grid_phases, grid_rms
 
 ROOT = Path(__file__).resolve().parents[1]

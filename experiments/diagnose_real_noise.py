@@ -21,8 +21,8 @@ from torch import Tensor
 
 from camdegrade.diagnose import DiagnosisReport, diagnose
 from camdegrade.fitting import discover_pairs, filter_pairs, load_pair
-from camdegrade.functional.analysis import flat_mask, flattest_window
-from camdegrade.functional.noise_stats import measure_set
+from camdegrade.functional.analysis.images import flat_mask, flattest_window
+from camdegrade.functional.analysis.noise import measure_set
 from camdegrade.profile import CameraProfile
 
 DEFAULT_DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "real-pairs"

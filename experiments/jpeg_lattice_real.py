@@ -1,5 +1,5 @@
 """Which real images of ../shared/data/real-pairs still hold a JPEG quantisation lattice: for each subset and side
-(clean, captured), how many files read as compressed (:func:`camdegrade.measures.quantisation.read_lattice`), how
+(clean, captured), how many files read as compressed (:func:`camdegrade.measures.traces.quantisation.read_lattice`), how
 many are undetermined, the qualities the files' own JPEG tables give where they have them, and the City100 captures
 shrunk to 256 px and crops of them upscaled 2× (PIL bicubic), which were once mistaken for JPEGs by their block-edge
 energy. The rows of docs/results.md's "JPEG from its quantisation lattice" table. Run from the repo root (about a
@@ -19,7 +19,7 @@ import torch
 from PIL import Image
 
 from camdegrade.fitting.unpaired.jpeg import quality_from_tables
-from camdegrade.measures.quantisation import read_lattice
+from camdegrade.measures.traces.quantisation import read_lattice
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "real-pairs"
 

@@ -33,8 +33,8 @@ from torch import Tensor
 
 from camdegrade._support.pixels import as_unit
 from camdegrade.effects import Noise
-from camdegrade.functional.analysis import flat_mask
-from camdegrade.functional.noise_stats import NoiseSums
+from camdegrade.functional.analysis.images import flat_mask
+from camdegrade.functional.analysis.noise import NoiseSums
 from camdegrade.io import read_image
 
 SUBSETS = ("polyu_real_noise", "cc15_nam_real_noise", "sidd_samples")

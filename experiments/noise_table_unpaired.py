@@ -45,7 +45,7 @@ from camdegrade.effects import Noise
 from camdegrade.fitting.unpaired import MIN_IMAGES, fit_unpaired
 from camdegrade.fitting.unpaired.fit import STAND_IN_SIGMA
 from camdegrade.fitting.unpaired.noise import flat_sums, judge_noise, propose_noise
-from camdegrade.functional.blur import blur_image
+from camdegrade.functional.optics.blur import blur_image
 
 
 def _spread(ratio: torch.Tensor) -> tuple[float, float, int]:

@@ -1,6 +1,6 @@
 """The trace of a digital upscale, read from images alone: spectral coherence at the sensor's period.
 
-For each set of images, :func:`camdegrade.measures.resampling.resampling_trace`'s coherence at 1/2, 1/3 and 1/4
+For each set of images, :func:`camdegrade.measures.traces.resampling.resampling_trace`'s coherence at 1/2, 1/3 and 1/4
 cycles/pixel, the null (median at control frequencies) and the period found. Sets: 24 dead-leaves images of 128²
 (8-bit) as they are, upscaled from 1/2, 1/3 and 1/4 of their resolution, blurred (σ 1.2) and with sensor noise;
 the captures of the two simulated cameras of ``experiments/simulated_camera_fidelity.py`` (soft: a 2× resolution loss;
@@ -27,7 +27,7 @@ from camdegrade._support.pixels import unit_to_bytes
 from camdegrade.effects import JPEG, Blur, Noise
 from camdegrade.functional import resolution_image
 from camdegrade.io import read_image
-from camdegrade.measures.resampling import resampling_trace
+from camdegrade.measures.traces.resampling import resampling_trace
 from camdegrade.sim import VirtualCamera
 from camdegrade.synthetic import dead_leaves_images
 

@@ -36,7 +36,7 @@ from camdegrade._support.pixels import as_unit, unit_to_bytes
 from camdegrade.effects import Sharpen
 from camdegrade.effects.base import evenly_spaced
 from camdegrade.fitting import discover_pairs, filter_pairs, load_pair
-from camdegrade.functional.analysis import flattest_window, gradient_energy
+from camdegrade.functional.analysis.images import flattest_window, gradient_energy
 from camdegrade.measures import BAND_EDGES, measure_fidelity
 
 ROOT = Path(__file__).resolve().parents[1]

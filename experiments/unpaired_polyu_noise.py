@@ -27,8 +27,8 @@ from PIL import Image
 from camdegrade import CameraProfile
 from camdegrade._support.pixels import as_unit
 from camdegrade.fitting.unpaired import fit_unpaired
-from camdegrade.functional.analysis import flat_mask
-from camdegrade.functional.noise_stats import NoiseSums
+from camdegrade.functional.analysis.images import flat_mask
+from camdegrade.functional.analysis.noise import NoiseSums
 from camdegrade.io import read_image
 
 SIDE, CAPTURES = 128, 10

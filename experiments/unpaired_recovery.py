@@ -23,7 +23,7 @@ from camdegrade import VirtualCamera
 from camdegrade._support.seeds import derived_generator
 from camdegrade.effects import Blur, Color, FrequencyResponse, Noise, Sharpen, Tone, Vignetting
 from camdegrade.fitting.unpaired import UNPAIRED_EFFECTS, fit_unpaired
-from camdegrade.functional.tone import tone_curve
+from camdegrade.functional.isp.tone import tone_curve
 from test_unpaired_fit import COUNT, DETAIL_COUNT, DETAIL_SIZE, NO_DETAIL_SIZE, _captures, _scenes, _stage
 
 

@@ -17,8 +17,8 @@ from camdegrade.diagnose.heldout import HeldOut
 from camdegrade.diagnose.report import REQUIRED_KEYS
 from camdegrade.effects import EFFECTS, JPEG, Noise, Tone, Vignetting
 from camdegrade.fitting.in_chain import fit_noise_stage
-from camdegrade.functional.analysis import box_mean, flat_mask
-from camdegrade.functional.noise_stats import measure_set
+from camdegrade.functional.analysis.images import box_mean, flat_mask
+from camdegrade.functional.analysis.noise import measure_set
 from camdegrade.io import write_image
 from camdegrade.measures import FAMILIES, StatisticSet, bootstrap_indices, family_gaps, gap, measurement_scale
 from camdegrade.pairs.pairset import PairSet
@@ -296,7 +296,7 @@ def test_unpaired_mode(tmp_path: Path) -> None:
 
 
 def test_a_critic_with_one_answer_scores_chance_and_says_so() -> None:
-    from camdegrade.measures.critic import CriticNet, Patches, score
+    from camdegrade.measures.critic.core import CriticNet, Patches, score
 
     images = _content(3, 64, seed=5)
     sims = [image.clamp(0.01, 0.99) for image in images]

@@ -13,9 +13,9 @@ from camdegrade.diagnose import DiagnosisReport, diagnose
 from camdegrade.diagnose.where import findings, visible
 from camdegrade.effects import JPEG, Blur, Noise, Sharpen
 from camdegrade.functional import blur_image
-from camdegrade.functional.analysis import flat_mask
+from camdegrade.functional.analysis.images import flat_mask
 from camdegrade.measures import BAND_EDGES, StatisticSet, family_gaps
-from camdegrade.measures.blocks import block_excess
+from camdegrade.measures.families.blocks import block_excess
 from camdegrade.measures.visible import compare_grid, compare_texture
 from camdegrade.profile import CameraProfile, load_profile
 from camdegrade.sim import VirtualCamera

@@ -9,7 +9,7 @@ from camdegrade import CameraProfile
 from camdegrade.effects import Blur, Denoise, Sharpen
 from camdegrade.fitting import FitConfig, fit_profile
 from camdegrade.fitting.steps.denoise import DenoiseMatch
-from camdegrade.functional.sharpen import denoise_image, denoised_with_detail, image_detail
+from camdegrade.functional.isp.sharpen import denoise_image, denoised_with_detail, image_detail
 from camdegrade.synthetic import dead_leaves_images
 from steps_for_tests import run_step
 

@@ -14,7 +14,7 @@ from camdegrade.diagnose.attribute import check_candidates
 from camdegrade.effects import EFFECTS, FrequencyResponse
 from camdegrade.fitting.steps.response import ResponseMatch
 from camdegrade.functional import frequency_response_image
-from camdegrade.functional.response import MAPS_KEPT, response_map
+from camdegrade.functional.isp.response import MAPS_KEPT, response_map
 from effects_images import photo
 from steps_for_tests import run_step
 

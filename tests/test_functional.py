@@ -14,7 +14,7 @@ import torch
 from torch import Tensor
 
 import camdegrade.functional as F
-import camdegrade.functional.blur as blur_module
+import camdegrade.functional.optics.blur as blur_module
 from effects_images import photo, photo_batch
 
 Kwargs = Callable[[Tensor, Any], dict[str, Any]]
@@ -306,7 +306,7 @@ def test_noise_statistics_follow_the_variance_model() -> None:
 def test_functional_imports_nothing_else_from_camdegrade() -> None:
     """Kernels depend on nothing but each other and the leaf helper that maps 8-bit to unit floats."""
     package = Path(F.__file__).parent
-    for module in package.glob("*.py"):
+    for module in package.rglob("*.py"):
         for node in ast.walk(ast.parse(module.read_text())):
             if isinstance(node, ast.ImportFrom) and node.module and node.module.startswith("camdegrade"):
                 allowed = node.module.startswith("camdegrade.functional") or node.module == "camdegrade._support.pixels"
@@ -387,7 +387,7 @@ def test_separable_taps_leave_out_only_negligible_outer_taps() -> None:
 
 @pytest.mark.parametrize(("gamma", "black_at_most"), [(1.3, 3e-10), (0.25, 1e-9), (0.1, 0.0)])
 def test_in_place_levels_gamma_keeps_black_below_any_quantisation_step(gamma: float, black_at_most: float) -> None:
-    from camdegrade.functional.tone import levels_gamma_
+    from camdegrade.functional.isp.tone import levels_gamma_
 
     values = torch.linspace(-0.1, 1.1, 1201)
     black, white = torch.tensor(0.05), torch.tensor(0.95)

@@ -1,5 +1,5 @@
-"""JPEG's fingerprint in decoded pixels (:mod:`camdegrade.measures.quantisation`), read on images made by parts that
-are not ours: scikit-image's photos (the PNG ones; its rocket is a JPEG), resized by PIL's filters, compressed by
+"""JPEG's fingerprint in decoded pixels (:mod:`camdegrade.measures.traces.quantisation`), read on images made by parts
+that are not ours: scikit-image's photos (the PNG ones; its rocket is a JPEG), resized by PIL's filters, compressed by
 PIL's libjpeg and saved again losslessly. A resize leaves no quantisation lattice; a JPEG leaves one whose steps are
 its tables', on the 8×8 grid of the origin only."""
 
@@ -14,7 +14,7 @@ import torch
 from PIL import Image
 
 from camdegrade.fitting.unpaired.jpeg import quality_from_steps, standard_tables
-from camdegrade.measures.quantisation import FREQUENCIES, MIN_FREQUENCIES, read_lattice
+from camdegrade.measures.traces.quantisation import FREQUENCIES, MIN_FREQUENCIES, read_lattice
 
 torch.set_num_threads(1)
 FILTERS = {"bilinear": Image.BILINEAR, "bicubic": Image.BICUBIC, "lanczos": Image.LANCZOS, "box": Image.BOX}

@@ -8,8 +8,8 @@ import torch
 
 from camdegrade import CameraProfile, load_profile
 from camdegrade.effects import EFFECTS, Blur, LearnedTexture
-from camdegrade.effects.learned_texture import STRIP_ROWS, layer_shapes
-from camdegrade.functional.blur import blur_image
+from camdegrade.effects.codec.learned_texture import STRIP_ROWS, layer_shapes
+from camdegrade.functional.optics.blur import blur_image
 from effects_images import photo_batch
 from test_effects import strong
 

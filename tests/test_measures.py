@@ -223,7 +223,7 @@ class _Values:
 
 def test_a_noise_stage_on_a_camera_without_noise_is_named_as_such_not_as_a_huge_ratio() -> None:
     """Issue 26: flat constant captures hold no noise; the old text read "noise stage is 99047.0× the camera's"."""
-    from camdegrade.measures.noise import noise_stage_text
+    from camdegrade.measures.families.noise import noise_stage_text
 
     text = noise_stage_text("noise", _Values(1e-5, 0.0), _Values(1.5, 0.4))
     assert text == "noise stage adds noise where the camera shows none (1.50 levels on its flat pixels)"

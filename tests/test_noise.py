@@ -11,12 +11,12 @@ from torch import Tensor
 
 from camdegrade import CameraProfile, load_profile
 from camdegrade.effects import Noise
-from camdegrade.effects._noise_fit import LINE_KEPT, _autocorrelation, _set_banding, _symmetric_taps
+from camdegrade.effects.sensor._noise_fit import LINE_KEPT, _autocorrelation, _set_banding, _symmetric_taps
 from camdegrade.fitting.unpaired.noise import flat_sums
 from camdegrade.functional import poisson_gaussian_noise_image
-from camdegrade.functional.analysis import box_mean, flat_mask, flattest_window, noisy_flat_mask
-from camdegrade.functional.noise import correlated_field
-from camdegrade.functional.noise_stats import NoiseSums, measure_set
+from camdegrade.functional.analysis.images import box_mean, flat_mask, flattest_window, noisy_flat_mask
+from camdegrade.functional.analysis.noise import NoiseSums, measure_set
+from camdegrade.functional.sensor.noise import correlated_field
 from effects_images import patch_chart, photos_for_fitting
 
 LEVELS = torch.tensor([[0.004, 0.008, 0.010, 0.012, 0.012, 0.010, 0.008, 0.006]] * 3)

@@ -13,13 +13,13 @@ from torch import Tensor
 from camdegrade import VirtualCamera
 from camdegrade._support.recipes import MIN_SENSOR_SCALE
 from camdegrade.effects import JPEG, Blur, Noise, Resolution
-from camdegrade.effects.resolution import SCALES
+from camdegrade.effects.isp.resolution import SCALES
 from camdegrade.errors import CamdegradeError
 from camdegrade.fitting import FitConfig, fit_profile
 from camdegrade.fitting.network.training import _sensor_crop, fit_network, random_crop_batch
 from camdegrade.functional import resolution_image
 from camdegrade.measures.metrics import psnr
-from camdegrade.measures.resampling import MIN_EXCESS, resampling_trace
+from camdegrade.measures.traces.resampling import MIN_EXCESS, resampling_trace
 from camdegrade.synthetic import dead_leaves_images
 
 

@@ -8,7 +8,7 @@ from torch import Tensor
 
 from camdegrade.effects import Blur, Sharpen
 from camdegrade.functional import unsharp_mask_image
-from camdegrade.functional.sharpen import coring
+from camdegrade.functional.isp.sharpen import coring
 from effects_images import photo_batch, photos_for_fitting
 
 

@@ -12,7 +12,7 @@ from torch import Tensor
 
 from camdegrade import CameraProfile
 from camdegrade.effects import LearnedTexture, Noise
-from camdegrade.effects.learned_texture import layer_shapes
+from camdegrade.effects.codec.learned_texture import layer_shapes
 from camdegrade.errors import CamdegradeError
 from camdegrade.fitting import FitInterrupted
 from camdegrade.fitting.two_sample.critic import low_pass

@@ -20,8 +20,8 @@ from camdegrade.effects import JPEG, Blur, Color, FrequencyResponse, Noise, Shar
 from camdegrade.errors import PairsError
 from camdegrade.fitting.unpaired import MIN_IMAGES, NOT_IDENTIFIABLE, UNPAIRED_EFFECTS, fit_unpaired
 from camdegrade.fitting.unpaired.spectrum import RESPONSE_FLOOR
-from camdegrade.functional.resolution import resolution_image
-from camdegrade.functional.tone import tone_curve
+from camdegrade.functional.isp.tone import tone_curve
+from camdegrade.functional.sensor.resolution import resolution_image
 from camdegrade.synthetic import dead_leaves_images
 
 torch.set_num_threads(1)

@@ -16,7 +16,7 @@ from torch import Tensor
 from camdegrade._support.fingerprint import module_tensors, tensors_fingerprint
 from camdegrade._support.pixels import NOT_FINITE, SCALE_HINT, as_unit, off_unit_scale, unit_to_bytes
 from camdegrade.effects.chain import chain_moved_points, chain_source_points, moves_pixels
-from camdegrade.functional.geometry import centered_coordinates, remap_labels
+from camdegrade.functional.optics.geometry import centered_coordinates, remap_labels
 from camdegrade.network.inference import Precision
 from camdegrade.profile import CameraProfile, EffectParams
 

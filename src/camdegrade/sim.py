@@ -24,7 +24,7 @@ from camdegrade._support.seeds import derived_generator
 from camdegrade.effects import EFFECTS, STAGES, Effect
 from camdegrade.effects.chain import apply_effects, check_chain, check_params
 from camdegrade.errors import BatchError, UnknownPresetError
-from camdegrade.functional.geometry import shrink_to_max_side
+from camdegrade.functional.optics.geometry import shrink_to_max_side
 from camdegrade.io import input_images, read_image, write_image
 
 __all__ = ["PRESETS", "CameraParams", "Preset", "VirtualCamera", "simulate_pairs"]

@@ -14,7 +14,7 @@ from camdegrade.effects import EFFECTS, Effect
 from camdegrade.fitting.in_chain import replace_stage
 from camdegrade.fitting.network.finetune import finetune_network
 from camdegrade.measures import FAMILIES, StatisticSet
-from camdegrade.measures.noise import NoiseLevel, noise_stage_text
+from camdegrade.measures.families.noise import NoiseLevel, noise_stage_text
 from camdegrade.profile import CameraProfile
 
 if TYPE_CHECKING:

@@ -1,6 +1,6 @@
 """The critic's part of the diagnosis page: its accuracy before and after the changes with its interval, its accuracy
 by texture, intensity, colour and position, and the held-out patches it is surest about, real beside simulated at
-2× nearest-neighbour (:func:`~camdegrade.measures.critic_explain.render_surest`): what a person needs to believe or
+2× nearest-neighbour (:func:`~camdegrade.measures.critic.explain.render_surest`): what a person needs to believe or
 doubt its verdict."""
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ from collections.abc import Mapping, Sequence
 from typing import Any
 
 from camdegrade.diagnose._html import png_url, table
-from camdegrade.measures.critic_explain import SurePatch, surest_png
+from camdegrade.measures.critic.explain import SurePatch, surest_png
 
 __all__ = ["DETAIL_GAIN", "critic_section"]
 

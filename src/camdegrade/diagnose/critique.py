@@ -1,17 +1,17 @@
 """The diagnosis' learned critic: how well a small CNN tells the captures from the simulations, before and after the
 accepted changes, and what it sees (its surest patches and its accuracy by group,
-:mod:`camdegrade.measures.critic_explain`).
+:mod:`camdegrade.measures.critic.explain`).
 
 **Not optimistic.** The changes are fitted on the calibration pairs; a critic trained there would learn from
 simulations the fit has bent towards those very captures, and would then underrate how far the simulation is from
 the camera (issue 24: 0.87 reported where an independent critic found 0.99). So the critic never sees a
-calibration pair: the held-out pairs are split again by scene (:func:`~camdegrade.measures.critic.alternate_scenes`),
-and for each profile (the one given, the one with the changes) a fresh critic is trained on one part and scores the
-other, and a second the other way round (:func:`~camdegrade.measures.critic_explain.crossfit_critic_test`): every
-held-out pair is scored by a critic that saw neither it nor any pair the change was fitted on. The accuracy is
-pooled over both folds, its 95 % interval a bootstrap over the held-out pairs; each fold's own accuracy is reported
-too (how much the verdict depends on which pairs trained the critic). Both profiles use the same folds, so before
-and after are comparable.
+calibration pair: the held-out pairs are split again by scene
+(:func:`~camdegrade.measures.critic.core.alternate_scenes`), and for each profile (the one given, the one with the
+changes) a fresh critic is trained on one part and scores the other, and a second the other way round
+(:func:`~camdegrade.measures.critic.explain.crossfit_critic_test`): every held-out pair is scored by a critic that
+saw neither it nor any pair the change was fitted on. The accuracy is pooled over both folds, its 95 % interval a
+bootstrap over the held-out pairs; each fold's own accuracy is reported too (how much the verdict depends on which pairs
+trained the critic). Both profiles use the same folds, so before and after are comparable.
 """
 
 from __future__ import annotations
@@ -21,8 +21,8 @@ from dataclasses import dataclass
 
 from torch import Tensor
 
-from camdegrade.measures.critic import CriticResult, alternate_scenes
-from camdegrade.measures.critic_explain import CriticExplanation, crossfit_critic_test
+from camdegrade.measures.critic.core import CriticResult, alternate_scenes
+from camdegrade.measures.critic.explain import CriticExplanation, crossfit_critic_test
 
 __all__ = ["CRITIC_CHANCE", "SUREST", "SUREST_PER_PAIR", "Critique", "critiques"]
 

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 from torch import Tensor
 
 from camdegrade._support.seeds import derive_seed
-from camdegrade.functional.analysis import flat_mask
+from camdegrade.functional.analysis.images import flat_mask
 from camdegrade.measures import StatisticSet, bootstrap_indices, family_gaps, gap, gap_spread
 from camdegrade.measures.gap import Scale, measurement_scale
 from camdegrade.profile import CameraProfile

@@ -22,13 +22,13 @@ from torch import Tensor
 from camdegrade._support.files import atomic_path
 from camdegrade.diagnose._html import image_url, png_url, table
 from camdegrade.diagnose.critic_html import critic_section
-from camdegrade.functional.analysis import flattest_window
+from camdegrade.functional.analysis.images import flattest_window
 from camdegrade.measures import FAMILIES
-from camdegrade.measures.critic_explain import SurePatch
-from camdegrade.measures.frequency import BANDS, Frequency
-from camdegrade.measures.intensity import INTENSITY_BINS
-from camdegrade.measures.noise import NOISE_BINS, NoiseLevel
-from camdegrade.measures.spatial import TILES
+from camdegrade.measures.critic.explain import SurePatch
+from camdegrade.measures.families.frequency import BANDS, Frequency
+from camdegrade.measures.families.intensity import INTENSITY_BINS
+from camdegrade.measures.families.noise import NOISE_BINS, NoiseLevel
+from camdegrade.measures.families.spatial import TILES
 from camdegrade.profile import CameraProfile
 
 __all__ = ["REQUIRED_KEYS", "DiagnosisReport", "example_crops", "flat_crops", "render_html"]

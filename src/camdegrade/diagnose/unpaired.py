@@ -1,7 +1,7 @@
 """Unpaired mode: clean images and real captures of *other* scenes. Only distribution-level statistics can be
 compared (no clean reference per capture), so this gives the "where" part of the report, not the attribution.
 
-Per image: the no-reference families of :mod:`camdegrade.measures.no_reference` (a luma radial profile, colour
+Per image: the no-reference families of :mod:`camdegrade.measures.families.no_reference` (a luma radial profile, colour
 ratios, tone quantiles, band power, block-edge energy, a flat-pixel noise level). Each component is compared as a
 difference of set means over its standard error (both sets), so content differences between the two sets only
 count when they exceed what the spread of the images explains. With at least 8 images a side it also reports, as

@@ -10,7 +10,7 @@ from typing import Any
 from torch import Tensor
 
 from camdegrade.measures import FAMILIES, StatisticSet
-from camdegrade.measures.blocks import Blocks, block_excess
+from camdegrade.measures.families.blocks import Blocks, block_excess
 from camdegrade.measures.visible import GridComparison, compare_grid, compare_texture
 
 __all__ = ["GRID_SHARE", "findings", "suspects", "visible"]

@@ -14,16 +14,16 @@ from camdegrade.effects.base import (
     check_effect_names,
     register_effect,
 )
-from camdegrade.effects.blur import Blur
-from camdegrade.effects.codec import JPEG
-from camdegrade.effects.color import Color, Tone
-from camdegrade.effects.denoise import Denoise
-from camdegrade.effects.geometry import ChromaticAberration, Distortion, Misalignment, Vignetting
-from camdegrade.effects.learned_texture import LearnedTexture
-from camdegrade.effects.noise import Noise
-from camdegrade.effects.resolution import Resolution
-from camdegrade.effects.response import FrequencyResponse
-from camdegrade.effects.sharpen import Sharpen
+from camdegrade.effects.codec.jpeg import JPEG
+from camdegrade.effects.codec.learned_texture import LearnedTexture
+from camdegrade.effects.isp.color import Color, Tone
+from camdegrade.effects.isp.denoise import Denoise
+from camdegrade.effects.isp.resolution import Resolution
+from camdegrade.effects.isp.response import FrequencyResponse
+from camdegrade.effects.isp.sharpen import Sharpen
+from camdegrade.effects.optics.blur import Blur
+from camdegrade.effects.optics.geometry import ChromaticAberration, Distortion, Misalignment, Vignetting
+from camdegrade.effects.sensor.noise import Noise
 
 __all__ = [
     "EFFECTS",

@@ -11,7 +11,7 @@ from torch import Tensor
 
 from camdegrade._support.pixels import as_unit
 from camdegrade.effects.base import Pairs
-from camdegrade.functional.analysis import gradient_energy
+from camdegrade.functional.analysis.images import gradient_energy
 
 PairList = list[tuple[Tensor, Tensor]]
 

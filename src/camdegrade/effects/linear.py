@@ -25,7 +25,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from camdegrade.functional.analysis import LUMA_WEIGHTS
+from camdegrade.functional.analysis.images import LUMA_WEIGHTS
 from camdegrade.functional.filtering import SeparableTerm, convolve_spectrum, convolve_terms, luma_plane, terms_radius
 
 __all__ = [
@@ -46,7 +46,7 @@ Encoding = Literal["srgb", "linear"]
 
 #: Gains of a kernel on the ``rfft2`` grid of an ``h × w`` frame (complex128 ``(h, w // 2 + 1)``).
 Gains = Callable[[int, int], Tensor]
-#: Rows and columns of mirrored border before a product of spectra (as :mod:`camdegrade.functional.response`).
+#: Rows and columns of mirrored border before a product of spectra (as :mod:`camdegrade.functional.isp.response`).
 SPECTRUM_PAD = 16
 #: Taps lighter than this are left out of a composed term (each term's taps sum to at most a few units): they move
 #: no output by a measurable fraction of an 8-bit level.

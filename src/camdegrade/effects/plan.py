@@ -17,7 +17,7 @@ from torch import Tensor
 from camdegrade._support.fingerprint import module_tensors, tensors_fingerprint
 from camdegrade.effects.base import Effect, Encoding
 from camdegrade.effects.linear import LinearFilter
-from camdegrade.functional.color import linear_to_srgb_, srgb_to_linear_
+from camdegrade.functional.isp.color import linear_to_srgb_, srgb_to_linear_
 
 __all__ = [
     "PLANS_KEPT",

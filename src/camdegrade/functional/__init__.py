@@ -5,16 +5,8 @@ and draw no random numbers: noise kernels take pre-drawn standard normals, so ev
 exactly. This package imports nothing from the rest of camdegrade but the leaf helper ``camdegrade._support.pixels``.
 """
 
-from camdegrade.functional.blur import (
-    blur_image,
-    blur_planes,
-    convolve_image,
-    convolve_separable,
-    psf_kernel,
-    separable_taps,
-)
 from camdegrade.functional.codec import jpeg_image
-from camdegrade.functional.color import (
+from camdegrade.functional.isp.color import (
     color_matrix_image,
     linear_to_srgb,
     linear_to_srgb_,
@@ -22,18 +14,26 @@ from camdegrade.functional.color import (
     srgb_to_linear_,
     white_balance_image,
 )
-from camdegrade.functional.geometry import (
+from camdegrade.functional.isp.response import frequency_response_image
+from camdegrade.functional.isp.sharpen import denoise_image, unsharp_mask_image
+from camdegrade.functional.isp.tone import tone_curve, tone_curve_image
+from camdegrade.functional.optics.blur import (
+    blur_image,
+    blur_planes,
+    convolve_image,
+    convolve_separable,
+    psf_kernel,
+    separable_taps,
+)
+from camdegrade.functional.optics.geometry import (
     chromatic_aberration_image,
     distortion_image,
     misalignment_image,
     relative_radius,
     vignetting_image,
 )
-from camdegrade.functional.noise import poisson_gaussian_noise_image
-from camdegrade.functional.resolution import resolution_image
-from camdegrade.functional.response import frequency_response_image
-from camdegrade.functional.sharpen import denoise_image, unsharp_mask_image
-from camdegrade.functional.tone import tone_curve, tone_curve_image
+from camdegrade.functional.sensor.noise import poisson_gaussian_noise_image
+from camdegrade.functional.sensor.resolution import resolution_image
 
 __all__ = [
     "blur_image",

@@ -14,7 +14,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from camdegrade.functional.analysis import LUMA_WEIGHTS
+from camdegrade.functional.analysis.images import LUMA_WEIGHTS
 
 __all__ = ["SeparableTerm", "convolve_spectrum", "convolve_terms", "luma_plane", "terms_radius"]
 

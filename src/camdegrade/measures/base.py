@@ -28,7 +28,7 @@ from typing import ClassVar, Protocol, TypeVar
 from torch import Tensor
 
 from camdegrade.effects import EFFECTS
-from camdegrade.functional.analysis import flat_mask
+from camdegrade.functional.analysis.images import flat_mask
 
 __all__ = [
     "FAMILIES",
@@ -58,7 +58,7 @@ class MeasuredPair:
 
     @property
     def mask(self) -> Tensor:
-        """The clean image's :func:`~camdegrade.functional.analysis.flat_mask` (computed when not given)."""
+        """The clean image's :func:`~camdegrade.functional.analysis.images.flat_mask` (computed when not given)."""
         if self._mask is None:
             self._mask = flat_mask(self.clean)
         return self._mask

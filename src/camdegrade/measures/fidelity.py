@@ -9,11 +9,12 @@ same clean images (1 or 0: the same):
 - **texture** (:func:`band_log2_ratios`): the luminance power spectrum in five radial bands, ``log2(sim / real)``
   (negative: too smooth; positive: too sharp or too noisy).
 - **flat noise** (:func:`noise_ratios`): the noise std and the row banding where the clean image is flat
-  (:func:`~camdegrade.functional.analysis.flat_mask`, :class:`~camdegrade.functional.noise_stats.NoiseSums`).
+  (:func:`~camdegrade.functional.analysis.images.flat_mask`,
+  :class:`~camdegrade.functional.analysis.noise.NoiseSums`).
 
 Every function takes ``[N, 3, H, W]`` or ``[3, H, W]`` float images in [0, 1]; :func:`measure_fidelity` pools
 them over a set of frames of any sizes into a :class:`FidelityReport`. The learned critic, which asks the same
-question of a small CNN, is :mod:`camdegrade.measures.critic` (``image_only=True`` for what a model sees).
+question of a small CNN, is :mod:`camdegrade.measures.critic.core` (``image_only=True`` for what a model sees).
 
 References:
     A. Odena, V. Dumoulin, C. Olah, "Deconvolution and Checkerboard Artifacts", Distill, 2016.
@@ -29,8 +30,8 @@ from dataclasses import asdict, dataclass
 import torch
 from torch import Tensor
 
-from camdegrade.functional.analysis import box_mean, flat_mask, hann2d, luma
-from camdegrade.functional.noise_stats import NoiseSums
+from camdegrade.functional.analysis.images import box_mean, flat_mask, hann2d, luma
+from camdegrade.functional.analysis.noise import NoiseSums
 
 __all__ = [
     "BAND_EDGES",
@@ -141,7 +142,7 @@ def noise_ratios(sim: NoiseSums, real: NoiseSums) -> tuple[float | None, float |
     """``(noise, banding)``: the flat-pixel noise std of ``sim`` over ``real``'s, and the same of the std of the
     per-row means (row banding, RMS over channels), each raised to :data:`MIN_ROW_STD_LEVELS` first (rows that
     vary less than that are flat: two such give 1); ``None`` where either is not measurable (too few flat pixels
-    or rows, :mod:`camdegrade.functional.noise_stats`)."""
+    or rows, :mod:`camdegrade.functional.analysis.noise`)."""
     noise = _finite(sim.pooled_std() / real.pooled_std()) if real.pooled_std() > 0 else None
     rows_sim = float(sim.line_variance()[0][0].mean().sqrt())
     rows_real = float(real.line_variance()[0][0].mean().sqrt())

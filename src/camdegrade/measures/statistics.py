@@ -15,7 +15,7 @@ __all__ = ["StatisticSet", "image_statistics", "pair_statistics"]
 
 def pair_statistics(image: Tensor, clean: Tensor, mask: Tensor | None = None) -> dict[str, tuple[Tensor, Tensor]]:
     """Every paired family's sums for one image ``(3, H, W)`` against its clean image, float in [0, 1]; ``mask`` is
-    the clean image's :func:`~camdegrade.functional.analysis.flat_mask` (computed when not given)."""
+    the clean image's :func:`~camdegrade.functional.analysis.images.flat_mask` (computed when not given)."""
     pair = MeasuredPair(image, clean, mask)
     return {name: family.measure(pair) for name, family in FAMILIES.items()}
 

@@ -27,7 +27,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from camdegrade.functional.analysis import hann2d, luma
+from camdegrade.functional.analysis.images import hann2d, luma
 
 __all__ = [
     "AlignmentResult",

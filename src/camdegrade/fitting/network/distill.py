@@ -35,7 +35,7 @@ from camdegrade.effects.base import evenly_spaced
 from camdegrade.fitting.network.training import EpochResult, fit_network
 from camdegrade.fitting.recipe import FitConfig, resolve_recipe
 from camdegrade.fitting.record import record_quality
-from camdegrade.functional.geometry import shrink_to_max_side
+from camdegrade.functional.optics.geometry import shrink_to_max_side
 from camdegrade.measures.metrics import psnr
 from camdegrade.network.inference import run_network
 from camdegrade.pairs.folder import read_folder

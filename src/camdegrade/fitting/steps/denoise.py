@@ -32,8 +32,8 @@ from camdegrade.effects import Denoise
 from camdegrade.fitting.steps.base import FitStep, PairedFit, Verdict
 from camdegrade.fitting.steps.texture import band_errors, radial_powers
 from camdegrade.functional import blur_planes
-from camdegrade.functional.analysis import luma
-from camdegrade.functional.sharpen import denoised_with_detail, image_detail
+from camdegrade.functional.analysis.images import luma
+from camdegrade.functional.isp.sharpen import denoised_with_detail, image_detail
 from camdegrade.measures.metrics import psnr
 from camdegrade.profile import CameraProfile
 

@@ -6,7 +6,7 @@ So a fit keeps a stage only where held-out pairs show that the camera has the ef
 to the camera with it:
 
 - **noise** (:func:`noise_evidence`): on pixels where the clean image is flat in absolute terms
-  (:func:`~camdegrade.functional.analysis.flat_mask`), the capture's noise must be measurably above what the
+  (:func:`~camdegrade.functional.analysis.images.flat_mask`), the capture's noise must be measurably above what the
   profile's deterministic output already has (at least :data:`MIN_NOISE_RATIO` times, the bootstrap interval over
   pairs above 1, and by at least :data:`MIN_EXCESS_LEVELS`), and the sampled profile with the stage must have a
   flat-noise ratio (simulation / capture, :func:`~camdegrade.measures.fidelity.noise_ratios`) closer to 1 than
@@ -31,8 +31,8 @@ from camdegrade._support.pixels import bytes_to_unit, unit_to_bytes
 from camdegrade._support.seeds import derived_generator
 from camdegrade.effects import Effect
 from camdegrade.fitting.in_chain import replace_stage
-from camdegrade.functional.analysis import flat_mask
-from camdegrade.functional.noise_stats import NoiseSums
+from camdegrade.functional.analysis.images import flat_mask
+from camdegrade.functional.analysis.noise import NoiseSums
 from camdegrade.measures.fidelity import noise_ratios
 from camdegrade.network.inference import run_network
 from camdegrade.profile import CameraProfile

@@ -4,7 +4,7 @@ A sensor read at half the resolution and upsampled by the ISP leaves, above the 
 the sampled spectrum locked to the sensor's grid: a pattern no shift-invariant filter reproduces, so a network
 trained on such captures smooths it away (a simulated 2× camera: its top band, 0.35–0.5 cycles/pixel, 2.9 log2
 short; a critic tells it from the camera at 0.70–0.75). The upscale's trace is read from the training captures
-(:func:`~camdegrade.measures.resampling.resampling_trace`); where one is found, the network is trained through a
+(:func:`~camdegrade.measures.traces.resampling.resampling_trace`); where one is found, the network is trained through a
 :class:`~camdegrade.effects.Resolution` stage of that scale, which the profile keeps after it. The unpaired fit asks
 the same question of its captures and clean set (:func:`sensor_trace`, :func:`sensor_verdict`) and, having no
 network, fits every later stage through the stage it finds.
@@ -21,7 +21,7 @@ from torch import Tensor
 from camdegrade.effects import Resolution
 from camdegrade.effects.base import evenly_spaced
 from camdegrade.fitting.steps.base import FitStep, PairedFit, Verdict
-from camdegrade.measures.resampling import ResamplingTrace, resampling_trace
+from camdegrade.measures.traces.resampling import ResamplingTrace, resampling_trace
 from camdegrade.network import LocalAffineNet
 
 __all__ = ["SENSOR_CAPTURES", "SensorResolution", "sensor_trace", "sensor_verdict"]

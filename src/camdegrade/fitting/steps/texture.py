@@ -29,7 +29,7 @@ from torch import Tensor
 
 from camdegrade.effects import Blur, Effect, Sharpen
 from camdegrade.fitting.steps.base import FitStep, PairedFit, Verdict
-from camdegrade.functional.blur import TRUNCATE
+from camdegrade.functional.optics.blur import TRUNCATE
 from camdegrade.measures.fidelity import BAND_EDGES, luma_spectrum
 from camdegrade.measures.metrics import psnr
 from camdegrade.profile import CameraProfile
@@ -59,7 +59,8 @@ __all__ = [
 BLUR_SIGMAS = (0.0, 0.3, 0.4, 0.5, 0.6, 0.7, 0.85, 1.0, 1.2, 1.5)
 SHARPEN_SIGMAS = (0.5, 0.7, 1.0, 1.5, 2.0, 3.0)
 SHARPEN_AMOUNTS = (0.0, 0.1, 0.2, 0.35, 0.5, 0.75, 1.0, 1.5, 2.0, 2.5, 3.0)
-#: A Gaussian this narrow is the identity (its kernel is one tap; :func:`~camdegrade.functional.blur.psf_kernel`).
+#: A Gaussian this narrow is the identity (its kernel is one tap:
+#: :func:`~camdegrade.functional.optics.blur.psf_kernel`).
 GAUSSIAN_IDENTITY_SIGMA = 0.05
 #: Directions the gain of a separable kernel is averaged over, from 0 to 90 degrees.
 DIRECTIONS = 16
@@ -144,7 +145,7 @@ def band_errors(sim: Tensor, real: Tensor) -> Tensor:
 
 def gaussian_gain(sigma: float, frequency: Tensor) -> Tensor:
     """Amplitude gain at radial ``frequency`` (cycles/pixel) of the blur kernels'
-    (:func:`~camdegrade.functional.blur.psf_kernel`) sampled, truncated and normalised Gaussian of ``sigma``,
+    (:func:`~camdegrade.functional.optics.blur.psf_kernel`) sampled, truncated and normalised Gaussian of ``sigma``,
     averaged over directions: at small σ its gain near 0.5 cycles/pixel is well above the continuous Gaussian's."""
     if sigma <= GAUSSIAN_IDENTITY_SIGMA:
         return torch.ones_like(frequency)

@@ -19,7 +19,7 @@ import torch
 from torch import Tensor, nn
 from torch.nn.utils.parametrizations import spectral_norm
 
-from camdegrade.functional.blur import blur_image
+from camdegrade.functional.optics.blur import blur_image
 
 __all__ = ["PatchCritic", "high_pass", "low_pass"]
 

@@ -25,7 +25,7 @@ from camdegrade.effects import (
 )
 from camdegrade.fitting.steps.base import FitStep
 from camdegrade.fitting.unpaired.images import ImageSet
-from camdegrade.functional.noise_stats import NoiseSums
+from camdegrade.functional.analysis.noise import NoiseSums
 from camdegrade.profile import CameraProfile
 
 __all__ = ["CHAIN_ORDER", "NEEDS_CLEAN", "Log", "Measured", "UnpairedFit", "UnpairedStep"]

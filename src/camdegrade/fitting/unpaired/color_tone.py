@@ -16,7 +16,7 @@ from camdegrade.effects._fitting import minimize
 from camdegrade.fitting.unpaired.bench import UnpairedFit, UnpairedStep
 from camdegrade.fitting.unpaired.judges import significant, split_half_error
 from camdegrade.functional import linear_to_srgb, srgb_to_linear
-from camdegrade.functional.tone import tone_curve
+from camdegrade.functional.isp.tone import tone_curve
 
 __all__ = ["ColorToneMatch", "judge_color_tone", "propose_color_tone"]
 

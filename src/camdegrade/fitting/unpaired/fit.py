@@ -76,9 +76,9 @@ from camdegrade.fitting.unpaired.spectrum import (
     mean_spectrum,
 )
 from camdegrade.fitting.unpaired.vignetting import RINGS, VignettingMatch, ring_profiles
-from camdegrade.functional.blur import blur_image
+from camdegrade.functional.optics.blur import blur_image
 from camdegrade.measures.fidelity import BAND_EDGES, band_power
-from camdegrade.measures.resampling import ResamplingTrace
+from camdegrade.measures.traces.resampling import ResamplingTrace
 from camdegrade.profile import CameraProfile
 
 __all__ = [

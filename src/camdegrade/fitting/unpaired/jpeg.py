@@ -2,8 +2,8 @@
 
 A JPEG file's quality is read from its quantisation tables (exact for libjpeg's standard tables, the nearest
 standard quality for a camera's own). A lossless file (a JPEG saved again as PNG, a decoded tensor) is read from the
-quantisation lattice its pixels still hold (:mod:`camdegrade.measures.quantisation`): the steps found, matched to the
-nearest standard luma table; a file that holds none was never block-compressed or was resampled since, and gets no
+quantisation lattice its pixels still hold (:mod:`camdegrade.measures.traces.quantisation`): the steps found, matched to
+the nearest standard luma table; a file that holds none was never block-compressed or was resampled since, and gets no
 quality. The 8×8 block-edge energy is not used: a resize leaves as much of it (City100's PNGs shrunk to 256 px read
 1.18× the mean, above the 1.08 it took for JPEG blocks) and none of the lattice.
 
@@ -26,7 +26,7 @@ from camdegrade.effects import JPEG, Effect
 from camdegrade.fitting.steps.base import Verdict
 from camdegrade.fitting.unpaired.bench import UnpairedFit, UnpairedStep
 from camdegrade.fitting.unpaired.images import ImageSet
-from camdegrade.measures.quantisation import FREQUENCIES, read_lattice
+from camdegrade.measures.traces.quantisation import FREQUENCIES, read_lattice
 
 __all__ = [
     "UNCOMPRESSED",
@@ -157,7 +157,7 @@ def side_qualities(images: ImageSet) -> SideQualities:
 
 def quality_from_steps(steps: Sequence[int | None]) -> int:
     """The libjpeg quality whose luma table is nearest (log ratio, summed) to the steps found at
-    :data:`~camdegrade.measures.quantisation.FREQUENCIES`. Only steps of 2 or more count: a frequency read as off
+    :data:`~camdegrade.measures.traces.quantisation.FREQUENCIES`. Only steps of 2 or more count: a frequency read as off
     the lattice may be one whose few coefficients sit in smooth blocks, where the decoder's rounding moves them by
     more than a step of 1 or 2 allows. Qualities 49–51 and 74–75 have the same steps there: a tie goes to the
     multiple of 5 (what software offers), then to the highest."""

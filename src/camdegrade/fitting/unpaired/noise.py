@@ -1,12 +1,12 @@
 """Camera noise fitted from the captures alone: each capture's own flat regions, no clean reference.
 
-Where a capture is flat (:func:`~camdegrade.functional.analysis.noisy_flat_mask` of the capture itself: its
+Where a capture is flat (:func:`~camdegrade.functional.analysis.images.noisy_flat_mask` of the capture itself: its
 gradient at 2 px below 1.5 levels or, where its own noise moves the gradient more, below what that noise explains),
 its residual from the 17×17 local mean is its noise,
-binned by that local mean (:class:`~camdegrade.functional.noise_stats.NoiseSums`: level per channel and intensity
-bin, lag-1/2 and channel correlation, row and column line means). The same measurement of the clean set, run
+binned by that local mean (:class:`~camdegrade.functional.analysis.noise.NoiseSums`: level per channel and
+intensity bin, lag-1/2 and channel correlation, row and column line means). The same measurement of the clean set, run
 through the rest of the fitted chain, is the base (what the clean images carry already); the noise stage then
-follows by simulated moments (:func:`~camdegrade.effects._noise_fit.calibrate`), so clipping, the tone curve,
+follows by simulated moments (:func:`~camdegrade.effects.sensor._noise_fit.calibrate`), so clipping, the tone curve,
 sharpening and the codec after the noise are absorbed. The simulations are measured on the pixels where the
 noiseless simulation is flat (:func:`on_noiseless_pixels`), and after each round the level table is a curve smooth
 in the signal level (:func:`smooth_levels`), at most :data:`RAISE_LIMIT` times the captures' own noise
@@ -56,10 +56,10 @@ import torch
 from torch import Tensor
 
 from camdegrade.effects import Effect, FrequencyResponse, Noise
-from camdegrade.effects._noise_fit import FIT_MIN_PIXELS, calibrate, check_measurable, initial_noise
+from camdegrade.effects.sensor._noise_fit import FIT_MIN_PIXELS, calibrate, check_measurable, initial_noise
 from camdegrade.fitting.unpaired.bench import UnpairedFit, UnpairedStep
-from camdegrade.functional.analysis import box_mean, noisy_flat_mask
-from camdegrade.functional.noise_stats import HIGH_PASS, NoiseSums, measure_set
+from camdegrade.functional.analysis.images import box_mean, noisy_flat_mask
+from camdegrade.functional.analysis.noise import HIGH_PASS, NoiseSums, measure_set
 
 __all__ = [
     "CURVATURE",
@@ -99,8 +99,8 @@ RAISE_LIMIT = 4.0
 
 
 def flat_sums(images: Sequence[Tensor]) -> NoiseSums:
-    """The noise sums of each image on its own flat pixels (:func:`~camdegrade.functional.analysis.noisy_flat_mask`),
-    binned by its own local mean."""
+    """The noise sums of each image on its own flat pixels
+    (:func:`~camdegrade.functional.analysis.images.noisy_flat_mask`), binned by its own local mean."""
     total = NoiseSums.zeros()
     for image in images:
         total = total + NoiseSums.measure(image, box_mean(image, HIGH_PASS), noisy_flat_mask(image))

@@ -15,7 +15,7 @@ from torch import Tensor
 
 from camdegrade.effects import Blur, Effect, FrequencyResponse, Sharpen
 from camdegrade.fitting.unpaired.bench import UnpairedFit, UnpairedStep
-from camdegrade.functional.analysis import hann2d, luma
+from camdegrade.functional.analysis.images import hann2d, luma
 
 __all__ = [
     "DetailResponseMatch",

@@ -16,7 +16,7 @@ from camdegrade.effects._fitting import downscale
 from camdegrade.fitting.unpaired.bench import UnpairedFit, UnpairedStep
 from camdegrade.fitting.unpaired.judges import significant, split_half_error
 from camdegrade.functional import relative_radius, srgb_to_linear
-from camdegrade.functional.analysis import luma
+from camdegrade.functional.analysis.images import luma
 
 __all__ = ["RINGS", "VignettingMatch", "estimate_vignetting", "judge_vignetting", "ring_profiles"]
 
