@@ -8,7 +8,7 @@ import copy
 import itertools
 import math
 from collections.abc import Callable, Sequence
-from typing import TYPE_CHECKING
+from typing import Any, ClassVar, Protocol, TypeVar
 
 import torch
 from torch import Tensor
@@ -18,9 +18,6 @@ from camdegrade.effects._fitting import as_pairs
 from camdegrade.effects.base import Pairs
 from camdegrade.functional.analysis.images import flat_mask
 from camdegrade.functional.analysis.noise import BINS, HIGH_PASS, NoiseSums, measure_set
-
-if TYPE_CHECKING:
-    from camdegrade.effects.sensor.noise import Noise
 
 #: A bin's noise level is estimated from at least this many flat pixels (its std then has a relative standard
 #: error of a few per cent, more where the noise is correlated).
@@ -40,13 +37,35 @@ MAX_STEP = 4.0
 #: Correlation targets stay within this bound (a kernel of 5 taps reaches about 0.87 at lag 1).
 MAX_CORRELATION = 0.95
 
-Simulate = Callable[["Noise"], list[Tensor]]
+
+class NoiseStage(Protocol):
+    """What the estimator reads and sets of a noise stage (:class:`~camdegrade.effects.Noise`, which calls it: the
+    estimator names no class of its own, so the stage and its fit import one way)."""
+
+    MAX_LEVEL: ClassVar[float]
+    levels: Tensor
+    mixing: Tensor
+    across: Tensor
+    down: Tensor
+    row_sigma: Tensor
+    column_sigma: Tensor
+
+    @property
+    def taps(self) -> int: ...
+
+    def make_params(self, shape: Any, generator: torch.Generator) -> dict[str, Any]: ...
+
+    def __call__(self, image: Tensor, params: dict[str, Any]) -> Tensor: ...
+
+
+NoiseT = TypeVar("NoiseT", bound=NoiseStage)
+Simulate = Callable[[NoiseStage], list[Tensor]]
 Measure = Callable[[list[Tensor]], NoiseSums]
 
 
 def fit_noise(
-    cls: type[Noise], source: Pairs, target: Pairs, *, estimator: str, taps: int, banding: bool, rounds: int, seed: int
-) -> Noise:
+    cls: type[NoiseT], source: Pairs, target: Pairs, *, estimator: str, taps: int, banding: bool, rounds: int, seed: int
+) -> NoiseT:
     """:meth:`Noise.fit` (see its docstring)."""
     if estimator not in ("excess", "residual"):
         raise ValueError(f"estimator must be 'excess' or 'residual', got estimator={estimator!r}")
@@ -60,7 +79,7 @@ def fit_noise(
     check_measurable(real)
     start = initial_noise(cls, real, base, taps)
 
-    def simulate(noise: Noise) -> list[Tensor]:
+    def simulate(noise: NoiseT) -> list[Tensor]:
         out = []
         with torch.no_grad():
             for index, src in enumerate(sources):
@@ -96,7 +115,7 @@ def check_measurable(real: NoiseSums) -> None:
         )
 
 
-def initial_noise(cls: type[Noise], real: NoiseSums, base: NoiseSums, taps: int) -> Noise:
+def initial_noise(cls: type[NoiseT], real: NoiseSums, base: NoiseSums, taps: int) -> NoiseT:
     """The closed-form start: the excess variance per bin, the excess (or the target's) correlation, no banding."""
     levels = _fill(((_variance(real) - _variance(base)).clamp_min(0)).sqrt()) / 255.0
     rho = _noise_correlation(real, base)
@@ -118,7 +137,7 @@ def flat_noise_sums(cleans: Sequence[Tensor]) -> Measure:
 
 
 def calibrate(
-    noise: Noise,
+    noise: NoiseT,
     simulate: Simulate,
     measure: Measure,
     real: NoiseSums,
@@ -127,7 +146,7 @@ def calibrate(
     rounds: int = 2,
     banding: bool = True,
     levels_rule: Callable[[Tensor], Tensor] | None = None,
-) -> Noise:
+) -> NoiseT:
     """``noise`` corrected by simulated moments until ``measure(simulate(noise))`` matches ``real``.
 
     Args:
@@ -172,7 +191,7 @@ def _fill(values: Tensor) -> Tensor:
 
 
 def _correct_levels(
-    noise: Noise, real: NoiseSums, base: NoiseSums, sim: NoiseSums, rule: Callable[[Tensor], Tensor] | None = None
+    noise: NoiseT, real: NoiseSums, base: NoiseSums, sim: NoiseSums, rule: Callable[[Tensor], Tensor] | None = None
 ) -> None:
     """Each knot's std scaled by how far the simulated excess variance is from the real one (then ``rule``), at
     most the stage's :attr:`~camdegrade.effects.Noise.MAX_LEVEL`: a chain after the noise that removes nearly all
@@ -223,7 +242,7 @@ def _noise_channel_correlation(real: NoiseSums, base: NoiseSums) -> Tensor:
     return covariance / (std[:, None] * std[None, :])
 
 
-def _correct_correlation(noise: Noise, real: NoiseSums, base: NoiseSums, sim: NoiseSums) -> None:
+def _correct_correlation(noise: NoiseT, real: NoiseSums, base: NoiseSums, sim: NoiseSums) -> None:
     """Kernel and mixing targets moved by the real − simulated difference of the measured correlations, scaled up
     by the noise's share of the simulated variance (the rest of the measured field is the source's own)."""
     if noise.taps < 3:
@@ -324,14 +343,14 @@ def _mixing(correlation: Tensor) -> Tensor:
 # -- banding -----------------------------------------------------------------------------------------------------
 
 
-def _without_banding(noise: Noise) -> Noise:
+def _without_banding(noise: NoiseT) -> NoiseT:
     out = copy.deepcopy(noise)
     out.row_sigma.zero_()
     out.column_sigma.zero_()
     return out
 
 
-def _set_banding(noise: Noise, real: NoiseSums, null: NoiseSums) -> None:
+def _set_banding(noise: NoiseT, real: NoiseSums, null: NoiseSums) -> None:
     """Row and column σ from the line-mean variance the real images show beyond the simulated null (the fitted
     noise without banding); zero where that excess is not significant.
 
