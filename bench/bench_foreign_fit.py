@@ -41,7 +41,7 @@ from PIL import Image, ImageDraw
 from scipy import ndimage
 
 from camdegrade.fitting.quality import FIT_CRITIC_SEEDS
-from camdegrade.measures.critic.core import repeated_critic_test
+from camdegrade.measures.critic import repeated_critic_test
 from camdegrade.measures.metrics import psnr
 from foreign_cameras import CAMERAS, camera
 

@@ -32,7 +32,7 @@ from camdegrade._support.pixels import as_unit
 from camdegrade.fitting import discover_pairs, filter_pairs, load_pair
 from camdegrade.functional.analysis.images import flat_mask, flattest_window, gradient_energy
 from camdegrade.functional.analysis.noise import NoiseSums
-from camdegrade.measures.critic.core import critic_test
+from camdegrade.measures.critic import critic_test
 
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_DATA = ROOT.parent / "shared" / "data" / "real-pairs"

@@ -2,7 +2,7 @@
 
 Each row changes one thing, either in the real captures (how sensitive is the critic to that change?) or in a
 default-fit profile (does removing a suspect make the simulation harder to tell?), and re-runs the critic of
-:mod:`camdegrade.measures.critic.core` on pairs it never trained on: the 16 held-out scenes (056–070, 098; never used
+:mod:`camdegrade.measures.critic` on pairs it never trained on: the 16 held-out scenes (056–070, 098; never used
 in any fit), whole frames, trained on the even ones and scored on the odd ones and the other way round, for
 ``--seeds`` critic seeds (a seed draws the patches, the critic's start and its minibatches). Every image is
 rounded to 8 bits, as the captures are. Rows:
@@ -51,7 +51,7 @@ from camdegrade.fitting.network.baseline import apply_linear_baseline, fit_linea
 from camdegrade.fitting.steps.denoise import amplitude_distance, detail_amplitudes
 from camdegrade.functional import blur_image, denoise_image, unsharp_mask_image
 from camdegrade.functional.analysis.images import flat_mask, luma
-from camdegrade.measures.critic.core import critic_test
+from camdegrade.measures.critic import critic_test
 from camdegrade.measures.fidelity import measure_fidelity
 
 ROOT = Path(__file__).resolve().parents[1]

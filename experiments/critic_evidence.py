@@ -1,7 +1,7 @@
 """What gives the simulation away to the learned critic (issues 23 and 24)?
 
 On the 16 held-out City100 iPhone X scenes (056–070, 098; never used in any fit), whole frames, the critic of
-:mod:`camdegrade.measures.critic.core` is trained on 8 scenes and scored on the other 8, image-only (what a model
+:mod:`camdegrade.measures.critic` is trained on 8 scenes and scored on the other 8, image-only (what a model
 trained on the simulation sees) and paired (it also sees the clean source), for every row below and for several
 critic seeds (a seed draws the patches, the critic's start and its minibatches), so that a difference between two
 rows can be set against the spread between seeds:
@@ -48,7 +48,7 @@ from camdegrade.effects import Blur
 from camdegrade.fitting import discover_pairs, filter_pairs, load_pair
 from camdegrade.functional.analysis.images import luma
 from camdegrade.functional.optics.blur import blur_image
-from camdegrade.measures.critic.core import STEPS
+from camdegrade.measures.critic import STEPS
 from camdegrade.measures.critic.explain import GROUPINGS, explained_critic_test, surest_png
 from camdegrade.measures.fidelity import GRID_PERIOD, grid_phases, grid_rms
 

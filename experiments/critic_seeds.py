@@ -24,7 +24,7 @@ from simulated_camera_fidelity import pairs
 
 from camdegrade import load_profile
 from camdegrade._support.pixels import as_unit
-from camdegrade.measures.critic.core import repeated_critic_test
+from camdegrade.measures.critic import repeated_critic_test
 
 
 def accuracies(cleans: list, reals: list, sims: list, seeds: int, image_only: bool) -> list[float]:

@@ -24,7 +24,7 @@ import torch
 from camdegrade._support.pixels import as_unit
 from camdegrade.diagnose import diagnose
 from camdegrade.fitting import discover_pairs, filter_pairs, load_pair
-from camdegrade.measures.critic.core import repeated_critic_test
+from camdegrade.measures.critic import repeated_critic_test
 
 DEFAULT_DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "real-pairs"
 HELD_OUT = {f"{n:03d}" for n in range(56, 71)} | {"098"}

@@ -7,7 +7,7 @@ simulation of the clean images measured against the real captures with :mod:`cam
 - five bands: the mean over frames of ``log2(power sim / power real)`` of the luma spectrum (cycles/pixel);
 - noise, banding: the flat-pixel noise std and the row-mean std, simulation over capture;
 - PSNR: mean paired PSNR of simulation against capture;
-- critic: the held-out accuracy of the learned critic (:mod:`camdegrade.measures.critic.core`) with the clean source
+- critic: the held-out accuracy of the learned critic (:mod:`camdegrade.measures.critic`) with the clean source
   (paired) and from the image alone (what a model trained on the simulation sees): ``--critic-seeds`` seeds, each
   training one critic on 8 of the scenes and scoring it on the other 8 and back (0.5: cannot tell); the mean ± the
   critics' std, and the 95 % interval over scenes.
@@ -41,7 +41,7 @@ from camdegrade._support.pixels import as_unit, unit_to_bytes
 from camdegrade.fitting import discover_pairs, filter_pairs, load_pair
 from camdegrade.functional.analysis.images import flat_mask, gradient_energy, hann2d, luma
 from camdegrade.functional.optics.blur import blur_image
-from camdegrade.measures.critic.core import repeated_critic_test
+from camdegrade.measures.critic import repeated_critic_test
 from camdegrade.measures.fidelity import BAND_EDGES, measure_fidelity
 
 ROOT = Path(__file__).resolve().parents[1]

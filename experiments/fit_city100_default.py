@@ -32,7 +32,7 @@ from camdegrade import CameraDegrade
 from camdegrade._support.pixels import as_unit
 from camdegrade._support.recipes import CURVES, TEXTURES, UPSAMPLINGS
 from camdegrade.fitting import FitConfig, PairSet, discover_pairs, filter_pairs, fit_profile, load_pair
-from camdegrade.measures.critic.core import repeated_critic_test
+from camdegrade.measures.critic import repeated_critic_test
 from camdegrade.measures.fidelity import measure_fidelity
 from camdegrade.measures.metrics import psnr
 

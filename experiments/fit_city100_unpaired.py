@@ -34,7 +34,7 @@ from camdegrade._support.pixels import as_unit, unit_to_bytes
 from camdegrade.fitting import discover_pairs, filter_pairs, load_pair
 from camdegrade.fitting.unpaired import fit_unpaired
 from camdegrade.functional.analysis.images import flat_mask, gradient_energy
-from camdegrade.measures.critic.core import critic_test, repeated_critic_test
+from camdegrade.measures.critic import critic_test, repeated_critic_test
 from camdegrade.measures.fidelity import BAND_EDGES, measure_fidelity
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -1,7 +1,7 @@
 """How much the critics at the end of a fit move with more critic seeds, on that fit's own validation pairs.
 
 ``fit_profile`` records 4 critics per mode (2 seeds, each trained on one half of the validation scenes and scored
-on the other, and back; :func:`~camdegrade.measures.critic.core.repeated_critic_test`). This re-runs them on the fit's
+on the other, and back; :func:`~camdegrade.measures.critic.repeated_critic_test`). This re-runs them on the fit's
 validation scenes (``fitted['validation_scenes']``, the profile sampled as the fit samples it: seed 0, stream
 ``quality``, rounded to 8 bits) with ``--seeds`` seeds, paired and image-only, and prints every critic's
 accuracy. With ``--seeds 2`` it repeats the fit's own numbers. Run from the repo root::
@@ -15,7 +15,7 @@ import argparse
 
 from camdegrade import load_profile
 from camdegrade.fitting.steps.noise_evidence import as_stored
-from camdegrade.measures.critic.core import repeated_critic_test
+from camdegrade.measures.critic import repeated_critic_test
 from camdegrade.pairs.pairset import PairSet
 
 

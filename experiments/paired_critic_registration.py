@@ -1,7 +1,7 @@
 """What the paired critic keys on when it tells the City100 built-in from the iPhone X: the capture's registration
 to its clean source (issue 23, item 0).
 
-The paired critic of :mod:`camdegrade.measures.critic.core` sees the clean source beside the image (and their
+The paired critic of :mod:`camdegrade.measures.critic` sees the clean source beside the image (and their
 difference); no change to the image's look has moved it (docs/results.md). Its suspect here is registration: a
 capture is aligned to its clean image only up to sub-pixel, locally varying errors, where the simulation is exact
 by construction. This script measures those errors and re-runs the critic on rows that change only the geometry.

@@ -23,7 +23,7 @@ from camdegrade import CameraDegrade, CameraProfile, load_profile
 from camdegrade._support.pixels import as_unit
 from camdegrade.effects import FrequencyResponse
 from camdegrade.fitting import discover_pairs, filter_pairs, load_pair
-from camdegrade.measures.critic.core import repeated_critic_test
+from camdegrade.measures.critic import repeated_critic_test
 from camdegrade.measures.fidelity import measure_fidelity
 
 DEFAULT_DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "real-pairs"

@@ -12,7 +12,7 @@ linear baseline's (:mod:`camdegrade.fitting.network.baseline`, fitted on the sam
 plus an offset, of which a 12-number colour map and a Gaussian blur are special cases), the stages kept, the grid ratio,
 band powers and flat-noise ratio (:func:`camdegrade.measures.fidelity.measure_fidelity`), a critic with and
 without the clean source for the profile and for the baseline (8 critics: 4 seeds, each trained on half the
-held-out pairs and scored on the other half, and back; :func:`camdegrade.measures.critic.core.repeated_critic_test`;
+held-out pairs and scored on the other half, and back; :func:`camdegrade.measures.critic.repeated_critic_test`;
 mean, std, 95 % interval) and, with ``--diagnose``, what
 :func:`camdegrade.diagnose` accepts on those pairs. ``--png``: clean, capture, profile, baseline (flat crop at 1:1,
 textured crop at 2×, nearest). Run from the repo root::
@@ -39,7 +39,7 @@ from camdegrade.diagnose import diagnose
 from camdegrade.effects import Blur, Color, Noise, Tone
 from camdegrade.fitting import FitConfig, fit_profile
 from camdegrade.fitting.network.baseline import apply_linear_baseline, fit_linear_baseline
-from camdegrade.measures.critic.core import repeated_critic_test
+from camdegrade.measures.critic import repeated_critic_test
 from camdegrade.measures.fidelity import measure_fidelity
 from camdegrade.measures.metrics import psnr
 from camdegrade.sim import VirtualCamera

@@ -10,7 +10,7 @@ Rows (each applied to ``city100-iphonex`` sampled as training sees it, then roun
 - a band-pass boost of the luma: ``+ amount · (G_σ1 ⊛ Y − G_σ2 ⊛ Y)`` (difference of Gaussians).
 
 Each row gets the fidelity measures and 8 critics per mode (4 seeds, each trained on the even scenes and scored on
-the odd ones, and back; :func:`~camdegrade.measures.critic.core.repeated_critic_test`). None of these is a stage of
+the odd ones, and back; :func:`~camdegrade.measures.critic.repeated_critic_test`). None of these is a stage of
 the package: they ask whether the power the built-in lacks is what the critic reads (docs/results.md). Run from
 the repo root (about 7 minutes on 2 cores)::
 
@@ -32,7 +32,7 @@ from camdegrade._support.pixels import as_unit
 from camdegrade.fitting import discover_pairs, filter_pairs, load_pair
 from camdegrade.functional import blur_image
 from camdegrade.functional.analysis.images import hann2d, luma
-from camdegrade.measures.critic.core import repeated_critic_test
+from camdegrade.measures.critic import repeated_critic_test
 from camdegrade.measures.fidelity import measure_fidelity
 from camdegrade.measures.metrics import psnr
 

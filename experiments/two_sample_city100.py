@@ -9,7 +9,7 @@ the same with the learned stage (:func:`~camdegrade.fitting.two_sample.gate.fit_
 half of the fitting sets and judged on the other half; without ``--no-gate`` it is kept only where both halves say
 so) and, with ``--paired``, the built-in with a learned stage trained on its own training pairs 001–055 with an L2
 term (``pixel_weight``). Columns: :mod:`camdegrade.measures.fidelity` (band log2 power, flat-noise ratio, paired
-PSNR) and the image-only critic repeated (:func:`~camdegrade.measures.critic.core.repeated_critic_test`, 2 critics per
+PSNR) and the image-only critic repeated (:func:`~camdegrade.measures.critic.repeated_critic_test`, 2 critics per
 seed). Run from the repo root::
 
     OMP_NUM_THREADS=2 .venv/bin/python experiments/two_sample_city100.py [--critic-seeds 4] [--steps 1200] \
@@ -38,7 +38,7 @@ from camdegrade.fitting.two_sample.gate import fit_learned_stage
 from camdegrade.fitting.two_sample.train import TwoSampleOptions, fit_two_sample
 from camdegrade.fitting.unpaired import fit_unpaired
 from camdegrade.functional.analysis.images import flat_mask, gradient_energy
-from camdegrade.measures.critic.core import repeated_critic_test
+from camdegrade.measures.critic import repeated_critic_test
 from camdegrade.measures.fidelity import BAND_EDGES, measure_fidelity
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -12,7 +12,7 @@ from PIL import Image
 
 from camdegrade.functional.analysis.images import box_mean
 from camdegrade.functional.optics.blur import blur_image
-from camdegrade.measures.critic.core import PATCH, CriticNet, Patches, critic_test, train_critic
+from camdegrade.measures.critic import PATCH, CriticNet, Patches, critic_test, train_critic
 from camdegrade.measures.critic.explain import (
     GROUPINGS,
     accuracy_by_group,

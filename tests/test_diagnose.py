@@ -296,7 +296,7 @@ def test_unpaired_mode(tmp_path: Path) -> None:
 
 
 def test_a_critic_with_one_answer_scores_chance_and_says_so() -> None:
-    from camdegrade.measures.critic.core import CriticNet, Patches, score
+    from camdegrade.measures.critic import CriticNet, Patches, score
 
     images = _content(3, 64, seed=5)
     sims = [image.clamp(0.01, 0.99) for image in images]

@@ -20,7 +20,7 @@ from camdegrade import CameraDegrade, load_profile
 from camdegrade._support.pixels import as_unit
 from camdegrade.diagnose import DiagnosisReport, diagnose
 from camdegrade.functional.analysis.images import flattest_window
-from camdegrade.measures.critic.core import critic_test
+from camdegrade.measures.critic import critic_test
 from conftest import PAPER_BUILT_IN, load_script
 
 pytestmark = [pytest.mark.realdata, pytest.mark.slow]

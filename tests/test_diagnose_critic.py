@@ -15,7 +15,7 @@ from camdegrade.diagnose import DiagnosisReport, diagnose
 from camdegrade.diagnose._html import png_url
 from camdegrade.diagnose.critic_html import DETAIL_GAIN
 from camdegrade.effects import Noise, Tone
-from camdegrade.measures.critic.core import PATCH, alternate_scenes
+from camdegrade.measures.critic import PATCH, alternate_scenes
 from camdegrade.measures.critic.explain import GROUPINGS, crossfit_critic_test, surest_png
 from camdegrade.pairs.pairset import PairSet
 from camdegrade.profile import CameraProfile

@@ -18,7 +18,7 @@ from camdegrade.diagnose.core import _held_back_clause
 from camdegrade.diagnose.critic_check import CriticCheck, check_changes
 from camdegrade.diagnose.critique import Critique
 from camdegrade.effects import Blur, Noise
-from camdegrade.measures.critic.core import CriticResult
+from camdegrade.measures.critic import CriticResult
 from camdegrade.measures.visible import TextureComparison
 from camdegrade.profile import CameraProfile
 from camdegrade.sim import VirtualCamera

@@ -9,7 +9,7 @@ import pytest
 import torch
 
 from camdegrade.functional.optics.blur import blur_image
-from camdegrade.measures.critic.core import critic_test
+from camdegrade.measures.critic import critic_test
 from camdegrade.measures.fidelity import (
     BAND_EDGES,
     FidelityReport,
@@ -163,7 +163,7 @@ def test_image_only_critic_tells_noise_from_no_noise():
 
 
 def test_image_only_critic_never_sees_the_clean_image():
-    from camdegrade.measures.critic.core import IMAGE_ONLY_PLANES, Patches
+    from camdegrade.measures.critic import IMAGE_ONLY_PLANES, Patches
 
     cleans, reals, sims = _critic_sets(4.0, seed=3, pairs=1)
     one = Patches.sample(cleans, reals, sims, 0, "check", image_only=True)

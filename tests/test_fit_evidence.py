@@ -19,7 +19,7 @@ from camdegrade.fitting.steps import PairedFit
 from camdegrade.fitting.steps.effects import EffectStage
 from camdegrade.fitting.steps.noise_evidence import noise_evidence
 from camdegrade.io import write_image
-from camdegrade.measures.critic.core import repeated_critic_test, split_critic_test
+from camdegrade.measures.critic import repeated_critic_test, split_critic_test
 from camdegrade.pairs import PairSet
 from camdegrade.sim import VirtualCamera
 from camdegrade.synthetic import dead_leaves_images

@@ -6,7 +6,7 @@ accepted changes, and what it sees (its surest patches and its accuracy by group
 simulations the fit has bent towards those very captures, and would then underrate how far the simulation is from
 the camera (issue 24: 0.87 reported where an independent critic found 0.99). So the critic never sees a
 calibration pair: the held-out pairs are split again by scene
-(:func:`~camdegrade.measures.critic.core.alternate_scenes`), and for each profile (the one given, the one with the
+(:func:`~camdegrade.measures.critic.alternate_scenes`), and for each profile (the one given, the one with the
 changes) a fresh critic is trained on one part and scores the other, and a second the other way round
 (:func:`~camdegrade.measures.critic.explain.crossfit_critic_test`): every held-out pair is scored by a critic that
 saw neither it nor any pair the change was fitted on. The accuracy is pooled over both folds, its 95 % interval a
@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 from torch import Tensor
 
-from camdegrade.measures.critic.core import CriticResult, alternate_scenes
+from camdegrade.measures.critic import CriticResult, alternate_scenes
 from camdegrade.measures.critic.explain import CriticExplanation, crossfit_critic_test
 
 __all__ = ["CRITIC_CHANCE", "SUREST", "SUREST_PER_PAIR", "Critique", "critiques"]

@@ -1,6 +1,6 @@
 """How close a paired fit's profile comes to the camera on the validation pairs: PSNR of the identity, the linear
 baseline, the network and the sampled profile; the fidelity numbers and a critic
-(:mod:`camdegrade.measures.fidelity`, :mod:`camdegrade.measures.critic.core`); and what those scores warn about."""
+(:mod:`camdegrade.measures.fidelity`, :mod:`camdegrade.measures.critic`); and what those scores warn about."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ import torch
 from camdegrade.fitting.network.training import EpochResult
 from camdegrade.fitting.recipe import FitConfig
 from camdegrade.fitting.steps.noise_evidence import as_stored
-from camdegrade.measures.critic.core import repeated_critic_test
+from camdegrade.measures.critic import repeated_critic_test
 from camdegrade.measures.fidelity import measure_fidelity
 from camdegrade.measures.metrics import psnr
 from camdegrade.pairs.pairset import PairSet
@@ -61,7 +61,7 @@ def _fidelity(sampled: Sequence[torch.Tensor], val: PairSet, say: Log) -> dict[s
     ratio, band log2 power ratios, flat noise and banding ratios (:mod:`camdegrade.measures.fidelity`; ``None``
     where not measurable), and the accuracy of a critic that tells them apart with the clean source beside the
     image (``critic_paired``) and from the image alone (``critic_image_only``, what a model trained on the
-    simulation sees): :func:`~camdegrade.measures.critic.core.repeated_critic_test` with :data:`FIT_CRITIC_SEEDS`
+    simulation sees): :func:`~camdegrade.measures.critic.repeated_critic_test` with :data:`FIT_CRITIC_SEEDS`
     seeds, ``None`` with fewer than :data:`MIN_CRITIC_SCENES` validation scenes."""
     cleans, captures = zip(*val.unit_pairs(), strict=True)
     report = measure_fidelity(list(sampled), list(captures), list(cleans)).to_dict(digits=3)

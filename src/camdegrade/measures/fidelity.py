@@ -14,7 +14,7 @@ same clean images (1 or 0: the same):
 
 Every function takes ``[N, 3, H, W]`` or ``[3, H, W]`` float images in [0, 1]; :func:`measure_fidelity` pools
 them over a set of frames of any sizes into a :class:`FidelityReport`. The learned critic, which asks the same
-question of a small CNN, is :mod:`camdegrade.measures.critic.core` (``image_only=True`` for what a model sees).
+question of a small CNN, is :mod:`camdegrade.measures.critic` (``image_only=True`` for what a model sees).
 
 References:
     A. Odena, V. Dumoulin, C. Olah, "Deconvolution and Checkerboard Artifacts", Distill, 2016.

@@ -20,7 +20,7 @@ from typing import Any, ClassVar
 from camdegrade.effects import LearnedTexture
 from camdegrade.fitting.steps.base import FitStep, PairedFit, Verdict
 from camdegrade.fitting.two_sample.train import TwoSampleOptions, fit_two_sample
-from camdegrade.measures.critic.core import repeated_critic_test
+from camdegrade.measures.critic import repeated_critic_test
 from camdegrade.measures.metrics import psnr
 
 __all__ = ["JUDGE_PAIRS", "MAX_PSNR_LOSS_DB", "PIXEL_WEIGHT", "LearnedTexturePaired"]

@@ -2,7 +2,7 @@
 after the named stages, trained on one half of the sets and judged on the other, both ways.
 
 Two measures judge a learned stage on images it was not trained on: a *fresh* image-only critic
-(:func:`~camdegrade.measures.critic.core.repeated_critic_test`, never the critic the stage was trained against, which it
+(:func:`~camdegrade.measures.critic.repeated_critic_test`, never the critic the stage was trained against, which it
 learned to fool), and the set statistics the named stages matched (the RMS over the five spectrum bands' log2 power
 differences and the log2 flat-noise ratio, :func:`statistics_distance`). It is kept where it makes neither worse and
 one better:
@@ -39,7 +39,7 @@ from camdegrade.fitting.unpaired.bench import UnpairedFit, UnpairedStep
 from camdegrade.fitting.unpaired.judges import SIGNIFICANCE, split_half_error
 from camdegrade.fitting.unpaired.noise import flat_sums
 from camdegrade.fitting.unpaired.spectrum import SPECTRUM_SIDE, centre_crop
-from camdegrade.measures.critic.core import PATCH, repeated_critic_test
+from camdegrade.measures.critic import PATCH, repeated_critic_test
 from camdegrade.measures.fidelity import band_power
 from camdegrade.profile import CameraProfile
 

@@ -1,6 +1,6 @@
 """Why a trained critic decides as it does: the held-out patches it is surest about, and where it is right.
 
-The critic of :mod:`camdegrade.measures.critic.core` gives one number (its held-out accuracy). To see what gives the
+The critic of :mod:`camdegrade.measures.critic` gives one number (its held-out accuracy). To see what gives the
 simulation away, :func:`explain_critic` returns
 
 - the patches it is surest about, for each class the ``k`` with the largest logit towards their own class, each
@@ -28,19 +28,19 @@ from PIL import Image, ImageDraw
 from torch import Tensor
 
 from camdegrade._support.pixels import unit_to_bytes
-from camdegrade.measures.critic.core import (
+from camdegrade.measures.critic import (
     IMAGE_ONLY_PLANES,
     PLANES,
     STEPS,
     CriticNet,
     CriticResult,
     Patches,
-    _groups,
     logits,
     score,
     score_logits,
     train_critic,
 )
+from camdegrade.measures.critic.core import accuracy_groups
 
 __all__ = [
     "GROUPINGS",
@@ -59,7 +59,7 @@ __all__ = [
     "surest_png",
 ]
 
-#: The groups of the breakdown: the attribute of :class:`~camdegrade.measures.critic.core.Patches` each is read from,
+#: The groups of the breakdown: the attribute of :class:`~camdegrade.measures.critic.Patches` each is read from,
 #: and the names of its terciles (lowest first).
 GROUPINGS = {
     "texture": ("texture", ("flat", "mid", "textured")),
@@ -195,7 +195,7 @@ def groups_from_logits(towards_real: Tensor, patches: Patches) -> tuple[dict[str
     for grouping, (attribute, names) in GROUPINGS.items():
         value = getattr(patches, attribute).float()
         cut = torch.quantile(value, torch.tensor(TERCILES, dtype=value.dtype))
-        groups[grouping] = _groups(correct, value, cut.tolist(), names)
+        groups[grouping] = accuracy_groups(correct, value, cut.tolist(), names)
         edges[grouping] = tuple(cut.tolist())
     return groups, edges
 
