@@ -15,13 +15,9 @@ import camdegrade
 import camdegrade._profile_format.header as metadata_module
 from bad_inputs import one_line_error, profile_file, run_cli
 from camdegrade import ProfileError, load_profile
-from camdegrade._profile_format.check import (
-    DEFAULT_NETWORK_WIDTH,
-    MAX_NETWORK_WIDTH,
-    check_network_config,
-    effect_facts,
-)
+from camdegrade._profile_format.check import effect_facts
 from camdegrade._profile_format.header import read_header, running_versions
+from camdegrade._profile_format.network_entry import DEFAULT_NETWORK_WIDTH, MAX_NETWORK_WIDTH, check_network_config
 from camdegrade._profile_format.summary import profile_summary
 from camdegrade.effects import EFFECTS
 from camdegrade.network import MAX_WIDTH, DomainShiftNet

@@ -9,7 +9,7 @@ import torch.nn.functional as F
 
 from camdegrade import CameraProfile, load_profile
 from camdegrade import network as network_module
-from camdegrade._profile_format import check
+from camdegrade._profile_format import network_entry
 from camdegrade._support.recipes import CURVES, FAST, PAPER
 from camdegrade.errors import ProfileError
 from camdegrade.fitting import FitConfig
@@ -111,7 +111,7 @@ def test_a_file_whose_curves_disagree_with_its_tensors_is_refused(tmp_path) -> N
     parts.metadata["network"]["config"]["curves"] = True  # declares a curve tensor the file does not hold
     with pytest.raises(ProfileError, match=r"network\.curve"):
         load_profile(parts.write(tmp_path / "bad.safetensors"))
-    assert check.CURVE_KNOTS == network_module.CURVE_KNOTS  # the torch-free copy the profile check uses
+    assert network_entry.CURVE_KNOTS == network_module.CURVE_KNOTS  # the torch-free copy the profile check uses
 
 
 def _soft_camera(image: torch.Tensor) -> torch.Tensor:

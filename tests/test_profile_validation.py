@@ -26,9 +26,9 @@ import torch
 from bad_inputs import one_line_error, run_cli
 from camdegrade import CameraProfile, list_profiles, load_profile
 from camdegrade import network as network_module
-from camdegrade._profile_format.check import FIELD_CHANNELS, LINEAR_TAPS, NETWORK_CLASSES, network_shapes
 from camdegrade._profile_format.effect_facts import BUILT_IN, Bound
 from camdegrade._profile_format.header import read_header
+from camdegrade._profile_format.network_entry import FIELD_CHANNELS, LINEAR_TAPS, NETWORK_CLASSES, network_shapes
 from camdegrade.effects import EFFECTS, JPEG, Effect, Noise
 from camdegrade.errors import ProfileError
 from camdegrade.network import ARCHITECTURES

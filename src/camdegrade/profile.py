@@ -14,7 +14,7 @@ from safetensors import SafetensorError, safe_open
 from safetensors.torch import save_file
 from torch import Tensor, nn
 
-from camdegrade._profile_format.check import listing, network_class, network_config
+from camdegrade._profile_format.check import listing
 from camdegrade._profile_format.header import FORMAT_NAME as FORMAT_NAME
 from camdegrade._profile_format.header import FORMAT_VERSION as FORMAT_VERSION
 from camdegrade._profile_format.header import MAX_EFFECTS as MAX_EFFECTS
@@ -24,6 +24,7 @@ from camdegrade._profile_format.header import list_profiles as list_profiles
 from camdegrade._profile_format.header import read_header
 from camdegrade._profile_format.header import resolve_profile_path as resolve_profile_path
 from camdegrade._profile_format.header import serialize_metadata as serialize_metadata
+from camdegrade._profile_format.network_entry import network_class, network_config
 from camdegrade._runtime.outputs import OUTPUTS, ProfileKeys, image_key
 from camdegrade._support.files import atomic_path
 from camdegrade._support.pixels import bytes_to_unit, unit_to_bytes

@@ -22,20 +22,19 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
-from camdegrade._profile_format.check import DEFAULT_NETWORK_WIDTH as DEFAULT_NETWORK_WIDTH
 from camdegrade._profile_format.check import MAX_EFFECTS as MAX_EFFECTS
-from camdegrade._profile_format.check import MAX_NETWORK_WIDTH as MAX_NETWORK_WIDTH
 from camdegrade._profile_format.check import TensorEntry as TensorEntry
 from camdegrade._profile_format.check import (
     check_profile,
     check_values,
     effect_facts,
-    network_class,
-    network_config,
     read_arrays,
     tensor_entries,
 )
 from camdegrade._profile_format.effect_facts import json_value, short_repr
+from camdegrade._profile_format.network_entry import DEFAULT_NETWORK_WIDTH as DEFAULT_NETWORK_WIDTH
+from camdegrade._profile_format.network_entry import MAX_NETWORK_WIDTH as MAX_NETWORK_WIDTH
+from camdegrade._profile_format.network_entry import network_class, network_config
 from camdegrade._version import __version__
 from camdegrade.errors import ProfileError, ProfileTypeError, UnknownProfileError
 
