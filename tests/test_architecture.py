@@ -413,3 +413,25 @@ def test_the_function_length_check_can_fail() -> None:
         """
     )
     assert _function_lengths(source, "mod") == {"mod.f": 5, "mod.f.g": 1, "mod.C.m": 1}
+
+
+def test_the_effect_registry_keeps_its_order() -> None:
+    """Every vocabulary listing and report follows the registry's order, which is the order in which
+    ``camdegrade.effects`` imports its modules: moving a module must not reorder it (issue 45's step changed no
+    diagnosis)."""
+    assert [name for name in EFFECTS if name in REGISTERED][:14] == [
+        "blur",
+        "jpeg",
+        "color",
+        "tone",
+        "denoise",
+        "vignetting",
+        "distortion",
+        "chromatic_aberration",
+        "misalignment",
+        "learned_texture",
+        "noise",
+        "resolution",
+        "frequency_response",
+        "sharpen",
+    ]

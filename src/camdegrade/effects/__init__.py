@@ -14,16 +14,20 @@ from camdegrade.effects.base import (
     check_effect_names,
     register_effect,
 )
+
+# The registry's order is the order of these imports (every vocabulary listing and report follows it): keep it.
+# isort: off
+from camdegrade.effects.optics.blur import Blur
 from camdegrade.effects.codec.jpeg import JPEG
-from camdegrade.effects.codec.learned_texture import LearnedTexture
 from camdegrade.effects.isp.color import Color, Tone
 from camdegrade.effects.isp.denoise import Denoise
+from camdegrade.effects.optics.geometry import ChromaticAberration, Distortion, Misalignment, Vignetting
+from camdegrade.effects.codec.learned_texture import LearnedTexture
+from camdegrade.effects.sensor.noise import Noise
 from camdegrade.effects.isp.resolution import Resolution
 from camdegrade.effects.isp.response import FrequencyResponse
 from camdegrade.effects.isp.sharpen import Sharpen
-from camdegrade.effects.optics.blur import Blur
-from camdegrade.effects.optics.geometry import ChromaticAberration, Distortion, Misalignment, Vignetting
-from camdegrade.effects.sensor.noise import Noise
+# isort: on
 
 __all__ = [
     "EFFECTS",
