@@ -34,7 +34,7 @@ from torch import Tensor
 from camdegrade import CameraProfile, load_profile
 from camdegrade._support.pixels import as_unit, unit_to_bytes
 from camdegrade.fitting import discover_pairs, filter_pairs, load_pair
-from camdegrade.fitting.two_sample.gate import fit_learned_stage
+from camdegrade.fitting.two_sample.gate import StageTraining, fit_learned_stage
 from camdegrade.fitting.two_sample.train import TwoSampleOptions, fit_two_sample
 from camdegrade.fitting.unpaired import fit_unpaired
 from camdegrade.functional.analysis.images import flat_mask, gradient_energy
@@ -86,7 +86,8 @@ def learned(scenes: dict, named: CameraProfile, args: argparse.Namespace) -> tup
         )
         evidence = {"kept": True, "gated": False, "trainings": [evidence]}
     else:
-        stage, evidence = fit_learned_stage(named, cleans, captures, seed=args.seed, steps=args.steps, options=options)
+        training = StageTraining(seed=args.seed, steps=args.steps, options=options)
+        stage, evidence = fit_learned_stage(named, cleans, captures, training)
     evidence["seconds"] = round(time.perf_counter() - started, 1)
     return (named.with_effects(stage) if stage is not None else named), evidence
 
