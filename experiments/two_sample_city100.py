@@ -22,13 +22,12 @@ at 1:1 and textured at 2×) and ``out/results/two_sample_city100.json``.
 from __future__ import annotations
 
 import argparse
-import itertools
 import json
 import time
 from pathlib import Path
 
-import torch
-from PIL import Image, ImageDraw
+from fidelity_report import band_cell, band_heading, best_window, labelled_grid, number, real_pairs_parser, save_png
+from PIL import Image
 from torch import Tensor
 
 from camdegrade import CameraProfile, load_profile
@@ -39,7 +38,7 @@ from camdegrade.fitting.two_sample.train import TwoSampleOptions, fit_two_sample
 from camdegrade.fitting.unpaired import fit_unpaired
 from camdegrade.functional.analysis.images import flat_mask, gradient_energy
 from camdegrade.measures.critic import repeated_critic_test
-from camdegrade.measures.fidelity import BAND_EDGES, measure_fidelity
+from camdegrade.measures.fidelity import measure_fidelity
 
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_DATA = ROOT.parent / "shared" / "data" / "real-pairs"
@@ -119,26 +118,17 @@ def rows(scenes: dict, candidates: dict[str, CameraProfile | None], critic_seeds
 
 
 def format_table(table: list[dict]) -> str:
-    bands = " / ".join(f"{low:g}–{high:g}" for low, high in itertools.pairwise(BAND_EDGES))
     lines = [
-        f"| simulation | log2 power sim/real ({bands}) | flat-noise ratio | PSNR dB | critic image-only |",
+        f"| simulation | {band_heading()} | flat-noise ratio | PSNR dB | critic image-only |",
         "|---|---|---|---|---|",
     ]
     for row in table:
         critic = row["critic_image_only"]
-        noise = "n/a" if row["noise_ratio"] is None else f"{row['noise_ratio']:.2f}"
-        band_text = " / ".join("n/a" if v is None else f"{v:+.2f}" for v in row["bands"])
         spread = f"{critic['accuracy']:.3f} ± {critic['std']:.2f} [{min(critic['accuracies']):.2f}–"
         spread += f"{max(critic['accuracies']):.2f}] ({critic['critics']} critics)"
-        lines.append(f"| {row['row']} | {band_text} | {noise} | {row['psnr']:.2f} | {spread} |")
+        cells = [row["row"], band_cell(row["bands"]), number(row["noise_ratio"]), f"{row['psnr']:.2f}", spread]
+        lines.append(f"| {' | '.join(cells)} |")
     return "\n".join(lines)
-
-
-def _window(score: Tensor, side: int) -> tuple[int, int]:
-    """Top-left corner of the ``side``² window with the highest mean ``score`` (on an 8-pixel grid)."""
-    pooled = torch.nn.functional.avg_pool2d(score[None, None].float(), side, stride=8)[0, 0]
-    top, left = divmod(int(pooled.argmax()), pooled.shape[1])
-    return top * 8, left * 8
 
 
 def evidence_page(scenes: dict, columns: dict[str, CameraProfile | None], path: Path) -> None:
@@ -151,26 +141,16 @@ def evidence_page(scenes: dict, columns: dict[str, CameraProfile | None], path: 
         images = [clean, real] + [stored(p.simulate([clean], seed))[0] for p in columns.values() if p is not None]
         windows = (("flat 1:1", flat_mask(clean), TILE), ("texture 2x", gradient_energy(clean), TILE // 2))
         for kind, score, side in windows:
-            top, left = _window(score, side)
+            top, left = best_window(score, side)
             crops = [unit_to_bytes(image[:, top : top + side, left : left + side]) for image in images]
             tiles = [Image.fromarray(c.permute(1, 2, 0).numpy()).resize((TILE, TILE), Image.NEAREST) for c in crops]
             lines.append((f"{scene} {kind}", tiles))
     names = ["clean", "capture", *[name for name, p in columns.items() if p is not None]]
-    canvas = Image.new("RGB", (100 + len(names) * (TILE + 4), 28 + len(lines) * (TILE + 4)), "white")
-    draw = ImageDraw.Draw(canvas)
-    for column, name in enumerate(names):
-        draw.text((100 + column * (TILE + 4), 2), name, fill="black")
-    for row, (label, tiles) in enumerate(lines):
-        draw.text((4, 28 + row * (TILE + 4) + TILE // 2), label, fill="black")
-        for column, tile in enumerate(tiles):
-            canvas.paste(tile, (100 + column * (TILE + 4), 28 + row * (TILE + 4)))
-    path.parent.mkdir(parents=True, exist_ok=True)
-    canvas.save(path)
+    save_png(labelled_grid(names, lines, TILE, header=28), path)
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--data", type=Path, default=DEFAULT_DATA)
+    parser = real_pairs_parser(__doc__, DEFAULT_DATA)
     parser.add_argument("--unpaired", type=Path, help="today's unpaired profile of the split, already fitted")
     parser.add_argument("--steps", type=int, default=1200)
     parser.add_argument("--seed", type=int, default=0, help="the learned stage's training seed")
