@@ -1,7 +1,7 @@
 """Issue 43's measurement: does a learned texture stage, trained by a two-sample objective after the named stages,
 make City100's unpaired profile harder to tell from the iPhone X's captures?
 
-The unpaired split of ``examples/fit_city100_unpaired.py``: the fit sees the clean images of scenes 001–035 and the
+The unpaired split of ``experiments/fit_city100_unpaired.py``: the fit sees the clean images of scenes 001–035 and the
 captures of 036–055 (no scene on both sides); the check uses the pairs of the 16 held-out scenes (056–070, 098),
 whole frames, each simulation with seed = scene index, stored as 8-bit values. Rows: the clean image, the built-in
 ``city100-iphonex`` (the paired fit), today's unpaired profile (:func:`~camdegrade.fitting.unpaired.fit_unpaired`),
@@ -27,12 +27,13 @@ import time
 from pathlib import Path
 
 from fidelity_report import band_cell, band_heading, best_window, labelled_grid, number, real_pairs_parser, save_png
+from fit_city100_unpaired import CAPTURED_SCENES, CLEAN_SCENES, DEFAULT_DATA, HELD_OUT, ROOT, SHOWN, TILE
+from fit_city100_unpaired import city100 as city100_bytes
 from PIL import Image
 from torch import Tensor
 
 from camdegrade import CameraProfile, load_profile
 from camdegrade._support.pixels import as_unit, unit_to_bytes
-from camdegrade.fitting import discover_pairs, filter_pairs, load_pair
 from camdegrade.fitting.two_sample.gate import StageTraining, fit_learned_stage
 from camdegrade.fitting.two_sample.train import TwoSampleOptions, fit_two_sample
 from camdegrade.fitting.unpaired import fit_unpaired
@@ -40,19 +41,12 @@ from camdegrade.functional.analysis.images import flat_mask, gradient_energy
 from camdegrade.measures.critic import repeated_critic_test
 from camdegrade.measures.fidelity import measure_fidelity
 
-ROOT = Path(__file__).resolve().parents[1]
-DEFAULT_DATA = ROOT.parent / "shared" / "data" / "real-pairs"
-CLEAN_SCENES = [f"{n:03d}" for n in range(1, 36)]
-CAPTURED_SCENES = [f"{n:03d}" for n in range(36, 56)]
 PAIRED_SCENES = [f"{n:03d}" for n in range(1, 56)]
-HELD_OUT = sorted({f"{n:03d}" for n in range(56, 71)} | {"098"})
-SHOWN, TILE = ("060", "062", "098"), 128
 
 
 def city100(data: Path) -> dict[str, tuple[Tensor, Tensor]]:
     """scene → (clean, captured), float in [0, 1], of the City100 iPhone X pairs."""
-    pairs = filter_pairs(discover_pairs(data / "pairs.csv").pairs, subset="city100_iPhoneX")
-    return {pair.scene: tuple(as_unit(image) for image in load_pair(pair)) for pair in pairs}
+    return {scene: tuple(as_unit(image) for image in pair) for scene, pair in city100_bytes(data).items()}
 
 
 def stored(images: list[Tensor]) -> list[Tensor]:
