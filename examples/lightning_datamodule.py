@@ -25,9 +25,9 @@ from typing import Any
 import lightning as L
 import torch
 import torch.nn.functional as F
-from torch import nn
 from torch.utils.data import DataLoader, Dataset
 from torchvision.transforms import v2
+from train_classifier import small_cnn
 
 from camdegrade import CameraProfile, DomainShiftNet, load_profile
 from camdegrade.data import DegradedDataset, DegradedIterableDataset, MixPolicy, PairedViews
@@ -147,21 +147,13 @@ class ColourSquares(Dataset):
 
 
 class Classifier(L.LightningModule):
-    """A small CNN; validation reports accuracy on clean and on camera-degraded images."""
+    """The small CNN of ``train_classifier.py`` (this folder); validation reports accuracy on clean and on
+    camera-degraded images."""
 
     def __init__(self, classes: int = CLASSES, lr: float = 3e-3) -> None:
         super().__init__()
         self.lr = lr
-        self.net = nn.Sequential(
-            nn.Conv2d(3, 16, 3, padding=1),
-            nn.ReLU(),
-            nn.MaxPool2d(2),
-            nn.Conv2d(16, 32, 3, padding=1),
-            nn.ReLU(),
-            nn.AdaptiveAvgPool2d(1),
-            nn.Flatten(),
-            nn.Linear(32, classes),
-        )
+        self.net = small_cnn(classes)
 
     def forward(self, images: torch.Tensor) -> torch.Tensor:
         return self.net(images)
