@@ -27,12 +27,10 @@ import torch
 import torch.nn.functional as F
 from torch.utils.data import DataLoader, Dataset
 from torchvision.transforms import v2
-from train_classifier import small_cnn
+from train_classifier import camera_profile, small_cnn
 
-from camdegrade import CameraProfile, DomainShiftNet, load_profile
 from camdegrade.data import DegradedDataset, DegradedIterableDataset, MixPolicy, PairedViews
 from camdegrade.data.datasets import DegradeLike
-from camdegrade.errors import ProfileError
 
 CLASSES = 3
 MEAN, STD = [0.5, 0.5, 0.5], [0.25, 0.25, 0.25]
@@ -171,18 +169,6 @@ class Classifier(L.LightningModule):
 
     def configure_optimizers(self) -> torch.optim.Optimizer:
         return torch.optim.Adam(self.parameters(), lr=self.lr)
-
-
-def camera_profile(name_or_path: str | None) -> CameraProfile:
-    """The requested profile; by default the built-in City100 one, or a fixed untrained network if absent."""
-    try:
-        return load_profile(name_or_path or "city100-iphonex")
-    except ProfileError:
-        if name_or_path:
-            raise
-        with torch.random.fork_rng(devices=[]):
-            torch.manual_seed(0)
-            return CameraProfile(DomainShiftNet(), name="untrained-stand-in")
 
 
 def main(argv: list[str] | None = None) -> dict[str, float]:
