@@ -25,7 +25,6 @@ References:
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import multiprocessing
 import os
@@ -40,11 +39,11 @@ from pathlib import Path
 from typing import Any
 
 import torch
+from machine import run_facts, write_json
 from noise_gap_denoiser import Denoiser, psnr_db, test_psnr, train_denoiser
 from noise_gap_evidence import crops, format_evidence, noise_structure, write_panel
 from noise_gap_rows import CROPS_PER_EPOCH, OPTIONAL_ROWS, PROFILE_RECIPE, ROWS, SUBSETS, Row, fit_rows, load_split
 
-import camdegrade
 from camdegrade.measures.akld import akld
 
 REPOSITORY = Path(__file__).resolve().parents[1]
@@ -235,18 +234,8 @@ def main(argv: list[str] | None = None) -> int:
     )
     write_panel(report.pop("panels"), ["clean", *names], args.png)
     print(f"wrote {args.png}")
-    report.update(
-        camdegrade=camdegrade.__version__,
-        torch=torch.__version__,
-        workers=args.workers,
-        denoiser=asdict(config),
-        seeds=args.seeds,
-        wall_seconds=round(wall, 1),
-        cpu_seconds=round(cpu, 1),
-    )
-    args.json.parent.mkdir(parents=True, exist_ok=True)
-    args.json.write_text(json.dumps(report, indent=2, default=float) + "\n")
-    print(f"wrote {args.json}")
+    report.update(run_facts(args.workers, args.seeds, wall, cpu), denoiser=asdict(config))
+    write_json(args.json, report)
     return 0
 
 

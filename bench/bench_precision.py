@@ -21,7 +21,6 @@ Run from the repo root::
 from __future__ import annotations
 
 import argparse
-import json
 import warnings
 from collections.abc import Callable
 from pathlib import Path
@@ -30,6 +29,7 @@ from typing import Any
 import torch
 import torch.nn.functional as F
 from bench_transform import Case, interleaved_rates
+from machine import write_json
 from torch import Tensor
 
 from camdegrade import list_profiles, load_profile
@@ -180,9 +180,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                 )
         record["conv2_ms"] = conv2_milliseconds(repeats=9)
     print(f"largest layer, ms per 224² image: {record['conv2_ms']}")
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(record, indent=2) + "\n")
-    print(f"wrote {args.out}")
+    write_json(args.out, record)
     return record
 
 

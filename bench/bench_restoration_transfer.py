@@ -46,13 +46,12 @@ from typing import Any
 
 import torch
 from aligned_scoring import unaligned_psnr
+from machine import run_facts, write_json
 from noise_gap_evidence import write_panel
 from residual_cnn import train_network
 from restoration_evidence import BANDS, added, band_profile, crop_2x, format_bands, textured_window
 from restoration_rows import HELD_OUT, ROWS, TRAINING, Row, load_city100, make_rows, missing_scenes
 from restorer import Restorer, restore, score
-
-import camdegrade
 
 REPOSITORY = Path(__file__).resolve().parents[1]
 DEFAULT_DATA = REPOSITORY.parent / "shared" / "data" / "real-pairs"
@@ -287,9 +286,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--combine", type=Path, nargs="+", help="merge these runs' JSON (one seed each) into --json")
     args = parser.parse_args(argv)
     if args.combine:
-        record = combine(args.combine)
-        args.json.write_text(json.dumps(record, indent=2, default=float) + "\n")
-        print(f"wrote {args.json}")
+        write_json(args.json, combine(args.combine))
         return 0
     root = args.real_pairs or Path(os.environ.get("CAMDEGRADE_REAL_PAIRS") or DEFAULT_DATA)
     if not (root / "pairs.csv").is_file():
@@ -326,19 +323,9 @@ def main(argv: list[str] | None = None) -> int:
         f"{platform.machine()}, torch {torch.__version__}"
     )
     record.update(
-        camdegrade=camdegrade.__version__,
-        torch=torch.__version__,
-        workers=args.workers,
-        restorer=asdict(config),
-        seeds=args.seeds,
-        held_out=list(held_out),
-        fitted=fitted,
-        wall_seconds=round(wall, 1),
-        cpu_seconds=round(cpu, 1),
+        run_facts(args.workers, args.seeds, wall, cpu), restorer=asdict(config), held_out=list(held_out), fitted=fitted
     )
-    args.json.parent.mkdir(parents=True, exist_ok=True)
-    args.json.write_text(json.dumps(record, indent=2, default=float) + "\n")
-    print(f"wrote {args.json}")
+    write_json(args.json, record)
     return 0
 
 

@@ -36,7 +36,6 @@ Peer libraries come from the ``bench`` extra and are skipped when missing. Run f
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
 import resource
@@ -52,7 +51,7 @@ os.environ.setdefault("NO_ALBUMENTATIONS_UPDATE", "1")  # albumentations would l
 
 import torch
 import torch.nn.functional as F
-from machine import cpu_description, load_text
+from machine import cpu_description, load_text, write_json
 
 from camdegrade import CameraDegrade, list_profiles, load_profile
 from camdegrade.effects.chain import apply_effects
@@ -458,9 +457,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         "repeats": repeats,
         "quick": args.quick,
     }
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(record, indent=2) + "\n")
-    print(f"peak RSS {record['peak_rss_mib']} MiB; wrote {args.out}")
+    print(f"peak RSS {record['peak_rss_mib']} MiB")
+    write_json(args.out, record)
     return record
 
 

@@ -20,6 +20,7 @@ from pathlib import Path
 
 import torch
 from bench_cli import cpu_name
+from machine import write_json
 from PIL import Image
 
 from camdegrade import CameraProfile
@@ -79,8 +80,7 @@ def main(argv: list[str] | None = None) -> int:
         result["learned"] = profile.fitted["effects"].get("learned_texture")
         result["within_10_minutes"] = seconds <= 600
     print(json.dumps(result, indent=2))
-    args.json.parent.mkdir(parents=True, exist_ok=True)
-    args.json.write_text(json.dumps(result, indent=2) + "\n")
+    write_json(args.json, result)
     return 0
 
 

@@ -25,14 +25,12 @@ from typing import Any
 import lightning as L
 import torch
 import torch.nn.functional as F
-from torch import nn
 from torch.utils.data import DataLoader, Dataset
 from torchvision.transforms import v2
+from train_classifier import camera_profile, small_cnn
 
-from camdegrade import CameraProfile, DomainShiftNet, load_profile
 from camdegrade.data import DegradedDataset, DegradedIterableDataset, MixPolicy, PairedViews
 from camdegrade.data.datasets import DegradeLike
-from camdegrade.errors import ProfileError
 
 CLASSES = 3
 MEAN, STD = [0.5, 0.5, 0.5], [0.25, 0.25, 0.25]
@@ -147,21 +145,13 @@ class ColourSquares(Dataset):
 
 
 class Classifier(L.LightningModule):
-    """A small CNN; validation reports accuracy on clean and on camera-degraded images."""
+    """The small CNN of ``train_classifier.py`` (this folder); validation reports accuracy on clean and on
+    camera-degraded images."""
 
     def __init__(self, classes: int = CLASSES, lr: float = 3e-3) -> None:
         super().__init__()
         self.lr = lr
-        self.net = nn.Sequential(
-            nn.Conv2d(3, 16, 3, padding=1),
-            nn.ReLU(),
-            nn.MaxPool2d(2),
-            nn.Conv2d(16, 32, 3, padding=1),
-            nn.ReLU(),
-            nn.AdaptiveAvgPool2d(1),
-            nn.Flatten(),
-            nn.Linear(32, classes),
-        )
+        self.net = small_cnn(classes)
 
     def forward(self, images: torch.Tensor) -> torch.Tensor:
         return self.net(images)
@@ -179,18 +169,6 @@ class Classifier(L.LightningModule):
 
     def configure_optimizers(self) -> torch.optim.Optimizer:
         return torch.optim.Adam(self.parameters(), lr=self.lr)
-
-
-def camera_profile(name_or_path: str | None) -> CameraProfile:
-    """The requested profile; by default the built-in City100 one, or a fixed untrained network if absent."""
-    try:
-        return load_profile(name_or_path or "city100-iphonex")
-    except ProfileError:
-        if name_or_path:
-            raise
-        with torch.random.fork_rng(devices=[]):
-            torch.manual_seed(0)
-            return CameraProfile(DomainShiftNet(), name="untrained-stand-in")
 
 
 def main(argv: list[str] | None = None) -> dict[str, float]:

@@ -24,16 +24,14 @@ nearest-neighbour) and the radial power spectra. Run from the repo root::
 
 from __future__ import annotations
 
-import argparse
 import io
-import itertools
 import json
 from pathlib import Path
 
 import torch
-import torch.nn.functional as F
 from critic_evidence import TRAINING, blurred_and_mapped, city100_pairs, fit_blur_and_colour_map
-from PIL import Image, ImageDraw
+from fidelity_report import band_cell, band_heading, best_window, labelled_grid, number, real_pairs_parser, save_png
+from PIL import Image
 from torch import Tensor
 
 from camdegrade import CameraDegrade, load_profile
@@ -133,25 +131,18 @@ def measure(data: Path, critic_seeds: int = 4) -> tuple[list[dict], dict, dict]:
     return rows, shown, spectra
 
 
-def _number(value: float | None, digits: int = 2, sign: bool = False) -> str:
-    if value is None:
-        return "n/a"
-    return f"{value:+.{digits}f}" if sign else f"{value:.{digits}f}"
-
-
 def format_table(rows: list[dict]) -> str:
-    bands = " / ".join(f"{low:g}–{high:g}" for low, high in itertools.pairwise(BAND_EDGES))
     lines = [
-        f"| image | grid ratio | log2 power sim/real ({bands}) | noise ratio | banding ratio | PSNR dB "
+        f"| image | grid ratio | {band_heading()} | noise ratio | banding ratio | PSNR dB "
         "| critic paired | critic image-only |",
         "|---|---|---|---|---|---|---|---|",
     ]
     for row in rows:
-        band_text = " / ".join(_number(value, sign=True) for value in row["bands"])
         paired, only = row["critic"]["paired"], row["critic"]["image_only"]
         lines.append(
-            f"| {row['row']} | {_number(row['grid_ratio'], 1)} ({row['grid_sim']:.3f} / {row['grid_real']:.3f}) "
-            f"| {band_text} | {_number(row['noise_ratio'])} | {_number(row['banding_ratio'])} | {row['psnr']:.2f} "
+            f"| {row['row']} | {number(row['grid_ratio'], 1)} ({row['grid_sim']:.3f} / {row['grid_real']:.3f}) "
+            f"| {band_cell(row['bands'])} | {number(row['noise_ratio'])} | {number(row['banding_ratio'])} "
+            f"| {row['psnr']:.2f} "
             f"| {_critic(paired)} | {_critic(only)} |"
         )
     return "\n".join(lines)
@@ -161,20 +152,13 @@ def _critic(result: dict) -> str:
     return f"{result['accuracy']:.3f} ± {result['std']:.2f} [{result['low']:.2f}–{result['high']:.2f}]"
 
 
-def _window(score: Tensor, side: int) -> tuple[int, int]:
-    """Top-left corner of the ``side``² window with the highest mean ``score``."""
-    pooled = F.avg_pool2d(score[None, None].float(), side, stride=8)[0, 0]
-    top, left = divmod(int(pooled.argmax()), pooled.shape[1])
-    return top * 8, left * 8
-
-
 def _tiles(shown: dict[str, dict[str, Tensor]]) -> list[tuple[str, list[Image.Image]]]:
     """Per scene: the flattest ``CROP``² window at 1:1 and the most textured ``ZOOMED``² window at 2×."""
     tiles = []
     for scene, images in shown.items():
         unit_clean = as_unit(images["clean"])
-        flat = _window(flat_mask(unit_clean).float(), CROP)
-        textured = _window(gradient_energy(unit_clean), ZOOMED)
+        flat = best_window(flat_mask(unit_clean), CROP)
+        textured = best_window(gradient_energy(unit_clean), ZOOMED)
         for kind, (top, left), side in (("flat 1:1", flat, CROP), ("texture 2x", textured, ZOOMED)):
             crops = [images[name][:, top : top + side, left : left + side] for name in SHOWN_ROWS]
             pictures = [Image.fromarray(crop.permute(1, 2, 0).numpy()) for crop in crops]
@@ -211,28 +195,16 @@ def spectrum_plot(spectra: dict[str, Tensor]) -> Image.Image:
 
 def evidence_png(shown: dict[str, dict[str, Tensor]], spectra: dict[str, Tensor], path: Path) -> None:
     """Crops (rows: scene and kind; columns: real, then each simulation) above the spectrum plot."""
-    tiles = _tiles(shown)
+    grid = labelled_grid(SHOWN_ROWS, _tiles(shown), CROP, label_drop=6)
     plot = spectrum_plot(spectra)
-    label_width, label_height, gap = 100, 16, 4
-    width = max(label_width + len(SHOWN_ROWS) * (CROP + gap), plot.width)
-    height = label_height + len(tiles) * (CROP + gap) + plot.height
-    canvas = Image.new("RGB", (width, height), "white")
-    draw = ImageDraw.Draw(canvas)
-    for index, name in enumerate(SHOWN_ROWS):
-        draw.text((label_width + index * (CROP + gap), 2), name, fill="black")
-    for row, (label, pictures) in enumerate(tiles):
-        y = label_height + row * (CROP + gap)
-        draw.text((4, y + CROP // 2 - 6), label, fill="black")
-        for index, picture in enumerate(pictures):
-            canvas.paste(picture, (label_width + index * (CROP + gap), y))
-    canvas.paste(plot, (0, label_height + len(tiles) * (CROP + gap)))
-    path.parent.mkdir(parents=True, exist_ok=True)
-    canvas.save(path)
+    canvas = Image.new("RGB", (max(grid.width, plot.width), grid.height + plot.height), "white")
+    canvas.paste(grid, (0, 0))
+    canvas.paste(plot, (0, grid.height))
+    save_png(canvas, path)
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--data", type=Path, default=DEFAULT_DATA)
+    parser = real_pairs_parser(__doc__, DEFAULT_DATA)
     parser.add_argument("--png", type=Path, default=ROOT / "docs" / "fidelity_city100.png")
     parser.add_argument("--json", type=Path, default=ROOT / "out" / "results" / "fidelity_city100.json")
     parser.add_argument("--profile", action="append", default=[], metavar="LABEL=PATH", help="an extra row")

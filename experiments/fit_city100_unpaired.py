@@ -18,15 +18,14 @@ It also writes ``docs/unpaired_city100.png``: clean | real | unpaired simulation
 
 from __future__ import annotations
 
-import argparse
-import itertools
 import json
 import platform
 import time
 from pathlib import Path
 
 import torch
-from PIL import Image, ImageDraw
+from fidelity_report import band_cell, band_heading, best_window, labelled_grid, number, real_pairs_parser, save_png
+from PIL import Image
 from torch import Tensor
 
 from camdegrade import load_profile
@@ -35,7 +34,7 @@ from camdegrade.fitting import discover_pairs, filter_pairs, load_pair
 from camdegrade.fitting.unpaired import fit_unpaired
 from camdegrade.functional.analysis.images import flat_mask, gradient_energy
 from camdegrade.measures.critic import critic_test, repeated_critic_test
-from camdegrade.measures.fidelity import BAND_EDGES, measure_fidelity
+from camdegrade.measures.fidelity import measure_fidelity
 
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_DATA = ROOT.parent / "shared" / "data" / "real-pairs"
@@ -116,21 +115,15 @@ def rows(
     return out
 
 
-def _signed(value: float | None) -> str:
-    return "n/a" if value is None else f"{value:+.2f}"
-
-
 def format_table(table: list[dict]) -> str:
-    bands = " / ".join(f"{low:g}–{high:g}" for low, high in itertools.pairwise(BAND_EDGES))
     critic = any("critic" in row for row in table)
-    head = f"| simulation | log2 power sim/real ({bands}) | flat-noise ratio | PSNR dB |"
+    head = f"| simulation | {band_heading()} | flat-noise ratio | PSNR dB |"
     lines = [
         head + (" critic paired | critic image-only |" if critic else ""),
         "|---|---|---|---|" + "---|---|" * critic,
     ]
     for row in table:
-        noise = "n/a" if row["noise_ratio"] is None else f"{row['noise_ratio']:.2f}"
-        line = f"| {row['row']} | {' / '.join(_signed(v) for v in row['bands'])} | {noise} | {row['psnr']:.2f} |"
+        line = f"| {row['row']} | {band_cell(row['bands'])} | {number(row['noise_ratio'])} | {row['psnr']:.2f} |"
         if critic:
             line += "".join(_critic_cell(row["critic"][mode]) for mode in ("paired", "image_only"))
         lines.append(line)
@@ -142,13 +135,6 @@ def _critic_cell(result: dict) -> str:
     if "std" not in result:
         return f" {result['accuracy']:.3f} |"
     return f" {result['accuracy']:.3f} ± {result['std']:.2f} [{result['low']:.2f}–{result['high']:.2f}] |"
-
-
-def _window(score: Tensor, side: int) -> tuple[int, int]:
-    """Top-left corner of the ``side``² window with the highest mean ``score`` (on an 8-pixel grid)."""
-    pooled = torch.nn.functional.avg_pool2d(score[None, None].float(), side, stride=8)[0, 0]
-    top, left = divmod(int(pooled.argmax()), pooled.shape[1])
-    return top * 8, left * 8
 
 
 def side_by_side(scenes: dict[str, tuple[Tensor, Tensor]], unpaired, path: Path) -> None:
@@ -163,26 +149,16 @@ def side_by_side(scenes: dict[str, tuple[Tensor, Tensor]], unpaired, path: Path)
             ("flat 1:1", flat_mask(unit), TILE),
             ("texture 2x", gradient_energy(unit), TILE // 2),
         ):
-            top, left = _window(score, side)
+            top, left = best_window(score, side)
             crops = [
                 image[:, top : top + side, left : left + side].permute(1, 2, 0).numpy() for image in (clean, real, sim)
             ]
             rows.append((f"{scene} {kind}", [Image.fromarray(c).resize((TILE, TILE), Image.NEAREST) for c in crops]))
-    canvas = Image.new("RGB", (100 + 3 * (TILE + 4), 16 + len(rows) * (TILE + 4)), "white")
-    draw = ImageDraw.Draw(canvas)
-    for column, name in enumerate(("clean", "real", "unpaired simulation")):
-        draw.text((100 + column * (TILE + 4), 2), name, fill="black")
-    for row, (label, pictures) in enumerate(rows):
-        draw.text((4, 16 + row * (TILE + 4) + TILE // 2), label, fill="black")
-        for column, picture in enumerate(pictures):
-            canvas.paste(picture, (100 + column * (TILE + 4), 16 + row * (TILE + 4)))
-    path.parent.mkdir(parents=True, exist_ok=True)
-    canvas.save(path)
+    save_png(labelled_grid(("clean", "real", "unpaired simulation"), rows, TILE), path)
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--data", type=Path, default=DEFAULT_DATA)
+    parser = real_pairs_parser(__doc__, DEFAULT_DATA)
     parser.add_argument("--out", type=Path, default=ROOT / "out" / "city100-unpaired.safetensors")
     parser.add_argument("--json", type=Path, default=ROOT / "out" / "results" / "fit_city100_unpaired.json")
     parser.add_argument("--critic", action="store_true", help="also train and score the learned critic (slower)")

@@ -21,14 +21,12 @@ repo root::
 
 from __future__ import annotations
 
-import argparse
-import itertools
 import time
 from pathlib import Path
 
 import torch
-import torch.nn.functional as F
-from PIL import Image, ImageDraw
+from fidelity_report import band_cell, band_heading, best_window, labelled_grid, number, real_pairs_parser, save_png
+from PIL import Image
 from torch import Tensor
 
 from camdegrade import CameraProfile, load_profile
@@ -37,7 +35,7 @@ from camdegrade.effects import Sharpen
 from camdegrade.effects.base import evenly_spaced
 from camdegrade.fitting import discover_pairs, filter_pairs, load_pair
 from camdegrade.functional.analysis.images import flattest_window, gradient_energy
-from camdegrade.measures import BAND_EDGES, measure_fidelity
+from camdegrade.measures import measure_fidelity
 
 ROOT = Path(__file__).resolve().parents[1]
 #: The built-in city100-iphonex as shipped until 2026-11-27 (the paper's network + blur, noise, tone), which this
@@ -104,51 +102,35 @@ def held_out_rows(profile: CameraProfile, fitted: dict[str, Sharpen], data: Path
 
 
 def format_table(rows: list[dict]) -> str:
-    bands = " / ".join(f"{low:g}–{high:g}" for low, high in itertools.pairwise(BAND_EDGES))
     lines = [
-        f"| mode | image | log2 power sim/real ({bands}) | PSNR dB | noise ratio | grid ratio |",
+        f"| mode | image | {band_heading()} | PSNR dB | noise ratio | grid ratio |",
         "|---|---|---|---|---|---|",
     ]
     for row in rows:
-        band_text = " / ".join("n/a" if v is None else f"{v:+.2f}" for v in row["bands"])
-        noise = "n/a" if row["noise_ratio"] is None else f"{row['noise_ratio']:.2f}"
-        grid = "n/a" if row["grid_ratio"] is None else f"{row['grid_ratio']:.1f}"
-        lines.append(f"| {row['mode']} | {row['row']} | {band_text} | {row['psnr']:.2f} | {noise} | {grid} |")
+        cells = [row["mode"], row["row"], band_cell(row["bands"]), f"{row['psnr']:.2f}", number(row["noise_ratio"])]
+        lines.append(f"| {' | '.join(cells)} | {number(row['grid_ratio'], 1)} |")
     return "\n".join(lines)
 
 
 def evidence_png(shown: dict[str, dict[str, Tensor]], cleans: dict[str, Tensor], path: Path) -> None:
     """Per scene two rows (flat 1:1, textured 2×), columns real | built-in | built-in + sharpen."""
     columns = ("real", "built-in", "+ sharpen (budget, luma)")
-    label_width, label_height, gap = 110, 16, 4
-    canvas = Image.new("RGB", (label_width + 3 * (FLAT + gap), label_height + 4 * (FLAT + gap)), "white")
-    draw = ImageDraw.Draw(canvas)
-    for index, name in enumerate(columns):
-        draw.text((label_width + index * (FLAT + gap), 2), name, fill="black")
-    row = 0
+    rows = []
     for scene, images in shown.items():
-        (rows, cols), _ = flattest_window(cleans[scene], FLAT)
-        pooled = F.avg_pool2d(gradient_energy(cleans[scene])[None, None], TEXTURED, stride=8)[0, 0]
-        top, left = (8 * v for v in divmod(int(pooled.argmax()), pooled.shape[1]))
+        (flat_rows, flat_cols), _ = flattest_window(cleans[scene], FLAT)
+        top, left = best_window(gradient_energy(cleans[scene]), TEXTURED)
         windows = (
-            ("flat 1:1", (rows, cols)),
+            ("flat 1:1", (flat_rows, flat_cols)),
             ("texture 2x", (slice(top, top + TEXTURED), slice(left, left + TEXTURED))),
         )
         for kind, (ys, xs) in windows:
-            y = label_height + row * (FLAT + gap)
-            draw.text((4, y + FLAT // 2 - 6), f"{scene} {kind}", fill="black")
-            for index, name in enumerate(columns):
-                crop = unit_to_bytes(images[name][:, ys, xs]).permute(1, 2, 0).numpy()
-                picture = Image.fromarray(crop).resize((FLAT, FLAT), Image.NEAREST)
-                canvas.paste(picture, (label_width + index * (FLAT + gap), y))
-            row += 1
-    path.parent.mkdir(parents=True, exist_ok=True)
-    canvas.save(path)
+            crops = [unit_to_bytes(images[name][:, ys, xs]).permute(1, 2, 0).numpy() for name in columns]
+            rows.append((f"{scene} {kind}", [Image.fromarray(c).resize((FLAT, FLAT), Image.NEAREST) for c in crops]))
+    save_png(labelled_grid(columns, rows, FLAT, label_width=110, label_drop=6), path)
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--data", type=Path, default=DEFAULT_DATA)
+    parser = real_pairs_parser(__doc__, DEFAULT_DATA)
     parser.add_argument("--png", type=Path, default=ROOT / "out" / "sharpen_city100.png")
     parser.add_argument("--all-pairs", action="store_true", help="also fit on all 55 pairs (8 crops each; slow)")
     args = parser.parse_args(argv)

@@ -1,7 +1,7 @@
 """Issue 43's measurement: does a learned texture stage, trained by a two-sample objective after the named stages,
 make City100's unpaired profile harder to tell from the iPhone X's captures?
 
-The unpaired split of ``examples/fit_city100_unpaired.py``: the fit sees the clean images of scenes 001–035 and the
+The unpaired split of ``experiments/fit_city100_unpaired.py``: the fit sees the clean images of scenes 001–035 and the
 captures of 036–055 (no scene on both sides); the check uses the pairs of the 16 held-out scenes (056–070, 098),
 whole frames, each simulation with seed = scene index, stored as 8-bit values. Rows: the clean image, the built-in
 ``city100-iphonex`` (the paired fit), today's unpaired profile (:func:`~camdegrade.fitting.unpaired.fit_unpaired`),
@@ -22,38 +22,31 @@ at 1:1 and textured at 2×) and ``out/results/two_sample_city100.json``.
 from __future__ import annotations
 
 import argparse
-import itertools
 import json
 import time
 from pathlib import Path
 
-import torch
-from PIL import Image, ImageDraw
+from fidelity_report import band_cell, band_heading, best_window, labelled_grid, number, real_pairs_parser, save_png
+from fit_city100_unpaired import CAPTURED_SCENES, CLEAN_SCENES, DEFAULT_DATA, HELD_OUT, ROOT, SHOWN, TILE
+from fit_city100_unpaired import city100 as city100_bytes
+from PIL import Image
 from torch import Tensor
 
 from camdegrade import CameraProfile, load_profile
 from camdegrade._support.pixels import as_unit, unit_to_bytes
-from camdegrade.fitting import discover_pairs, filter_pairs, load_pair
-from camdegrade.fitting.two_sample.gate import fit_learned_stage
+from camdegrade.fitting.two_sample.gate import StageTraining, fit_learned_stage
 from camdegrade.fitting.two_sample.train import TwoSampleOptions, fit_two_sample
 from camdegrade.fitting.unpaired import fit_unpaired
 from camdegrade.functional.analysis.images import flat_mask, gradient_energy
 from camdegrade.measures.critic import repeated_critic_test
-from camdegrade.measures.fidelity import BAND_EDGES, measure_fidelity
+from camdegrade.measures.fidelity import measure_fidelity
 
-ROOT = Path(__file__).resolve().parents[1]
-DEFAULT_DATA = ROOT.parent / "shared" / "data" / "real-pairs"
-CLEAN_SCENES = [f"{n:03d}" for n in range(1, 36)]
-CAPTURED_SCENES = [f"{n:03d}" for n in range(36, 56)]
 PAIRED_SCENES = [f"{n:03d}" for n in range(1, 56)]
-HELD_OUT = sorted({f"{n:03d}" for n in range(56, 71)} | {"098"})
-SHOWN, TILE = ("060", "062", "098"), 128
 
 
 def city100(data: Path) -> dict[str, tuple[Tensor, Tensor]]:
     """scene → (clean, captured), float in [0, 1], of the City100 iPhone X pairs."""
-    pairs = filter_pairs(discover_pairs(data / "pairs.csv").pairs, subset="city100_iPhoneX")
-    return {pair.scene: tuple(as_unit(image) for image in load_pair(pair)) for pair in pairs}
+    return {scene: tuple(as_unit(image) for image in pair) for scene, pair in city100_bytes(data).items()}
 
 
 def stored(images: list[Tensor]) -> list[Tensor]:
@@ -86,7 +79,8 @@ def learned(scenes: dict, named: CameraProfile, args: argparse.Namespace) -> tup
         )
         evidence = {"kept": True, "gated": False, "trainings": [evidence]}
     else:
-        stage, evidence = fit_learned_stage(named, cleans, captures, seed=args.seed, steps=args.steps, options=options)
+        training = StageTraining(seed=args.seed, steps=args.steps, options=options)
+        stage, evidence = fit_learned_stage(named, cleans, captures, training)
     evidence["seconds"] = round(time.perf_counter() - started, 1)
     return (named.with_effects(stage) if stage is not None else named), evidence
 
@@ -118,26 +112,17 @@ def rows(scenes: dict, candidates: dict[str, CameraProfile | None], critic_seeds
 
 
 def format_table(table: list[dict]) -> str:
-    bands = " / ".join(f"{low:g}–{high:g}" for low, high in itertools.pairwise(BAND_EDGES))
     lines = [
-        f"| simulation | log2 power sim/real ({bands}) | flat-noise ratio | PSNR dB | critic image-only |",
+        f"| simulation | {band_heading()} | flat-noise ratio | PSNR dB | critic image-only |",
         "|---|---|---|---|---|",
     ]
     for row in table:
         critic = row["critic_image_only"]
-        noise = "n/a" if row["noise_ratio"] is None else f"{row['noise_ratio']:.2f}"
-        band_text = " / ".join("n/a" if v is None else f"{v:+.2f}" for v in row["bands"])
         spread = f"{critic['accuracy']:.3f} ± {critic['std']:.2f} [{min(critic['accuracies']):.2f}–"
         spread += f"{max(critic['accuracies']):.2f}] ({critic['critics']} critics)"
-        lines.append(f"| {row['row']} | {band_text} | {noise} | {row['psnr']:.2f} | {spread} |")
+        cells = [row["row"], band_cell(row["bands"]), number(row["noise_ratio"]), f"{row['psnr']:.2f}", spread]
+        lines.append(f"| {' | '.join(cells)} |")
     return "\n".join(lines)
-
-
-def _window(score: Tensor, side: int) -> tuple[int, int]:
-    """Top-left corner of the ``side``² window with the highest mean ``score`` (on an 8-pixel grid)."""
-    pooled = torch.nn.functional.avg_pool2d(score[None, None].float(), side, stride=8)[0, 0]
-    top, left = divmod(int(pooled.argmax()), pooled.shape[1])
-    return top * 8, left * 8
 
 
 def evidence_page(scenes: dict, columns: dict[str, CameraProfile | None], path: Path) -> None:
@@ -150,26 +135,16 @@ def evidence_page(scenes: dict, columns: dict[str, CameraProfile | None], path: 
         images = [clean, real] + [stored(p.simulate([clean], seed))[0] for p in columns.values() if p is not None]
         windows = (("flat 1:1", flat_mask(clean), TILE), ("texture 2x", gradient_energy(clean), TILE // 2))
         for kind, score, side in windows:
-            top, left = _window(score, side)
+            top, left = best_window(score, side)
             crops = [unit_to_bytes(image[:, top : top + side, left : left + side]) for image in images]
             tiles = [Image.fromarray(c.permute(1, 2, 0).numpy()).resize((TILE, TILE), Image.NEAREST) for c in crops]
             lines.append((f"{scene} {kind}", tiles))
     names = ["clean", "capture", *[name for name, p in columns.items() if p is not None]]
-    canvas = Image.new("RGB", (100 + len(names) * (TILE + 4), 28 + len(lines) * (TILE + 4)), "white")
-    draw = ImageDraw.Draw(canvas)
-    for column, name in enumerate(names):
-        draw.text((100 + column * (TILE + 4), 2), name, fill="black")
-    for row, (label, tiles) in enumerate(lines):
-        draw.text((4, 28 + row * (TILE + 4) + TILE // 2), label, fill="black")
-        for column, tile in enumerate(tiles):
-            canvas.paste(tile, (100 + column * (TILE + 4), 28 + row * (TILE + 4)))
-    path.parent.mkdir(parents=True, exist_ok=True)
-    canvas.save(path)
+    save_png(labelled_grid(names, lines, TILE, header=28), path)
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--data", type=Path, default=DEFAULT_DATA)
+    parser = real_pairs_parser(__doc__, DEFAULT_DATA)
     parser.add_argument("--unpaired", type=Path, help="today's unpaired profile of the split, already fitted")
     parser.add_argument("--steps", type=int, default=1200)
     parser.add_argument("--seed", type=int, default=0, help="the learned stage's training seed")

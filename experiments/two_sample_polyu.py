@@ -27,7 +27,7 @@ from PIL import Image
 from camdegrade import CameraProfile
 from camdegrade._support.pixels import as_unit
 from camdegrade.fitting import Pair, discover_pairs, filter_pairs, load_pair
-from camdegrade.fitting.two_sample.gate import fit_learned_stage, set_statistics
+from camdegrade.fitting.two_sample.gate import StageTraining, fit_learned_stage, set_statistics
 from camdegrade.fitting.two_sample.train import TwoSampleOptions, fit_two_sample
 from camdegrade.fitting.unpaired import fit_unpaired
 from camdegrade.fitting.unpaired.noise import flat_sums
@@ -111,7 +111,7 @@ def main(argv: list[str] | None = None) -> int:
     own = flat_sums(captures).pooled_std()  # levels
     record = {"captures_own_flat_std_levels": round(own, 2), "recorded_check": profile.quality["unpaired_fidelity"]}
     started = time.perf_counter()
-    gated, evidence = fit_learned_stage(profile, cleans, captures, steps=args.steps, options=options)
+    gated, evidence = fit_learned_stage(profile, cleans, captures, StageTraining(steps=args.steps, options=options))
     record["gate"] = {
         "kept": evidence["kept"],
         "judgements": evidence["judgements"],

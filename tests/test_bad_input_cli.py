@@ -47,13 +47,19 @@ def _two_pairs(tmp: Path) -> Path:
     return make_pairs_folder(tmp / "two", count=2)
 
 
+def _apply_option(option: str, value: str) -> Case:
+    """``apply`` of the profile to one good image with ``option value``."""
+    return lambda tmp, p: ["apply", p, good_image(tmp / "a.png"), tmp / "o.png", option, value]
+
+
+def _fit_option(option: str, value: str) -> Case:
+    """``fit`` of the temporary folder with ``option value``: a usage error, found before any pair is read."""
+    return lambda tmp, p: ["fit", tmp, "-o", tmp / "x.safetensors", option, value]
+
+
 CASES: dict[str, tuple[Case, int, str]] = {
     "list with an argument": (lambda tmp, p: ["list", "everything"], 2, r"unrecognized arguments: everything"),
-    "apply --threads 0": (
-        lambda tmp, p: ["apply", p, good_image(tmp / "a.png"), tmp / "o.png", "--threads", "0"],
-        2,
-        r"--threads: must be an integer >= 1, got 0",
-    ),
+    "apply --threads 0": (_apply_option("--threads", "0"), 2, r"--threads: must be an integer >= 1, got 0"),
     "info /dev/zero": (lambda tmp, p: ["info", "/dev/zero"], 1, r"'/dev/zero' is not a regular file"),
     "info a profile asking for a huge network": (
         lambda tmp, p: [
@@ -72,21 +78,9 @@ CASES: dict[str, tuple[Case, int, str]] = {
         1,
         r"bomb\.png.*144000000 pixels",
     ),
-    "apply --device meta": (
-        lambda tmp, p: ["apply", p, good_image(tmp / "a.png"), tmp / "o.png", "--device", "meta"],
-        2,
-        "meta",
-    ),
-    "apply --p 2": (
-        lambda tmp, p: ["apply", p, good_image(tmp / "a.png"), tmp / "o.png", "--p", "2"],
-        2,
-        r"--p: must be a probability from 0 to 1, got 2",
-    ),
-    "apply --seed 2**70": (
-        lambda tmp, p: ["apply", p, good_image(tmp / "a.png"), tmp / "o.png", "--seed", BIG_SEED],
-        2,
-        rf"--seed: .*got {BIG_SEED}",
-    ),
+    "apply --device meta": (_apply_option("--device", "meta"), 2, "meta"),
+    "apply --p 2": (_apply_option("--p", "2"), 2, r"--p: must be a probability from 0 to 1, got 2"),
+    "apply --seed 2**70": (_apply_option("--seed", BIG_SEED), 2, rf"--seed: .*got {BIG_SEED}"),
     "apply x.png x.png": (
         lambda tmp, p: ["apply", p, good_image(tmp / "x.png"), tmp / "x.png"],
         1,
@@ -107,23 +101,11 @@ CASES: dict[str, tuple[Case, int, str]] = {
         1,
         r"cannot write '/proc/x\.safetensors'",
     ),
-    "fit --epochs 0": (
-        lambda tmp, p: ["fit", tmp, "-o", tmp / "x.safetensors", "--epochs", "0"],
-        2,
-        r"--epochs: must be an integer >= 1, got 0",
-    ),
-    "fit --epochs -3": (
-        lambda tmp, p: ["fit", tmp, "-o", tmp / "x.safetensors", "--epochs", "-3"],
-        2,
-        r"--epochs: must be an integer >= 1, got -3",
-    ),
-    "fit --lr nan": (
-        lambda tmp, p: ["fit", tmp, "-o", tmp / "x.safetensors", "--lr", "nan"],
-        2,
-        r"--lr: must be a finite",
-    ),
+    "fit --epochs 0": (_fit_option("--epochs", "0"), 2, r"--epochs: must be an integer >= 1, got 0"),
+    "fit --epochs -3": (_fit_option("--epochs", "-3"), 2, r"--epochs: must be an integer >= 1, got -3"),
+    "fit --lr nan": (_fit_option("--lr", "nan"), 2, r"--lr: must be a finite"),
     "fit --val-fraction 1": (
-        lambda tmp, p: ["fit", tmp, "-o", tmp / "x.safetensors", "--val-fraction", "1"],
+        _fit_option("--val-fraction", "1"),
         2,
         r"--val-fraction: must be a fraction from 0 \(inclusive\) to 1 \(exclusive\), got 1",
     ),

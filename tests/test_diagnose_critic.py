@@ -52,18 +52,24 @@ def named(prefix: str, pairs: list[tuple[torch.Tensor, torch.Tensor]]) -> PairSe
     return PairSet(pairs, list(names), names)
 
 
+def diagnose_adding(profile: CameraProfile, camera: VirtualCamera, effect: str, held_out: int = 6) -> DiagnosisReport:
+    """:func:`diagnose` of ``profile`` on 6 pairs of ``camera`` and ``held_out`` held-out ones (64², seeds 0 and 1),
+    the only change it may make adding ``effect``."""
+    return diagnose(
+        profile,
+        named("cal-", camera_pairs(camera, 6, 64, seed=0)),
+        held_out=named("held-", camera_pairs(camera, held_out, 64, seed=1)),
+        candidates=[effect],
+        kinds=("add",),
+    )
+
+
 @pytest.fixture(scope="module")
 def toned() -> DiagnosisReport:
     """A camera with a tone curve, a profile without: the critic tells most patches apart before, fewer after."""
     camera = VirtualCamera([Noise(a=0.0005), Tone(gamma=1.3, black=0.03)], scale=1.0)
     profile = CameraProfile(None, [Noise(a=0.0005)], name="no-tone")
-    return diagnose(
-        profile,
-        named("cal-", camera_pairs(camera, 6, 64, seed=0)),
-        held_out=named("held-", camera_pairs(camera, 6, 64, seed=1)),
-        candidates=["tone"],
-        kinds=("add",),
-    )
+    return diagnose_adding(profile, camera, "tone")
 
 
 @pytest.mark.slow  # the fixture: a diagnosis with four critics, about 30 s on one core
@@ -146,13 +152,7 @@ def test_the_reported_interval_contains_a_fresh_critics_accuracy() -> None:
     changed profile."""
     camera = VirtualCamera([Noise(a=0.0008), Tone(gamma=1.3, black=0.03)], scale=1.0)
     profile = CameraProfile(None, [Noise(a=0.0002)], name="quiet")
-    report = diagnose(
-        profile,
-        named("cal-", camera_pairs(camera, 6, 64, seed=0)),
-        held_out=named("held-", camera_pairs(camera, 12, 64, seed=1)),
-        candidates=["tone"],
-        kinds=("add",),
-    )
+    report = diagnose_adding(profile, camera, "tone", held_out=12)
     assert report.accepted == ["add tone"]
     after = report.critic["after"]
     assert 0.6 < after["accuracy"] < 0.95 and after["high"] - after["low"] > 0.05, after  # neither chance nor sure

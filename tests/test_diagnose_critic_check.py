@@ -22,7 +22,7 @@ from camdegrade.measures.critic import CriticResult
 from camdegrade.measures.visible import TextureComparison
 from camdegrade.profile import CameraProfile
 from camdegrade.sim import VirtualCamera
-from test_diagnose_critic import camera_pairs, named
+from test_diagnose_critic import camera_pairs, diagnose_adding, named
 
 torch.set_num_threads(1)
 
@@ -86,13 +86,7 @@ def test_the_diagnosis_reports_a_held_back_change_and_returns_the_profile_withou
         return real_check(result, *args)
 
     monkeypatch.setattr(core, "check_changes", overdone)
-    report = diagnose(
-        profile,
-        named("cal-", camera_pairs(camera, 6, 64, seed=0)),
-        held_out=named("held-", camera_pairs(camera, 6, 64, seed=1)),
-        candidates=["blur"],
-        kinds=("add",),
-    )
+    report = diagnose_adding(profile, camera, "blur")
     assert report.accepted == [] and report.added == []
     assert [stage.name for stage in report.profile.effects] == ["noise"]
     assert report.verdict.startswith("No change is accepted") and "Held back: adding blur" in report.verdict

@@ -24,9 +24,18 @@ def _public_modules() -> list[Path]:
     return modules
 
 
+def _module_source(module: str) -> ast.Module:
+    """The parsed source of the camdegrade module named ``module`` (a package's ``__init__.py``)."""
+    path = SOURCE.joinpath(*module.split("."))
+    return ast.parse((path / "__init__.py" if path.is_dir() else path.with_suffix(".py")).read_text())
+
+
 def _declared(tree: ast.Module) -> list[str] | None:
-    """The names of a module-level ``__all__ = [...]`` (or annotated), or None when there is none."""
+    """The names of a module-level ``__all__ = [...]`` (or annotated), or of the ``__all__`` it imports from a module
+    of its own (``from camdegrade.x import __all__ as __all__``, a package that re-exports one module), or None."""
     for node in tree.body:
+        if isinstance(node, ast.ImportFrom) and any(alias.name == "__all__" for alias in node.names):
+            return _declared(_module_source(node.module or ""))
         if isinstance(node, ast.Assign):
             targets = node.targets
         elif isinstance(node, ast.AnnAssign):
@@ -59,6 +68,8 @@ def _bound(tree: ast.Module) -> set[str]:
         elif isinstance(node, (ast.Assign, ast.AnnAssign)):
             targets = node.targets if isinstance(node, ast.Assign) else [node.target]
             names.update(name.id for target in targets for name in ast.walk(target) if isinstance(name, ast.Name))
+        elif isinstance(node, ast.ImportFrom) and [alias.name for alias in node.names] == ["*"]:
+            names.update(_declared(_module_source(node.module or "")) or [])
         elif isinstance(node, (ast.Import, ast.ImportFrom)):
             names.update((alias.asname or alias.name).split(".")[0] for alias in node.names)
     return names
@@ -98,6 +109,10 @@ def test_the_check_can_fail() -> None:
     assert _declared(ast.parse("__all__: list[str] = ['a']")) == ["a"]
     bound = _bound(ast.parse("from a import b as c\nimport d.e\ndef f(): g = 1\nclass H: pass"))
     assert bound == {"c", "d", "f", "H"}
+    names_only = "from camdegrade.network.nets import __all__ as __all__"
+    reexport = ast.parse(f"from camdegrade.network.nets import *\n{names_only}")
+    assert "build_network" in _declared(reexport) and set(_declared(reexport)) <= _bound(reexport)
+    assert "build_network" not in _bound(ast.parse(names_only))
 
 
 def test_the_top_level_offers_the_workflows_and_their_argument_types() -> None:

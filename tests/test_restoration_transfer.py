@@ -102,14 +102,21 @@ def test_the_colour_map_fit_recovers_a_known_blur_and_map() -> None:
     assert torch.allclose(fitted.matrix, matrix, atol=0.02)
 
 
+#: Two seeds' PSNR (dB) on two held-out images per row, and the captures' own: the closure's worked example.
+CAPTURE_PSNR = [20.0, 30.0]
+TWO_SEEDS_PSNR = {
+    "real": [[21.0, 31.0], [21.2, 31.2]],
+    "colour_map": [[19.5, 29.5], [19.7, 29.7]],
+    "built_in": [[20.5, 30.5], [20.4, 30.4]],
+}
+
+
+def _bench():
+    return load_script("bench/bench_restoration_transfer.py", "camdegrade_bench_restoration_transfer")
+
+
 def test_the_closure_runs_from_the_colour_map_to_real() -> None:
-    bench = load_script("bench/bench_restoration_transfer.py", "camdegrade_bench_restoration_transfer")
-    capture = [20.0, 30.0]
-    psnr = {
-        "real": [[21.0, 31.0], [21.2, 31.2]],
-        "colour_map": [[19.5, 29.5], [19.7, 29.7]],
-        "built_in": [[20.5, 30.5], [20.4, 30.4]],
-    }
+    bench, capture, psnr = _bench(), CAPTURE_PSNR, TWO_SEEDS_PSNR
     summary = bench.summarise(psnr, capture, capture)
     assert summary["mean"]["real"] == pytest.approx(1.1)
     assert summary["spread"]["built_in"] == pytest.approx(0.1)
@@ -118,13 +125,7 @@ def test_the_closure_runs_from_the_colour_map_to_real() -> None:
 
 
 def test_runs_of_one_seed_each_combine_into_the_summary_of_all_seeds(tmp_path) -> None:
-    bench = load_script("bench/bench_restoration_transfer.py", "camdegrade_bench_restoration_transfer")
-    capture = [20.0, 30.0]
-    psnr = {
-        "real": [[21.0, 31.0], [21.2, 31.2]],
-        "colour_map": [[19.5, 29.5], [19.7, 29.7]],
-        "built_in": [[20.5, 30.5], [20.4, 30.4]],
-    }
+    bench, capture, psnr = _bench(), CAPTURE_PSNR, TWO_SEEDS_PSNR
     paths = []
     for seed in (0, 1):
         record = {

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 
 from torch import Tensor
 
@@ -61,30 +61,27 @@ def moves_pixels(effects: Sequence[Effect]) -> bool:
 
 
 def chain_source_points(
-    effects: Sequence[Effect],
-    params: Sequence[Mapping[str, Tensor]],
-    x: Tensor,
-    y: Tensor,
-    size: tuple[int, int],
+    effects: Sequence[Effect], params: Sequence[Mapping[str, Tensor]], x: Tensor, y: Tensor, size: tuple[int, int]
 ) -> tuple[Tensor, Tensor]:
     """Where in the chain's input the output positions ``(x, y)`` read from: each moving stage's
     :meth:`~Effect.source_points`, last stage first (coordinates as there)."""
-    for effect, effect_params in reversed(list(zip(effects, params, strict=True))):
-        if effect.moves_pixels:
-            x, y = effect.source_points(x, y, size, effect_params)
-    return x, y
+    stages = reversed(list(zip(effects, params, strict=True)))
+    return _map_points(stages, "source_points", x, y, size)
 
 
 def chain_moved_points(
-    effects: Sequence[Effect],
-    params: Sequence[Mapping[str, Tensor]],
-    x: Tensor,
-    y: Tensor,
-    size: tuple[int, int],
+    effects: Sequence[Effect], params: Sequence[Mapping[str, Tensor]], x: Tensor, y: Tensor, size: tuple[int, int]
 ) -> tuple[Tensor, Tensor]:
     """Where the chain puts its input positions ``(x, y)``: each moving stage's :meth:`~Effect.moved_points`, in
     chain order (the inverse of :func:`chain_source_points`)."""
-    for effect, effect_params in zip(effects, params, strict=True):
+    return _map_points(zip(effects, params, strict=True), "moved_points", x, y, size)
+
+
+def _map_points(
+    stages: Iterable[tuple[Effect, Mapping[str, Tensor]]], method: str, x: Tensor, y: Tensor, size: tuple[int, int]
+) -> tuple[Tensor, Tensor]:
+    """``(x, y)`` through the point map ``method`` of each moving stage of ``stages``, in the order given."""
+    for effect, effect_params in stages:
         if effect.moves_pixels:
-            x, y = effect.moved_points(x, y, size, effect_params)
+            x, y = getattr(effect, method)(x, y, size, effect_params)
     return x, y

@@ -48,6 +48,7 @@ __all__ = [
     "JUDGE_IMAGES",
     "Judgement",
     "LearnedTextureMatch",
+    "StageTraining",
     "fit_learned_stage",
     "judge_halves",
     "judge_learned_stage",
@@ -62,6 +63,23 @@ CRITIC_SLACK = 0.02
 #: A judgement uses at most this many held-out clean images and as many captures (evenly spaced): its critics and
 #: simulations are most of the gate's time, and 16 City100 scenes already separate the rows of docs/results.md.
 JUDGE_IMAGES = 20
+
+
+@dataclass(frozen=True)
+class StageTraining:
+    """How a learned stage is trained and judged: the seed of both, the training's steps and options
+    (:func:`~camdegrade.fitting.two_sample.train.fit_two_sample`), and the fresh critic's seeds (two critics each)."""
+
+    seed: int = 0
+    steps: int = 1200
+    options: TwoSampleOptions | None = None
+    critic_seeds: int = 2
+
+    def train(
+        self, named: CameraProfile, cleans: Sequence[Tensor], captures: Sequence[Tensor]
+    ) -> tuple[LearnedTexture, dict[str, Any]]:
+        """A stage after ``named`` trained on ``cleans`` and ``captures``, and its training record."""
+        return fit_two_sample(named, cleans, captures, seed=self.seed, steps=self.steps, options=self.options)
 
 
 @dataclass
@@ -180,24 +198,19 @@ def judge_learned_stage(
 
 
 def judge_halves(
-    named: CameraProfile,
-    cleans: Sequence[Tensor],
-    captures: Sequence[Tensor],
-    *,
-    seed: int = 0,
-    steps: int = 1200,
-    options: TwoSampleOptions | None = None,
-    critic_seeds: int = 2,
+    named: CameraProfile, cleans: Sequence[Tensor], captures: Sequence[Tensor], training: StageTraining
 ) -> tuple[list[Judgement], list[dict[str, Any]]]:
     """Train a stage after ``named`` on half A of the images (alternate ones) and judge it on half B, then back
     (not once the first is refused): the judgements and the trainings' records."""
     halves = [slice(0, None, 2), slice(1, None, 2)]
     judgements, trainings = [], []
     for fit, held in (halves, halves[::-1]):
-        stage, record = fit_two_sample(named, cleans[fit], captures[fit], seed=seed, steps=steps, options=options)
+        stage, record = training.train(named, cleans[fit], captures[fit])
         trainings.append(record)
         judgements.append(
-            judge_learned_stage(named, stage, cleans[held], captures[held], seed=seed, critic_seeds=critic_seeds)
+            judge_learned_stage(
+                named, stage, cleans[held], captures[held], seed=training.seed, critic_seeds=training.critic_seeds
+            )
         )
         if not judgements[-1].keep:
             break
@@ -208,20 +221,13 @@ def fit_learned_stage(
     named: CameraProfile,
     cleans: Sequence[Tensor],
     captures: Sequence[Tensor],
-    *,
-    seed: int = 0,
-    steps: int = 1200,
-    options: TwoSampleOptions | None = None,
-    critic_seeds: int = 2,
+    training: StageTraining | None = None,
 ) -> tuple[LearnedTexture | None, dict[str, Any]]:
     """A learned texture stage after ``named``, or ``None`` where the held-out halves do not keep it
     (:func:`judge_halves`); the stage kept is trained on all the images. The evidence holds the judgements and
-    every training's record."""
-    cleans, captures = list(cleans), list(captures)
-    judgements, trainings = judge_halves(
-        named, cleans, captures, seed=seed, steps=steps, options=options, critic_seeds=critic_seeds
-    )
-    return kept_stage(named, cleans, captures, (judgements, trainings), seed=seed, steps=steps, options=options)
+    every training's record. ``training`` defaults to :class:`StageTraining`'s defaults."""
+    cleans, captures, training = list(cleans), list(captures), training or StageTraining()
+    return kept_stage(named, cleans, captures, judge_halves(named, cleans, captures, training), training)
 
 
 def kept_stage(
@@ -229,10 +235,7 @@ def kept_stage(
     cleans: Sequence[Tensor],
     captures: Sequence[Tensor],
     judged: tuple[list[Judgement], list[dict[str, Any]]],
-    *,
-    seed: int,
-    steps: int,
-    options: TwoSampleOptions | None = None,
+    training: StageTraining,
 ) -> tuple[LearnedTexture | None, dict[str, Any]]:
     """The stage trained on all the images where both ``judged`` halves keep theirs (else ``None``), and the
     evidence: whether kept, the judgements, every training's record."""
@@ -240,7 +243,7 @@ def kept_stage(
     kept = len(judgements) == 2 and all(judgement.keep for judgement in judgements)
     final = None
     if kept:
-        final, record = fit_two_sample(named, list(cleans), list(captures), seed=seed, steps=steps, options=options)
+        final, record = training.train(named, cleans, captures)
         trainings = [*trainings, record]
     return final, {"kept": kept, "judgements": [j.to_dict() for j in judgements], "trainings": trainings}
 
@@ -257,11 +260,12 @@ class LearnedTextureMatch(UnpairedStep):
 
     def propose(self, fit: UnpairedFit) -> tuple[list[Judgement], list[dict[str, Any]]]:
         cleans, captures = _sets(fit)
-        return judge_halves(_named(fit), cleans, captures, seed=fit.seed, steps=self.steps)
+        return judge_halves(_named(fit), cleans, captures, StageTraining(seed=fit.seed, steps=self.steps))
 
     def judge(self, fit: UnpairedFit, proposal: tuple[list[Judgement], list[dict[str, Any]]]) -> dict[str, Any]:
         cleans, captures = _sets(fit)
-        stage, evidence = kept_stage(_named(fit), cleans, captures, proposal, seed=fit.seed, steps=self.steps)
+        training = StageTraining(seed=fit.seed, steps=self.steps)
+        stage, evidence = kept_stage(_named(fit), cleans, captures, proposal, training)
         fit.keep(stage, LearnedTexture)
         judged = evidence["judgements"]
         critics = ", ".join(f"{j['without']['critic']:.2f} -> {j['with']['critic']:.2f}" for j in judged)
