@@ -8,8 +8,8 @@ of half the scenes, clean images of the other half). At commit ``e826a1a`` each 
   gamma must be from 0 (exclusive) to 16, got gamma=18.5541" — now refused at the colour and tone step, naming the
   stage (a dark camera is fitted as an exposure first: ``tests/test_unpaired_dark_camera_saves.py``; these darker
   scenes still need gamma 27.07);
-- PolyU's DSLR captures (ISO 800–12800) of the 50 darkest scenes, 128² centre crops: "effect 0 (noise): levels
-  must be from 0 to 1" (knots up to 1.25).
+- PolyU's Canon 5D Mk II at ISO 3200: captures of its 4 darker scenes beside the clean images of its 4 brighter
+  ones, as 256² tiles: "effect 0 (noise): levels must be from 0 to 1" (knots up to 1.16; 12.2 of 255 levels now).
 
 Now every value is in range, and the profile saves and loads (or the fit stops at the step whose stage is out of its
 range). Skipped when the shared real-pairs folder is absent."""
@@ -17,6 +17,7 @@ range). Skipped when the shared real-pairs folder is absent."""
 from __future__ import annotations
 
 import csv
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -34,14 +35,20 @@ pytestmark = [pytest.mark.realdata, pytest.mark.slow]
 TILE = 128
 
 
-def _tiles(path: Path) -> list[np.ndarray]:
+def _tiles(path: Path, side: int = TILE) -> list[np.ndarray]:
     pixels = np.asarray(Image.open(path).convert("RGB"))
     height, width = pixels.shape[:2]
     return [
-        pixels[top : top + TILE, left : left + TILE]
-        for top in range(0, height - TILE + 1, TILE)
-        for left in range(0, width - TILE + 1, TILE)
+        pixels[top : top + side, left : left + side]
+        for top in range(0, height - side + 1, side)
+        for left in range(0, width - side + 1, side)
     ]
+
+
+def _centre(path: Path) -> list[np.ndarray]:
+    pixels = np.asarray(Image.open(path).convert("RGB"))
+    top, left = (pixels.shape[0] - TILE) // 2, (pixels.shape[1] - TILE) // 2
+    return [pixels[top : top + TILE, left : left + TILE]]
 
 
 def _sidd_halves(root: Path) -> tuple[list[np.ndarray], list[np.ndarray]]:
@@ -82,9 +89,11 @@ def test_real_phone_captures_in_a_lossy_or_alpha_format_give_a_profile_that_save
     assert float(levels.min()) >= 0 and float(levels.max()) <= 1, levels * 255
 
 
-def _polyu_dark_halves(root: Path, tmp_path: Path, only: str) -> tuple[Path, Path]:
-    """PolyU's pairs whose capture's name holds ``only``, sorted by their clean image's mean level: 128² centre
-    crops of the captures of the darker half of the scenes and of the clean images of the brighter half, as PNG."""
+def _polyu_dark_halves(
+    root: Path, tmp_path: Path, only: str, cut: Callable[[Path], list[np.ndarray]]
+) -> tuple[Path, Path]:
+    """PolyU's pairs whose capture's name holds ``only``, sorted by their clean image's mean level: the ``cut`` s of
+    the captures of the darker half of the scenes and of the clean images of the brighter half, as PNG."""
     with open(root / "pairs.csv", newline="") as handle:
         rows = sorted(
             (r for r in csv.DictReader(handle) if r["subset"] == "polyu_real_noise" and only in r["captured"]),
@@ -95,10 +104,9 @@ def _polyu_dark_halves(root: Path, tmp_path: Path, only: str) -> tuple[Path, Pat
     folders = (tmp_path / "captured", tmp_path / "clean")
     for folder, side_rows, column in zip(folders, (rows[:half], rows[half:]), ("captured", "clean"), strict=True):
         folder.mkdir()
-        for index, row in enumerate(side_rows):
-            pixels = np.asarray(Image.open(root / row[column]).convert("RGB"))
-            top, left = (pixels.shape[0] - TILE) // 2, (pixels.shape[1] - TILE) // 2
-            Image.fromarray(pixels[top : top + TILE, left : left + TILE]).save(folder / f"{index:03d}.png")
+        pieces = [piece for row in side_rows for piece in cut(root / row[column])]
+        for index, pixels in enumerate(pieces):
+            Image.fromarray(pixels).save(folder / f"{index:03d}.png")
     return folders
 
 
@@ -116,17 +124,19 @@ def test_a_real_low_light_dslr_beyond_the_tone_stage_is_refused_at_its_step(
     """The exposure fitted first (−2.2 stops) leaves these scenes' curve at gamma 27.07: darker scenes are not a
     darker camera, and no tone stage maps one set onto the other. The fit stops at the colour and tone step, naming
     the stage and its range, where it used to finish and then fail to save."""
-    captured, clean = _polyu_dark_halves(real_pairs_dir, tmp_path, "_3200_")
+    captured, clean = _polyu_dark_halves(real_pairs_dir, tmp_path, "_3200_", _centre)
     assert len(list(captured.iterdir())) == 13 and len(list(clean.iterdir())) == 14
     with pytest.raises(ValueError, match=r"the tone stage fitted to these images is outside its range \(gamma must"):
         fit_unpaired(captured, clean)
 
 
-def test_real_dslr_captures_of_the_darker_scenes_give_a_noise_table_in_range(
-    real_pairs_dir: Path, tmp_path: Path
-) -> None:
-    captured, clean = _polyu_dark_halves(real_pairs_dir, tmp_path, "")
-    assert len(list(captured.iterdir())) == 50 and len(list(clean.iterdir())) == 50
+def test_a_real_dslr_at_iso_3200_gives_a_noise_table_in_range(real_pairs_dir: Path, tmp_path: Path) -> None:
+    """The Canon 5D Mk II at ISO 3200 (f/5, 1/200 s): its 4 darker scenes' captures and its 4 brighter scenes'
+    clean images, each cut into four tiles of 256²."""
+    captured, clean = _polyu_dark_halves(
+        real_pairs_dir, tmp_path, "Canon5D2_5_200_3200", lambda path: _tiles(path, 256)
+    )
+    assert len(list(captured.iterdir())) == 16 and len(list(clean.iterdir())) == 16
     effects = _saves_and_loads(fit_unpaired(captured, clean), tmp_path / "p.safetensors")
     levels = effects["noise"].levels
     assert float(levels.min()) >= 0 and float(levels.max()) <= 1, levels * 255
