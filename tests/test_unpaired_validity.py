@@ -69,14 +69,25 @@ def test_a_dark_camera_is_an_exposure_before_a_gamma() -> None:
     assert float(tone.gamma) <= 4.0 and float(tone.exposure) < -6.0, tone
 
 
-def test_a_stage_out_of_its_range_stops_the_fit_at_its_step_naming_it(monkeypatch: pytest.MonkeyPatch) -> None:
+def test_a_stage_out_of_its_range_is_not_kept_and_the_fit_says_so(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A stage fitted out of its range is left out with a warning naming it and its value (the fit went on to the
+    end and then could not save); with ``strict`` the warning is a refusal."""
+
     def out_of_range(*args, **options):
         return None, Tone(gamma=17.26), {"gains": [1, 1, 1], "tone_change": [0.0]}
 
     monkeypatch.setattr("camdegrade.fitting.unpaired.color_tone.judge_color_tone", out_of_range)
-    scenes = [(image * 255).round().to(torch.uint8) for image in _scenes(3, 8, 32)]
-    with pytest.raises(ValueError, match=r"the tone stage fitted to these images is outside its range \(gamma must"):
-        fit_unpaired(scenes, [(image * 255).round().to(torch.uint8) for image in _scenes(4, 8, 32)], effects=("tone",))
+    captures = [(image * 255).round().to(torch.uint8) for image in _scenes(3, 8, 32)]
+    cleans = [(image * 255).round().to(torch.uint8) for image in _scenes(4, 8, 32)]
+    profile = fit_unpaired(captures, cleans, effects=("tone",))
+    fitted = profile.metadata()["fitted"]
+    assert "tone" not in profile.effect_names and "tone" in fitted["not_fitted"]
+    assert any(
+        "the tone stage fitted to these images is outside its range (gamma must" in w for w in fitted["warnings"]
+    )
+    check_profile_values(profile)
+    with pytest.raises(CamdegradeError, match=r"the tone stage fitted to these images is outside its range"):
+        fit_unpaired(captures, cleans, effects=("tone",), strict=True)
 
 
 def test_a_bin_of_texture_does_not_become_a_spike_and_a_smooth_curve_stays() -> None:

@@ -113,20 +113,26 @@ class UnpairedFit:
     def keep(self, stage: Effect | None, *kinds: type[Effect]) -> None:
         """``stage`` in the chain (nothing for ``None``), in place of the stages of ``kinds`` (their refit), once its
         values are in the stage's range (:meth:`~camdegrade.effects.Effect.check_values`, what saving the profile
-        checks): a value out of range stops the fit at the step that made it, naming it."""
+        checks). A stage out of range is not kept and the fit goes on without it, with a warning that names it and
+        its value: the sets differ by more than the stage models (the captures' scenes darker than the clean
+        images', a tone no curve of the stage reaches), which one stage's refusal must not turn into no profile."""
+        if stage is not None:
+            try:
+                stage.check_values()
+            except ValueError as error:
+                reason = (
+                    f"the {stage.name} stage fitted to these images is outside its range ({error}), so it is not "
+                    "kept: the captures differ from the clean images by more than the stage models (photos of "
+                    "darker or other scenes than the clean images'?)"
+                )
+                self.not_fitted[stage.name] = reason
+                self.warnings.append(reason)
+                self.say(f"{stage.name}: not kept, outside its range ({error})")
+                return
         for kind in kinds:
             self.stages.pop(kind.name, None)
-        if stage is None:
-            return
-        try:
-            stage.check_values()
-        except ValueError as error:
-            raise ValueError(
-                f"unpaired fit: the {stage.name} stage fitted to these images is outside its range ({error}); the "
-                "captures are beyond what the stage models: check that they are the camera's photos of scenes like "
-                "the clean images', or leave the stage out (effects)"
-            ) from None
-        self.stages[stage.name] = stage
+        if stage is not None:
+            self.stages[stage.name] = stage
 
     def not_fit(self, kinds: Sequence[type[Effect]], reason: str) -> None:
         """Record why the asked-for stages of ``kinds`` are not fitted."""
