@@ -24,6 +24,7 @@ from camdegrade.effects import (
     LearnedTexture,
     Misalignment,
     Noise,
+    Quantization,
     Resolution,
     Sharpen,
     Tone,
@@ -70,6 +71,8 @@ STRONG = {
     "learned_texture": _learned_texture,
     "misalignment": lambda: Misalignment(0.5, -0.3, 0.4, shift_std=0.5, angle_std=0.2),
     "noise": lambda: Noise(0.01, 1e-4, 0.003, gain_jitter=0.3),
+    # 32 levels through a contrast curve (a 5-bit buffer before a tone table).
+    "quantization": lambda: Quantization(32, torch.linspace(0, 1, 32).pow(0.8).expand(3, 32)),
     "sharpen": lambda: Sharpen(1.2, 1.0, 0.01),
     "frequency_response": lambda: FrequencyResponse(torch.linspace(0.5, 2.0, 121).reshape(11, 11)),
     "resolution": lambda: Resolution(0.5),

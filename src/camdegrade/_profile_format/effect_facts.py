@@ -214,6 +214,13 @@ def _weights_sum_to_one(values: Mapping[str, Any]) -> str | None:
     return f"mixture_weights must sum to 1, got a sum of {total:.6g}"
 
 
+def _rows_non_decreasing(values: Mapping[str, Any]) -> str | None:
+    codebook = values["codebook"]
+    if bool((codebook[:, 1:] >= codebook[:, :-1]).all()):
+        return None
+    return f"codebook must be non-decreasing along each row, got codebook={shown(codebook)}"
+
+
 def _scalars(bound: Bound | None, *names: str) -> dict[str, Buffer]:
     return {name: Buffer((), bound=bound) for name in names}
 
@@ -292,6 +299,12 @@ BUILT_IN: dict[str, EffectFacts] = {
         "isp",
         {"knots": Setting(int, 11, Bound(2, 64, integer=True))},  # FrequencyResponse: DEFAULT_KNOTS, MAX_KNOTS
         {"gains": Buffer(("knots", "knots"), bound=Bound(0.0, 8.0))},  # FrequencyResponse.MAX_GAIN
+    ),
+    "quantization": EffectFacts(
+        "isp",
+        {"levels": Setting(int, 256, Bound(2, 256, integer=True))},  # Quantization.MAX_LEVELS
+        {"codebook": Buffer((3, "levels"), bound=_UNIT)},
+        value_rules=(_rows_non_decreasing,),
     ),
     "resolution": EffectFacts(
         "isp",

@@ -21,6 +21,7 @@ from camdegrade.effects.denoise import Denoise
 from camdegrade.effects.geometry import ChromaticAberration, Distortion, Misalignment, Vignetting
 from camdegrade.effects.learned_texture import LearnedTexture
 from camdegrade.effects.noise import Noise
+from camdegrade.effects.quantization import Quantization
 from camdegrade.effects.resolution import Resolution
 from camdegrade.effects.response import FrequencyResponse
 from camdegrade.effects.sharpen import Sharpen
@@ -40,6 +41,7 @@ __all__ = [
     "Misalignment",
     "Noise",
     "Pairs",
+    "Quantization",
     "Resolution",
     "Sharpen",
     "Tone",
