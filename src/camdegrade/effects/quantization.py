@@ -17,6 +17,7 @@ from camdegrade.functional.quantization import (
     histogram_comb,
     histogram_peaks,
     quantize_image,
+    skipped_runs,
     uniform_codebook,
 )
 
@@ -53,10 +54,10 @@ class Quantization(Effect):
     #: The most levels a fit or a rescaling gives (7 bits): a buffer of 8 bits before a tone table skips single
     #: codes only, which the profile's network already places within a level.
     MAX_FITTED_LEVELS: ClassVar[int] = 128
-    #: The targets' code histogram must be combed (:func:`~camdegrade.functional.quantization.histogram_comb`) by at
-    #: least this much more than the sources' for a fit to find levels (half the ``comb`` family's tau; an 8-bit
-    #: buffer through a contrast table combs by 0.15, a 5-bit buffer upscaled by 0.12, one not upscaled by 1.5).
-    MIN_COMB: ClassVar[float] = 0.05
+    #: The targets' code histogram must be combed (:func:`~camdegrade.functional.quantization.histogram_comb`) at
+    #: least this much for a fit to find levels (photos through a noisy camera: 0.03–0.09; a 5-bit buffer upscaled
+    #: 2×: 0.12–0.19; not upscaled: 1.7; an 8-bit buffer through a contrast table: 0.2, docs/results.md).
+    MIN_COMB: ClassVar[float] = 0.1
     codebook: Tensor
 
     def __init__(self, levels: int = 256, codebook: Tensor | None = None) -> None:
@@ -103,17 +104,21 @@ class Quantization(Effect):
     def fit(cls, source: Pairs, target: Pairs) -> Quantization:
         """The levels the targets hold: per channel the peaks of the targets' 8-bit code histogram
         (:func:`~camdegrade.functional.quantization.histogram_peaks`), continued at their end spacings to 0 and 1
-        and resampled to the median count of the channels (at most :attr:`MAX_FITTED_LEVELS`); the neutral stage
-        unless the targets' histogram is combed :attr:`MIN_COMB` more than the sources'. The histogram cannot tell
-        a coarse buffer smoothed by a later upscale from single codes skipped by a tone table (both comb it by
-        0.12–0.2): where the stage sits in a chain, the chain's simulation decides (the diagnosis's gap). Recovers
-        the 32 levels of a foreign camera's 5-bit buffer before its tone table exactly
+        and resampled to the median count of the channels (at most :attr:`MAX_FITTED_LEVELS`).
+
+        The neutral stage unless the targets' histogram is combed at least :attr:`MIN_COMB` by runs of more than one
+        empty code (:func:`~camdegrade.functional.quantization.skipped_runs`) or by none (an upscale after the
+        buffer fills them): single empty codes are a tone table's on 8-bit values. The sources are not compared (a
+        profile's noiseless output of flat walls combs its histogram as much). Recovers the 32 levels of a foreign
+        camera's 5-bit buffer before its tone table exactly, and 31 of them when a 2× upscale follows
         (``tests/test_quantization.py``)."""
         pairs = as_pairs(source, target)
-        histograms = [sum(code_histogram(image) for image in images) for images in zip(*pairs, strict=True)]
-        combs = [comb / mean.clamp_min(1e-12) for comb, mean in map(histogram_comb, histograms)]
-        peaks = [histogram_peaks(row) for row in histograms[1]]
-        if float((combs[1] - combs[0]).mean()) < cls.MIN_COMB or min(len(p) for p in peaks) < 2:
+        histogram = sum(code_histogram(target) for _, target in pairs)
+        comb, mean = histogram_comb(histogram)
+        peaks = [histogram_peaks(row) for row in histogram]
+        runs = torch.cat([skipped_runs(row) for row in histogram])
+        single_skips = runs.numel() > 0 and float(runs.double().median()) < 2
+        if float((comb / mean.clamp_min(1e-12)).mean()) < cls.MIN_COMB or single_skips or min(map(len, peaks)) < 2:
             return cls.neutral()
         levels = min(int(torch.tensor([len(p) for p in peaks]).median()), cls.MAX_FITTED_LEVELS)
         codebook = torch.stack([resample_levels(p[None].expand(3, -1), levels)[0] for p in peaks])

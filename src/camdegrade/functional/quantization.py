@@ -19,7 +19,15 @@ from torch import Tensor
 
 from camdegrade.functional._utils import apply_float, check_image
 
-__all__ = ["code_histogram", "histogram_comb", "histogram_peaks", "local_mean", "quantize_image", "uniform_codebook"]
+__all__ = [
+    "code_histogram",
+    "histogram_comb",
+    "histogram_peaks",
+    "local_mean",
+    "quantize_image",
+    "skipped_runs",
+    "uniform_codebook",
+]
 
 
 def uniform_codebook(levels: int, dtype: torch.dtype = torch.float32) -> Tensor:
@@ -94,6 +102,18 @@ def histogram_comb(histogram: Tensor) -> tuple[Tensor, Tensor]:
     measured = mean >= MIN_COUNT
     measured[..., 0] = measured[..., -1] = False
     return ((histogram - mean).abs() * measured).sum(-1), (mean * measured).sum(-1)
+
+
+def skipped_runs(histogram: Tensor) -> Tensor:
+    """The lengths of the runs of empty codes inside the measured range of a histogram of 8-bit codes (``(256,)``;
+    local mean at least :data:`MIN_COUNT`): runs of one for a tone table on 8-bit values (it skips single codes
+    where it is steeper than 1), of several for a coarse buffer, none for a histogram the noise or an upscale
+    filled."""
+    measured = local_mean(histogram) >= MIN_COUNT
+    empty = ((histogram == 0) & measured).int()
+    edges = torch.diff(torch.cat([torch.zeros(1, dtype=torch.int), empty, torch.zeros(1, dtype=torch.int)]))
+    starts, ends = torch.nonzero(edges == 1).flatten(), torch.nonzero(edges == -1).flatten()
+    return ends - starts
 
 
 def histogram_peaks(histogram: Tensor, radius: int = 2) -> Tensor:
