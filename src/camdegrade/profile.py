@@ -177,14 +177,12 @@ class CameraProfile(nn.Module):
         return self._stages(network_output, params, owned=True)[0]
 
     def with_effects(self, *effects: Effect) -> CameraProfile:
-        """A copy of this profile with ``effects`` added, each inserted after the last stage of its kind or earlier
-        (before the first of its stage's kinds it :attr:`~camdegrade.effects.Effect.precedes`)."""
+        """A copy of this profile with ``effects`` added, each inserted after the last stage of its kind or earlier."""
         chain = list(self.effects)
         for effect in effects:
             rank = STAGES.index(effect.stage)
             position = sum(1 for existing in chain if STAGES.index(existing.stage) <= rank)
-            ahead = [i for i, existing in enumerate(chain) if existing.name in effect.precedes]
-            chain.insert(min([position, *ahead]), effect)
+            chain.insert(position, effect)
         return self.with_chain(chain)
 
     def with_chain(self, effects: Sequence[Effect]) -> CameraProfile:

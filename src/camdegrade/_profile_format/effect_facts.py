@@ -303,7 +303,7 @@ BUILT_IN: dict[str, EffectFacts] = {
     "quantization": EffectFacts(
         "isp",
         {"levels": Setting(int, 256, Bound(2, 256, integer=True))},  # Quantization.MAX_LEVELS
-        {"codebook": Buffer((3, "levels"), bound=_UNIT)},
+        {"codebook": Buffer((3, "levels"), bound=_UNIT), "scale": Buffer(bound=Bound(0.125, 1.0))},
         value_rules=(_rows_non_decreasing,),
     ),
     "resolution": EffectFacts(

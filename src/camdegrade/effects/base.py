@@ -59,8 +59,7 @@ class Effect(nn.Module):
     ``None`` for pure noise), :meth:`scaled` (its strength), :attr:`fit_budget` and :meth:`fit_options` (what its
     fitter affords), :meth:`fit_in_chain` (how it is fitted at its place in a profile), :meth:`linear_filter`
     (whether it is a linear shift-invariant filter, and which), :attr:`explains` (the gap
-    signatures it can cause), :attr:`candidate` (whether the diagnosis tries it unasked), :attr:`precedes` (what it
-    goes before in its stage), :attr:`position_dependent`,
+    signatures it can cause), :attr:`candidate` (whether the diagnosis tries it unasked), :attr:`position_dependent`,
     :attr:`moves_pixels` with :meth:`source_points` and :meth:`moved_points` (how it moves positions, so targets
     move with the image) and :meth:`check_values` (the valid ranges of its values, checked when a profile is loaded
     or saved). The registry-wide tests in
@@ -83,9 +82,6 @@ class Effect(nn.Module):
     #: Whether the diagnosis tries adding it when its caller names no candidates: false for a stage so free that it
     #: would stand in for the effect the camera has instead of naming it.
     candidate: ClassVar[bool] = True
-    #: Effects of the same stage that a stage of this kind goes before when it is added to a chain (an ISP's 8-bit
-    #: buffer before its resize); by default it goes after every stage of its stage.
-    precedes: ClassVar[tuple[str, ...]] = ()
 
     @classmethod
     def neutral(cls) -> Effect:
@@ -231,6 +227,12 @@ class Effect(nn.Module):
         if cls.fit_budget is not None:
             sources, targets = evenly_spaced(sources, cls.fit_budget), evenly_spaced(targets, cls.fit_budget)
         return cls.fit(list(sources), list(targets), **cls.fit_options(list(sources)))
+
+    @classmethod
+    def calibrates_in_chain(cls) -> bool:
+        """Whether :meth:`fit_in_chain` is its own (it calibrates through the stages after it, by simulating them):
+        the diagnosis then fits it that way rather than on the profile's output alone."""
+        return cls.fit_in_chain.__func__ is not Effect.fit_in_chain.__func__  # type: ignore[attr-defined]
 
     @classmethod
     def draws_only_noise(cls) -> bool:

@@ -15,9 +15,11 @@ References:
 from __future__ import annotations
 
 import torch
+import torch.nn.functional as F
 from torch import Tensor
 
 from camdegrade.functional._utils import apply_float, check_image
+from camdegrade.functional.resolution import sensor_size
 
 __all__ = [
     "code_histogram",
@@ -37,12 +39,20 @@ def uniform_codebook(levels: int, dtype: torch.dtype = torch.float32) -> Tensor:
     return torch.linspace(0.0, 1.0, levels, dtype=dtype).expand(3, levels).clone()
 
 
-def quantize_image(image: Tensor, codebook: Tensor) -> Tensor:
-    """Each value of channel ``c`` replaced by the nearest value of ``codebook[c]``.
+def quantize_image(image: Tensor, codebook: Tensor, scale: float = 1.0) -> Tensor:
+    """Each value of channel ``c`` replaced by the nearest value of ``codebook[c]``; with ``scale`` below 1, on a
+    grid of ``scale`` of the image's resolution (a buffer before an upscale): the image's error to its quantized
+    self at that resolution, upsampled, is added to it (clipped to [0, 1]).
+
+    On a grid, ``x + up(Q(down x) − down x)``: a flat region comes out as its quantized value, as the camera's does
+    (``up(Q(d))`` of its buffer ``d``), and the steps between levels come out as smooth as the upscale makes them,
+    while the image's content (already upscaled by a ``resolution`` stage before it) is kept. ``down`` and ``up``
+    are those of :func:`~camdegrade.functional.resolution.resolution_image` (bilinear antialiased, bicubic).
 
     Args:
         image: ``[..., 3, H, W]`` uint8 or float in [0, 1].
         codebook: ``(3, L)`` levels per channel, non-decreasing along ``L`` (``L`` at least 1).
+        scale: the grid's resolution relative to the image's, in (0, 1] (1: every pixel).
 
     Examples:
         >>> image = torch.tensor([0.1, 0.3, 0.8]).reshape(1, 3, 1, 1).expand(1, 3, 2, 2)
@@ -55,16 +65,29 @@ def quantize_image(image: Tensor, codebook: Tensor) -> Tensor:
         raise ValueError(f"codebook must have shape (3, L) with L >= 1, got {shape}")
     if bool((codebook[:, 1:] < codebook[:, :-1]).any()):
         raise ValueError("codebook must be non-decreasing along each channel's levels")
+    if not 0.0 < float(scale) <= 1.0:
+        raise ValueError(f"scale must be in (0, 1], got scale={scale!r}")
+    height, width = image.shape[-2:]
+    low = sensor_size(height, width, float(scale))
+    if low == (height, width):
+        return apply_float(image, lambda x: _snapped(x, codebook))
 
-    def kernel(x: Tensor) -> Tensor:
-        levels = codebook.to(device=x.device, dtype=x.dtype)
-        thresholds = (levels[:, 1:] + levels[:, :-1]) / 2
-        channels = x.movedim(-3, 0).reshape(3, -1).contiguous()
-        index = torch.searchsorted(thresholds.contiguous(), channels)
-        snapped = torch.gather(levels, 1, index)
-        return snapped.reshape(x.movedim(-3, 0).shape).movedim(0, -3)
+    def on_grid(x: Tensor) -> Tensor:
+        flat = x.reshape(-1, *x.shape[-3:])
+        sampled = F.interpolate(flat, size=low, mode="bilinear", antialias=True, align_corners=False)
+        error = F.interpolate(_snapped(sampled, codebook) - sampled, size=(height, width), mode="bicubic")
+        return (flat + error).clamp(0.0, 1.0).reshape(x.shape)
 
-    return apply_float(image, kernel)
+    return apply_float(image, on_grid)
+
+
+def _snapped(x: Tensor, codebook: Tensor) -> Tensor:
+    """Float values ``[..., 3, H, W]`` replaced by their nearest levels (thresholds halfway between levels)."""
+    levels = codebook.to(device=x.device, dtype=x.dtype)
+    thresholds = (levels[:, 1:] + levels[:, :-1]) / 2
+    channels = x.movedim(-3, 0).reshape(3, -1).contiguous()
+    index = torch.searchsorted(thresholds.contiguous(), channels)
+    return torch.gather(levels, 1, index).reshape(x.movedim(-3, 0).shape).movedim(0, -3)
 
 
 #: Codes either side of a code that its local mean covers (a window of 9 codes: a comb of a 5-bit buffer has one
