@@ -91,14 +91,22 @@ class Bound:
 
 @dataclass(frozen=True)
 class Setting:
-    """One config key: its JSON type (``bool``, ``int`` or ``float``: any number), its default and its range."""
+    """One config key: its JSON type (``bool``, ``int``, ``float``: any number, or ``str``), its default and its
+    range (its choices)."""
 
     kind: type
     default: Any
     bound: Bound | None = None
+    #: For a ``str`` setting: the values it may take.
+    choices: tuple[str, ...] = ()
 
     def check(self, key: str, value: Any) -> None:
-        """Raise ``TypeError`` for a value of another JSON type, ``ValueError`` for one out of range."""
+        """Raise ``TypeError`` for a value of another JSON type, ``ValueError`` for one out of range (a ``str``
+        setting: ``ValueError`` for anything but one of its choices)."""
+        if self.kind is str:
+            if not isinstance(value, str) or value not in self.choices:
+                raise ValueError(f"{key} must be one of {self.choices}, got {key}={short_repr(value)}")
+            return
         if self.kind is bool:
             if not isinstance(value, bool):
                 raise TypeError(f"config {key!r} must be true or false, got {json_value(value)}")
@@ -226,6 +234,8 @@ def _scalars(bound: Bound | None, *names: str) -> dict[str, Buffer]:
 
 
 _UNIT = Bound(0.0, 1.0)
+#: camdegrade.functional.resolution.UPSAMPLERS (this module imports no torch).
+RESOLUTION_UPSAMPLERS = ("bicubic", "bilinear", "catmull_rom", "lanczos", "box", "nearest")
 _LINEAR = Setting(bool, True)
 _NOISE_LEVEL = Bound(0.0, 1.0)  # Noise.MAX_LEVEL
 
@@ -308,7 +318,7 @@ BUILT_IN: dict[str, EffectFacts] = {
     ),
     "resolution": EffectFacts(
         "isp",
-        {},
+        {"upsample": Setting(str, "bicubic", choices=RESOLUTION_UPSAMPLERS)},
         {"scale": Buffer(bound=Bound(0.125, 1.0))},  # Resolution.MIN_SCALE
     ),
     "noise": EffectFacts(
