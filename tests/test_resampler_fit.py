@@ -43,13 +43,11 @@ def test_each_kernel_is_pils(kernel: str, size: tuple[int, int]) -> None:
 
 def test_the_default_kernels_are_unchanged() -> None:
     """bicubic and bilinear stay torch's interpolation (profiles saved before keep their look)."""
-    image = photo()[None]
-    expected = torch.nn.functional.interpolate(
-        torch.nn.functional.interpolate(image, size=(16, 16), mode="bilinear", antialias=True),
-        size=(32, 32),
-        mode="bicubic",
-    ).clamp(0, 1)
-    assert torch.equal(resolution_image(photo(long_side=32)[None], 0.5), expected) or image.shape[-1] != 32
+    image = photo(long_side=32)[None, :, :32, :32]
+    for upsample in ("bicubic", "bilinear"):
+        sampled = torch.nn.functional.interpolate(image, size=(16, 16), mode="bilinear", antialias=True)
+        expected = torch.nn.functional.interpolate(sampled, size=(32, 32), mode=upsample).clamp(0, 1)
+        assert torch.equal(resolution_image(image, 0.5, upsample), expected)
     assert Resolution(0.5).upsample == "bicubic" and Resolution.from_config({}).upsample == "bicubic"
     with pytest.raises(ValueError, match=r"upsample must be one of .*, got upsample='cubic'"):
         Resolution(0.5, "cubic")
@@ -62,3 +60,45 @@ def test_fit_is_exact_on_its_own_kernels(upsample: str) -> None:
     fitted = Resolution.fit(sources, targets)
     assert float(fitted.scale) == 0.5
     assert fitted.upsample == upsample or {fitted.upsample, upsample} == {"box", "nearest"}
+
+
+def _foreign_pairs(sensor: str, scale: float, zoom: str) -> tuple[list[torch.Tensor], list[torch.Tensor]]:
+    """Clean scenes and a foreign sensor of ``scale`` of their pixels (PIL ``sensor``) zoomed back (PIL ``zoom``),
+    float, no noise (tests/foreign_cameras' resampler)."""
+    from foreign_cameras import scenes
+    from foreign_cameras.sensor import resize
+
+    sources, targets = [], []
+    for clean in scenes(4, 96, seed=5):
+        x = clean.astype(np.float64) / 255
+        low = resize(x, (round(96 * scale), round(96 * scale)), sensor)
+        y = np.clip(resize(low, (96, 96), zoom), 0, 1)
+        sources.append(torch.from_numpy(x.transpose(2, 0, 1).copy()).float())
+        targets.append(torch.from_numpy(y.transpose(2, 0, 1).copy()).float())
+    return sources, targets
+
+
+@pytest.mark.parametrize(
+    ("sensor", "scale", "zoom", "named"),
+    [
+        # A bilinear sensor (the stage's own reduction): PIL's kernel named, its bicubic as Keys' a = −0.5.
+        ("bilinear", 2 / 3, "bilinear", {"bilinear"}),
+        ("bilinear", 2 / 3, "bicubic", {"catmull_rom"}),
+        ("bilinear", 2 / 3, "lanczos", {"lanczos"}),
+        # PIL's box upscale by 1.5 is pixel replication (our nearest); PIL's nearest at 1.5 replicates other pixels
+        # (its rounding of the centres), which no kernel here matches: the fit takes the cubic.
+        ("bilinear", 2 / 3, "box", {"nearest"}),
+        ("bilinear", 2 / 3, "nearest", {"catmull_rom"}),
+        # A box sensor (each pixel integrates its area): the stage's bilinear reduction blurs more, and the fit
+        # takes a sharper kernel than PIL's (bilinear read as catmull_rom, bicubic as lanczos); box and nearest are
+        # one kernel at 2×.
+        ("box", 1 / 2, "bilinear", {"catmull_rom"}),
+        ("box", 1 / 2, "bicubic", {"lanczos"}),
+        ("box", 1 / 2, "lanczos", {"lanczos"}),
+        ("box", 1 / 2, "nearest", {"box", "nearest"}),
+        ("box", 1 / 2, "box", {"box", "nearest"}),
+    ],
+)
+def test_fit_names_the_kernel_of_a_foreign_zoom(sensor: str, scale: float, zoom: str, named: set[str]) -> None:
+    fitted = Resolution.fit(*_foreign_pairs(sensor, scale, zoom))
+    assert float(fitted.scale) == pytest.approx(scale, abs=1e-6) and fitted.upsample in named
