@@ -142,7 +142,8 @@ def skipped_runs(histogram: Tensor) -> Tensor:
 def histogram_peaks(histogram: Tensor, radius: int = 2) -> Tensor:
     """The levels a histogram of 8-bit codes (``(256,)``) is combed to, in [0, 1], ascending: the codes holding the
     most pixels within ``radius`` codes and at least half their local mean (and 10 pixels); of two closer than half
-    the median spacing, the fuller; continued beyond the lowest and highest at their end spacings to 0 and 1."""
+    the median spacing, the fuller; a gap over 1.5 times the spacing around it (a level too few pixels fell on)
+    filled with evenly spaced levels; continued beyond the lowest and highest at their end spacings to 0 and 1."""
     histogram = histogram.double()
     window = torch.nn.functional.max_pool1d(histogram[None, None], 2 * radius + 1, 1, radius)[0, 0]
     peak = (histogram >= window) & (histogram >= 0.5 * local_mean(histogram)) & (histogram >= 10)
@@ -156,7 +157,20 @@ def histogram_peaks(histogram: Tensor, radius: int = 2) -> Tensor:
             kept.append(code)
         elif histogram[code] > histogram[kept[-1]]:
             kept[-1] = code
-    return _continued(torch.tensor(kept, dtype=torch.float64) / 255.0)
+    return _continued(_gaps_filled(torch.tensor(kept, dtype=torch.float64)) / 255.0)
+
+
+def _gaps_filled(levels: Tensor, neighbours: int = 3) -> Tensor:
+    """``levels`` with every gap over 1.5 times the median of the ``neighbours`` gaps either side of it split into
+    that many even steps (a tone curve's spacing changes slowly from level to level)."""
+    gaps = levels.diff()
+    filled = [levels[:1]]
+    for index, gap in enumerate(gaps.tolist()):
+        around = torch.cat([gaps[max(0, index - neighbours) : index], gaps[index + 1 : index + 1 + neighbours]])
+        local = float(around.median()) if around.numel() else gap
+        steps = max(1, round(gap / local)) if gap > 1.5 * local else 1
+        filled.append(levels[index] + gap * torch.arange(1, steps + 1, dtype=levels.dtype) / steps)
+    return torch.cat(filled)
 
 
 def _continued(levels: Tensor) -> Tensor:

@@ -33,9 +33,11 @@ class Comb(PairedFamily):
     (local mean: 9 codes): 0 smooth, 0.2 for an 8-bit buffer through a contrast table, 1.7 for a 5-bit buffer."""
 
     name = "comb"
-    tau = 0.1
-    unit = "histogram comb"
-    description = "comb of the 8-bit code histogram: Σ|h − mean of 9 codes| / Σ mean, per channel, all pixels"
+    #: On the log scale (:meth:`compare`): a comb 1.5× another's is one unit. The Poisson scatter of the counts
+    #: alone combs a histogram by 0.02–0.04 (at 12 pairs of 128²), real and simulated alike.
+    tau = 0.4
+    unit = "log histogram comb"
+    description = "comb of the 8-bit code histogram: log Σ|h − mean of 9 codes| / Σ mean, per channel, all pixels"
 
     def measure(self, pair: MeasuredPair) -> tuple[Tensor, Tensor]:
         histogram = code_histogram(pair.image)
@@ -45,6 +47,9 @@ class Comb(PairedFamily):
         comb, mean = histogram_comb(num.reshape(3, 256))
         enough = mean >= MIN_MEASURED_CODES * MIN_COUNT
         return torch.where(enough, comb / mean.clamp_min(1e-12), torch.full_like(comb, float("nan")))
+
+    def compare(self, values: Tensor) -> Tensor:
+        return values.clamp_min(1e-3).log()
 
     def describe(self, real: Tensor, sim: Tensor, real_set: StatisticSet) -> str:
         if not bool(torch.isfinite(real).any()):
