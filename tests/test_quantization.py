@@ -72,6 +72,12 @@ def test_kernel_errors_name_the_argument() -> None:
         Quantization(1)
     with pytest.raises(ValueError, match=r"codebook must have shape \(3, 8\), got shape \(3, 4\)"):
         Quantization(8, uniform_codebook(4))
+    with pytest.raises(ValueError, match="codebook must be non-decreasing along each row"):
+        Quantization(3, torch.tensor([[0.0, 0.6, 0.5]] * 3))
+    with pytest.raises(ValueError, match="codebook must be from 0 to 1"):
+        Quantization(2, torch.tensor([[0.0, 1.5]] * 3))
+    with pytest.raises(ValueError, match=r"scale must be from 0\.125 to 1, got scale=0\.1"):
+        Quantization(32, scale=0.1)
 
 
 def test_peaks_and_runs_of_a_combed_histogram() -> None:
