@@ -17,6 +17,7 @@ from camdegrade.effects import (
     Blur,
     ChromaticAberration,
     Color,
+    ColorFilterArray,
     Denoise,
     Distortion,
     Effect,
@@ -65,6 +66,7 @@ _MATRIX = torch.tensor([[1.1, 0.05, 0.0], [0.02, 0.95, 0.03], [0.0, 0.1, 0.85]])
 STRONG = {
     "blur": lambda: Blur(1.5, 0.8, 20.0, 3.0, 45.0, sigma_jitter=0.2),
     "chromatic_aberration": lambda: ChromaticAberration(0.01, -0.01),
+    "cfa": lambda: ColorFilterArray("GRBG", 1.0),
     "color": lambda: Color(_MATRIX, gain_jitter=0.1),
     "distortion": lambda: Distortion(0.1, 0.02),
     "jpeg": lambda: JPEG(40, quality_jitter=10, probability=0.7, mixture={40: 0.5, 70: 0.3, 90: 0.2}),

@@ -252,6 +252,11 @@ BUILT_IN: dict[str, EffectFacts] = {
             "motion_angle": Buffer(),
         },
     ),
+    "cfa": EffectFacts(
+        "sensor",
+        {"pattern": Setting(str, "RGGB", choices=("RGGB", "GRBG", "GBRG", "BGGR"))},  # functional.cfa.PATTERNS
+        {"amount": Buffer(bound=Bound(0.0, 2.0))},  # ColorFilterArray.MAX_AMOUNT
+    ),
     "chromatic_aberration": EffectFacts("optics", {}, _scalars(Bound(-0.1, 0.1), "red", "blue")),
     "color": EffectFacts(
         "isp",

@@ -15,6 +15,7 @@ from camdegrade.effects.base import (
     register_effect,
 )
 from camdegrade.effects.blur import Blur
+from camdegrade.effects.cfa import ColorFilterArray
 from camdegrade.effects.codec import JPEG
 from camdegrade.effects.color import Color, Tone
 from camdegrade.effects.denoise import Denoise
@@ -33,6 +34,7 @@ __all__ = [
     "Blur",
     "ChromaticAberration",
     "Color",
+    "ColorFilterArray",
     "Denoise",
     "Distortion",
     "Effect",
