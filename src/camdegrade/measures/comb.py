@@ -9,7 +9,7 @@ pairs, each code's local mean at least :data:`~camdegrade.functional.quantizatio
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, ClassVar
 
 import torch
 from torch import Tensor
@@ -33,9 +33,11 @@ class Comb(PairedFamily):
     (local mean: 9 codes): 0 smooth, 0.2 for an 8-bit buffer through a contrast table, 1.7 for a 5-bit buffer."""
 
     name = "comb"
-    #: On the log scale (:meth:`compare`): a comb 1.5× another's is one unit. The Poisson scatter of the counts
-    #: alone combs a histogram by 0.02–0.04 (at 12 pairs of 128²), real and simulated alike.
+    #: On the log scale (:meth:`compare`): a comb 1.5× another's is one unit.
     tau = 0.4
+    #: Combs below this are compared as this: the Poisson scatter of the counts alone combs a histogram by 0.02–0.05
+    #: (12–40 pairs of 96²–128²), and on the log scale its chance differences would count for up to a unit.
+    FLOOR: ClassVar[float] = 0.05
     unit = "log histogram comb"
     description = "comb of the 8-bit code histogram: log Σ|h − mean of 9 codes| / Σ mean, per channel, all pixels"
 
@@ -49,7 +51,7 @@ class Comb(PairedFamily):
         return torch.where(enough, comb / mean.clamp_min(1e-12), torch.full_like(comb, float("nan")))
 
     def compare(self, values: Tensor) -> Tensor:
-        return values.clamp_min(1e-3).log()
+        return values.clamp_min(self.FLOOR).log()
 
     def describe(self, real: Tensor, sim: Tensor, real_set: StatisticSet) -> str:
         if not bool(torch.isfinite(real).any()):
