@@ -83,7 +83,7 @@ def test_scaled_and_magnitude() -> None:
         (lambda: Resolution(0.0), "scale must be from 0.125 to 1"),
         (lambda: Resolution(1.5), "scale must be from 0.125 to 1"),
         (lambda: resolution_image(torch.rand(3, 8, 8), 0.0), r"scale must be in \(0, 1\], got scale=0.0"),
-        (lambda: resolution_image(torch.rand(3, 8, 8), 0.5, "nearest"), "upsample must be one of"),
+        (lambda: resolution_image(torch.rand(3, 8, 8), 0.5, "cubic"), "upsample must be one of"),
         (lambda: resampling_trace([]), "images must hold at least one image"),
         (lambda: resampling_trace([torch.rand(3, 8, 40)]), "images must be at least 16x16 pixels, got 8x40"),
         (lambda: resampling_trace(leaves(1), reference=[]), "reference must hold at least one image"),

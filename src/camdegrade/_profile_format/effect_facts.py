@@ -91,14 +91,22 @@ class Bound:
 
 @dataclass(frozen=True)
 class Setting:
-    """One config key: its JSON type (``bool``, ``int`` or ``float``: any number), its default and its range."""
+    """One config key: its JSON type (``bool``, ``int``, ``float``: any number, or ``str``), its default and its
+    range (its choices)."""
 
     kind: type
     default: Any
     bound: Bound | None = None
+    #: For a ``str`` setting: the values it may take.
+    choices: tuple[str, ...] = ()
 
     def check(self, key: str, value: Any) -> None:
-        """Raise ``TypeError`` for a value of another JSON type, ``ValueError`` for one out of range."""
+        """Raise ``TypeError`` for a value of another JSON type, ``ValueError`` for one out of range (a ``str``
+        setting: ``ValueError`` for anything but one of its choices)."""
+        if self.kind is str:
+            if not isinstance(value, str) or value not in self.choices:
+                raise ValueError(f"{key} must be one of {self.choices}, got {key}={short_repr(value)}")
+            return
         if self.kind is bool:
             if not isinstance(value, bool):
                 raise TypeError(f"config {key!r} must be true or false, got {json_value(value)}")
@@ -214,11 +222,20 @@ def _weights_sum_to_one(values: Mapping[str, Any]) -> str | None:
     return f"mixture_weights must sum to 1, got a sum of {total:.6g}"
 
 
+def _rows_non_decreasing(values: Mapping[str, Any]) -> str | None:
+    codebook = values["codebook"]
+    if bool((codebook[:, 1:] >= codebook[:, :-1]).all()):
+        return None
+    return f"codebook must be non-decreasing along each row, got codebook={shown(codebook)}"
+
+
 def _scalars(bound: Bound | None, *names: str) -> dict[str, Buffer]:
     return {name: Buffer((), bound=bound) for name in names}
 
 
 _UNIT = Bound(0.0, 1.0)
+#: camdegrade.functional.sensor.resolution.UPSAMPLERS (this module imports no torch).
+RESOLUTION_UPSAMPLERS = ("bicubic", "bilinear", "catmull_rom", "lanczos", "box", "nearest")
 _LINEAR = Setting(bool, True)
 _NOISE_LEVEL = Bound(0.0, 1.0)  # Noise.MAX_LEVEL
 
@@ -234,6 +251,11 @@ BUILT_IN: dict[str, EffectFacts] = {
             "motion_length": Buffer(bound=Bound(0.0, 128.0)),
             "motion_angle": Buffer(),
         },
+    ),
+    "cfa": EffectFacts(
+        "sensor",
+        {"pattern": Setting(str, "RGGB", choices=("RGGB", "GRBG", "GBRG", "BGGR"))},  # functional.cfa.PATTERNS
+        {"amount": Buffer(bound=Bound(0.0, 2.0))},  # ColorFilterArray.MAX_AMOUNT
     ),
     "chromatic_aberration": EffectFacts("optics", {}, _scalars(Bound(-0.1, 0.1), "red", "blue")),
     "color": EffectFacts(
@@ -293,9 +315,15 @@ BUILT_IN: dict[str, EffectFacts] = {
         {"knots": Setting(int, 11, Bound(2, 64, integer=True))},  # FrequencyResponse: DEFAULT_KNOTS, MAX_KNOTS
         {"gains": Buffer(("knots", "knots"), bound=Bound(0.0, 8.0))},  # FrequencyResponse.MAX_GAIN
     ),
+    "quantization": EffectFacts(
+        "isp",
+        {"levels": Setting(int, 256, Bound(2, 256, integer=True))},  # Quantization.MAX_LEVELS
+        {"codebook": Buffer((3, "levels"), bound=_UNIT), "scale": Buffer(bound=Bound(0.125, 1.0))},
+        value_rules=(_rows_non_decreasing,),
+    ),
     "resolution": EffectFacts(
         "isp",
-        {},
+        {"upsample": Setting(str, "bicubic", choices=RESOLUTION_UPSAMPLERS)},
         {"scale": Buffer(bound=Bound(0.125, 1.0))},  # Resolution.MIN_SCALE
     ),
     "noise": EffectFacts(

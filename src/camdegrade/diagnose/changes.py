@@ -145,7 +145,7 @@ class AddEffect(ChangeKind):
 
     def make(self, round_: Round, target: Any) -> Made:
         cls = EFFECTS[target]
-        if cls.draws_only_noise():
+        if cls.draws_only_noise() or cls.calibrates_in_chain():
             effect = round_.search.fit_in_chain(round_.current, cls)
         else:
             fitted = cls.fit_within_budget(round_.sources(), round_.search.reals)
@@ -195,7 +195,7 @@ class RefitStage(ChangeKind):
     def make(self, round_: Round, target: Any) -> Made:
         stage = round_.current.effects[target]
         rest = without_stage(round_.current, target)
-        if type(stage).draws_only_noise():
+        if type(stage).draws_only_noise() or type(stage).calibrates_in_chain():
             options = [round_.search.fit_in_chain(rest, type(stage))]
         else:
             fresh = EFFECTS[stage.name].fit_within_budget(round_.sources(rest), round_.search.reals)

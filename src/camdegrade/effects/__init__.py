@@ -15,7 +15,8 @@ from camdegrade.effects.base import (
     register_effect,
 )
 
-# The registry's order is the order of these imports (every vocabulary listing and report follows it): keep it.
+# The registry's order is the order of these imports (every vocabulary listing and report follows it): keep it,
+# and add a new effect at the end.
 # isort: off
 from camdegrade.effects.optics.blur import Blur
 from camdegrade.effects.codec.jpeg import JPEG
@@ -27,6 +28,8 @@ from camdegrade.effects.sensor.noise import Noise
 from camdegrade.effects.isp.resolution import Resolution
 from camdegrade.effects.isp.response import FrequencyResponse
 from camdegrade.effects.isp.sharpen import Sharpen
+from camdegrade.effects.sensor.cfa import ColorFilterArray
+from camdegrade.effects.isp.quantization import Quantization
 # isort: on
 
 __all__ = [
@@ -36,6 +39,7 @@ __all__ = [
     "Blur",
     "ChromaticAberration",
     "Color",
+    "ColorFilterArray",
     "Denoise",
     "Distortion",
     "Effect",
@@ -44,6 +48,7 @@ __all__ = [
     "Misalignment",
     "Noise",
     "Pairs",
+    "Quantization",
     "Resolution",
     "Sharpen",
     "Tone",

@@ -229,6 +229,12 @@ class Effect(nn.Module):
         return cls.fit(list(sources), list(targets), **cls.fit_options(list(sources)))
 
     @classmethod
+    def calibrates_in_chain(cls) -> bool:
+        """Whether :meth:`fit_in_chain` is its own (it calibrates through the stages after it, by simulating them):
+        the diagnosis then fits it that way rather than on the profile's output alone."""
+        return cls.fit_in_chain.__func__ is not Effect.fit_in_chain.__func__  # type: ignore[attr-defined]
+
+    @classmethod
     def draws_only_noise(cls) -> bool:
         """Whether stages of this kind only add zero-mean noise: their deterministic centre is nothing
         (:meth:`without_randomness` is ``None``), so they are fitted through the chain (:meth:`fit_in_chain`) and a

@@ -9,7 +9,7 @@ noise) and what a person sees of them, judged against their spread (:mod:`camdeg
 The modules below are imported in the order the families are registered (the order of every report).
 """
 
-from camdegrade.measures.families import spatial, intensity, noise, frequency, blocks, color, alignment  # noqa: F401, I001
+from camdegrade.measures.families import spatial, intensity, noise, frequency, blocks, color, alignment, comb  # noqa: F401, I001
 from camdegrade.measures.families import no_reference  # noqa: F401
 from camdegrade.measures.akld import akld
 from camdegrade.measures.base import (

@@ -17,11 +17,15 @@ import torch
 import torch.nn.functional as F
 
 from camdegrade.functional._utils import apply_float, check_image
+from camdegrade.functional.sensor.resampling import resample_matrix
 
 __all__ = ["UPSAMPLERS", "resolution_image", "sensor_size"]
 
-#: How the ISP brings the sensor's samples back to the output size (``torch.nn.functional.interpolate`` modes).
-UPSAMPLERS: tuple[str, ...] = ("bicubic", "bilinear")
+#: How the ISP brings the sensor's samples back to the output size: ``bicubic`` (Keys, a = −0.75) and ``bilinear``
+#: by ``torch.nn.functional.interpolate``, the others by :mod:`camdegrade.functional.sensor.resampling`
+#: (``catmull_rom``: Keys with a = −0.5, PIL's and OpenCV's bicubic; ``lanczos``: 3 lobes; ``box`` and ``nearest``:
+#: pixel replication, alike at integer factors).
+UPSAMPLERS: tuple[str, ...] = ("bicubic", "bilinear", "catmull_rom", "lanczos", "box", "nearest")
 
 
 def sensor_size(height: int, width: int, scale: float) -> tuple[int, int]:
@@ -36,7 +40,7 @@ def resolution_image(image: torch.Tensor, scale: float, upsample: str = "bicubic
     Args:
         image: ``[..., 3, H, W]`` uint8 or float in [0, 1].
         scale: the sensor's resolution relative to the output, in (0, 1].
-        upsample: one of :data:`UPSAMPLERS`.
+        upsample: one of :data:`UPSAMPLERS` (the ISP's resampling kernel).
 
     Examples:
         >>> image = torch.rand(1, 3, 16, 16, generator=torch.Generator().manual_seed(0))
@@ -58,7 +62,12 @@ def resolution_image(image: torch.Tensor, scale: float, upsample: str = "bicubic
     def kernel(x: torch.Tensor) -> torch.Tensor:
         flat = x.reshape(-1, *x.shape[-3:])
         sampled = F.interpolate(flat, size=low, mode="bilinear", antialias=True, align_corners=False)
-        restored = F.interpolate(sampled, size=(height, width), mode=upsample, align_corners=False)
+        if upsample in ("bicubic", "bilinear"):
+            restored = F.interpolate(sampled, size=(height, width), mode=upsample, align_corners=False)
+        else:
+            rows = resample_matrix(low[0], height, upsample, x.dtype).to(x.device)
+            columns = resample_matrix(low[1], width, upsample, x.dtype).to(x.device)
+            restored = rows @ sampled @ columns.T
         return restored.clamp(0.0, 1.0).reshape(x.shape)
 
     return apply_float(image, kernel)

@@ -1,0 +1,80 @@
+"""Colour filter array kernel: a Bayer mosaic of the image in linear light, demosaiced bilinearly.
+
+A Bayer sensor records one colour per site (a 2×2 tile of red, two greens and blue, in one of four layouts); the
+ISP interpolates the two missing colours at every site. Bilinear demosaicing takes the mean of the nearest sites of
+that colour: green from the 4 edge neighbours at a red or blue site, red and blue from the 2 neighbours at a green
+site and from the 4 diagonal ones at the other colour's site. What it leaves: colour fringes at edges, a softer image
+and, in the error to the scene, a 2×2 phase pattern (nothing at the sites a colour is sampled at:
+:func:`phase_error`).
+
+References:
+    B. E. Bayer, "Color imaging array", US patent 3,971,065, 1976; B. K. Gunturk et al., "Demosaicking: color
+    filter array interpolation", IEEE Signal Processing Magazine 22(1), 2005.
+"""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+
+from camdegrade.functional._utils import apply_float, check_image
+from camdegrade.functional.isp.color import linear_to_srgb, srgb_to_linear
+
+__all__ = ["PATTERNS", "bayer_masks", "demosaic_image", "phase_error"]
+
+#: Bayer layouts: the colour (0 red, 1 green, 2 blue) of the sites (0, 0), (0, 1), (1, 0), (1, 1).
+PATTERNS: dict[str, tuple[int, int, int, int]] = {
+    "RGGB": (0, 1, 1, 2),
+    "GRBG": (1, 0, 2, 1),
+    "GBRG": (1, 2, 0, 1),
+    "BGGR": (2, 1, 1, 0),
+}
+#: Neighbour weights: green (4 edge neighbours), red and blue (edge and diagonal), the site itself 1.
+_GREEN = torch.tensor([[0.0, 0.25, 0.0], [0.25, 1.0, 0.25], [0.0, 0.25, 0.0]])
+_RED_BLUE = torch.tensor([[0.25, 0.5, 0.25], [0.5, 1.0, 0.5], [0.25, 0.5, 0.25]])
+
+
+def bayer_masks(height: int, width: int, pattern: str) -> Tensor:
+    """``(3, H, W)`` float: 1 where the sensor samples that colour."""
+    if pattern not in PATTERNS:
+        raise ValueError(f"pattern must be one of {tuple(PATTERNS)}, got pattern={pattern!r}")
+    tile = torch.tensor(PATTERNS[pattern]).reshape(2, 2)
+    colours = tile.repeat((height + 1) // 2, (width + 1) // 2)[:height, :width]
+    return (colours[None] == torch.arange(3)[:, None, None]).float()
+
+
+def demosaic_image(image: Tensor, pattern: str = "RGGB") -> Tensor:
+    """``image`` (``[..., 3, H, W]`` sRGB, uint8 or float in [0, 1], H and W at least 2) sampled by a Bayer sensor
+    of ``pattern`` in linear light and demosaiced bilinearly (the borders mirrored, which keeps the layout's
+    phase); the sampled value of each site is kept exactly."""
+    check_image(image)
+    height, width = image.shape[-2:]
+    masks = bayer_masks(height, width, pattern)
+    if min(height, width) < 2:
+        raise ValueError(f"image must be at least 2x2 pixels, got {height}x{width}")
+
+    def kernel(x: Tensor) -> Tensor:
+        flat = srgb_to_linear(x.reshape(-1, 3, height, width))
+        known = masks.to(flat)
+        weights = torch.stack([_RED_BLUE, _GREEN, _RED_BLUE])[:, None].to(flat)
+        summed = F.conv2d(F.pad(flat * known, (1, 1, 1, 1), mode="reflect"), weights, groups=3)
+        count = F.conv2d(F.pad(known[None], (1, 1, 1, 1), mode="reflect"), weights, groups=3)
+        out = torch.where(known > 0, flat, summed / count)
+        return linear_to_srgb(out.clamp(0.0, 1.0)).reshape(x.shape)
+
+    return apply_float(image, kernel)
+
+
+def phase_error(image: Tensor, reference: Tensor) -> Tensor:
+    """``(3, 2, 2)``: the mean squared difference of ``image`` and ``reference`` (``(3, H, W)``, same scale) at each
+    phase of the 2×2 grid, per channel, over its mean. A Bayer camera's error to the scene vanishes at the phases
+    where that colour is sampled (red: one phase of four; green: two on a diagonal), where a blur or noise leaves
+    all four alike (1)."""
+    squared = (image.double() - reference.double()).pow(2)
+    height, width = squared.shape[-2:] if squared.ndim == 3 else (0, 0)
+    if squared.ndim != 3 or squared.shape[0] != 3 or min(height, width) < 2:
+        raise ValueError(f"image must be (3, H, W) with H, W >= 2, got shape {tuple(image.shape)}")
+    squared = squared[:, : height // 2 * 2, : width // 2 * 2]
+    phases = squared.reshape(3, height // 2, 2, width // 2, 2).mean((1, 3))
+    return phases / phases.mean((1, 2), keepdim=True).clamp_min(1e-20)
