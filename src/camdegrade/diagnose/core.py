@@ -12,7 +12,7 @@ from camdegrade._checks import check_seed
 from camdegrade._text import not_an_option
 from camdegrade.diagnose.attribute import Attribution, attribute, check_candidates, keeping
 from camdegrade.diagnose.changes import KINDS, Change, check_kinds, effect_params
-from camdegrade.diagnose.critic_check import CriticCheck, check_changes
+from camdegrade.diagnose.critic_check import CriticCheck, check_changes, uncovered_clause
 from camdegrade.diagnose.critique import CRITIC_CHANCE, Critique, critiques
 from camdegrade.diagnose.report import DiagnosisReport, example_crops, flat_crops
 from camdegrade.diagnose.where import findings, visible
@@ -269,7 +269,7 @@ def _verdict(
             f"{_fraction_closed(result):.0%} of the held-out gap ({baseline.gap:.2f} → {result.gap_after:.2f}; "
             f"noise floor {result.noise_floor:.2f})."
         ) + held_back
-    return text + _seen_clause(seen) + _critic_clause(baseline.significant, critics)
+    return text + uncovered_clause(check) + _seen_clause(seen) + _critic_clause(baseline.significant, critics)
 
 
 def _held_back_clause(check: CriticCheck | None, refit: str) -> str:

@@ -11,6 +11,7 @@ from torch import Tensor
 
 from camdegrade.diagnose.changes import KINDS, Change, Made, Plan, add_effect
 from camdegrade.diagnose.heldout import SIGNIFICANCE, Baseline, HeldOut, ImagePairs
+from camdegrade.diagnose.signature import judge_cause
 from camdegrade.diagnose.strength import refine_strength
 from camdegrade.effects import Effect
 from camdegrade.effects.base import evenly_spaced
@@ -72,7 +73,7 @@ class Search:
             for plan in self.plans(current, adds)
             if plan.kind.kind in self.kinds and (allowed is None or (plan.kind.kind, plan.name) in allowed)
         ]
-        return prefer_simpler(sorted(results, key=lambda change: change.gap_after))
+        return prefer_simpler(sorted(results, key=lambda change: (change.not_a_cause, change.gap_after)))
 
     def plans(self, current: CameraProfile, adds: Sequence[str]) -> list[Plan]:
         """Every change worth trying on ``current``: candidates, then stage by stage, then the network."""
@@ -129,6 +130,7 @@ class Round:
         profile, effect, description = made
         change = self.measured(kind, name, profile, effect)
         change.description = description
+        judge_cause(change, self)
         marker = " *" if change.significant else ""
         said = f" — {description}" if description else ""
         self.say(f"  {change.label}: gap {change.gap_after:.2f} (reduction {change.reduction_text()}){marker}{said}")

@@ -1,0 +1,117 @@
+"""Whether a change's own statistics agree that it is the cause, not only that it lowers the gap.
+
+The gap sums every family, so a change can close it through families its effect does not explain: a network
+fine-tune absorbs a colour cast, a smoothing refit hides noise it does not draw, a tone curve evens out a misfit of
+the profile's other stages. A change names a cause only where the statistics its effect's signature names
+(:attr:`~camdegrade.effects.Effect.explains`; for the network, the families of its own faults,
+:attr:`~camdegrade.measures.Family.network_fault`) say so: at least one of them differs between the simulation and
+the captures beyond the measurement's own noise (the ``where`` rule: above three times its null band and above one
+unit), and the change moves them toward the captures by a significant amount (the rule every reduction is held
+to: above three bootstrap standard errors, over the held-out pairs, and the smallest reduction that can count) that
+is most of what it takes off the gap (the rest is a side effect, not evidence). A change that fails is kept in the
+ranking, marked (:attr:`Agreement.agrees` false, said in its description), and never accepted.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import torch
+
+from camdegrade.diagnose.heldout import MIN_REDUCTION, SIGNIFICANCE, HeldOut
+from camdegrade.effects import EFFECTS
+from camdegrade.measures import FAMILIES, StatisticSet, family_gaps
+
+if TYPE_CHECKING:
+    from camdegrade.diagnose.changes import Change
+    from camdegrade.diagnose.search import Round
+
+__all__ = ["OWN_SHARE", "Agreement", "agreement", "judge_cause", "own_families"]
+
+#: A change's own families must carry at least this share of the gap it closes (most of it).
+OWN_SHARE = 0.5
+
+
+def own_families(kind: str, name: str) -> tuple[str, ...]:
+    """The families whose signature the change names: its effect's (add, remove, refit) or the network's faults."""
+    if kind == "network":
+        return tuple(family for family, cls in FAMILIES.items() if cls.network_fault)
+    return tuple(family for family in EFFECTS[name].explains if family in FAMILIES)
+
+
+@dataclass
+class Agreement:
+    """What the change's own families say: which of them differ significantly before it (``differing``), by how
+    much it lowers their summed score (``reduction`` ± ``se``), against the whole gap's ``total``."""
+
+    families: tuple[str, ...]
+    differing: tuple[str, ...]
+    reduction: float
+    se: float
+    total: float
+
+    @property
+    def agrees(self) -> bool:
+        moved = self.reduction > max(SIGNIFICANCE * self.se, MIN_REDUCTION) if math.isfinite(self.se) else False
+        return bool(self.differing) and moved and self.reduction >= OWN_SHARE * self.total
+
+    def describe(self) -> str:
+        """Why it is not a cause, in words (empty when it agrees)."""
+        if self.agrees:
+            return ""
+        own = ", ".join(self.families) or "none"
+        if not self.differing:
+            return f"not a cause: its own statistics ({own}) match the camera already"
+        return (
+            f"not a cause: it lowers its own statistics ({own}) by {self.reduction:+.2f} ± {self.se:.2f} of the "
+            f"{self.total:.2f} it takes off the gap"
+        )
+
+
+def agreement(change: Change, round_: Round) -> Agreement:
+    """The change's own families before it (the round's profile) and after it, on the held-out pairs."""
+    held, baseline = round_.search.held, round_.search.baseline
+    families = own_families(change.kind, change.name)
+    before = family_gaps(held.real, round_.stats, scale=held.scale)
+    nulls = baseline.null_families
+    differing = tuple(f for f in families if before[f] > max(3 * nulls.get(f, 0.0), 1.0))
+    after = change.families
+    reduction = sum(before[f] - after[f] for f in families)
+    se = _own_spread(held, round_.stats, change.stats, families) if differing and change.stats is not None else math.nan
+    return Agreement(families, differing, reduction, se, change.reduction)
+
+
+def _own_spread(held: HeldOut, before: StatisticSet, after: StatisticSet, families: tuple[str, ...]) -> float:
+    """The bootstrap standard error (over the held-out pairs) of the own families' reduction."""
+    first = _resampled(held, before)
+    second = [family_gaps(held.real, after, index, held.scale) for index in held.indices]
+    return float(torch.tensor([sum(a[f] - b[f] for f in families) for a, b in zip(first, second)]).std())
+
+
+#: The family scores of the last profile a round measured changes on, on every resample (a round judges all its
+#: changes against one profile).
+_RESAMPLED: dict[tuple[int, int], tuple[StatisticSet, list[dict[str, float]]]] = {}
+
+
+def _resampled(held: HeldOut, stats: StatisticSet) -> list[dict[str, float]]:
+    key = (id(held), id(stats))
+    cached = _RESAMPLED.get(key)
+    if cached is None or cached[0] is not stats:
+        _RESAMPLED.clear()
+        cached = stats, [family_gaps(held.real, stats, index, held.scale) for index in held.indices]
+        _RESAMPLED[key] = cached
+    return cached[1]
+
+
+def judge_cause(change: Change, round_: Round) -> None:
+    """Mark a significant ``change`` whose own statistics do not agree (see the module) as not significant, and say
+    why in its description; it then ranks after the changes that name a cause (:attr:`Change.not_a_cause`)."""
+    if not change.significant:
+        return
+    verdict = agreement(change, round_)
+    if verdict.agrees:
+        return
+    change.significant, change.not_a_cause = False, True
+    change.description = "; ".join(part for part in (change.description, verdict.describe()) if part)
