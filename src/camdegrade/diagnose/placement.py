@@ -7,7 +7,8 @@ that changes the transfer function, ``"frequency"`` in its :attr:`~camdegrade.ef
 candidate's own signature is a pattern at the pixel scale (the noise's correlation with the next pixel, the 8×8
 block edges): through such a stage white noise comes out correlated and upsampled, block edges smoothed. Between two
 places with no mixing stage in between, the candidate looks the same; so the chain is cut at its mixing stages into
-segments and the candidate is tried once in each segment, at the place nearest its own (:func:`placements`).
+segments and the candidate is tried once in each segment, at the place nearest its own (:func:`placements`). Light
+reaches the sensor through the optics: a stage of the sensor or later is never put before an optics stage.
 
 Placed elsewhere than at its stage, the candidate is added beside the profile's stages of its kind (a second noise
 source after the resize, the sensor's noise kept), never in place of them: the camera has both.
@@ -100,16 +101,20 @@ def placements(profile: CameraProfile, name: str) -> list[Placement]:
     own = _segment(replaced, _own_place(replaced, kind))
     taken = {own} | {_segment(chain, i) for i, effect in enumerate(chain) if type(effect) is kind}
     cuts = [i for i, effect in enumerate(chain) if mixes_pixels(effect)]
+    optics = [i + 1 for i, effect in enumerate(chain) if effect.stage == "optics"]
+    earliest = max(optics) if kind.stage != "optics" and optics else 0
     out = []
     for segment in range(len(cuts) + 1):
         if segment in taken:
             continue
         if segment > own:  # later than its own place: right after the mixing stage that opens the segment
             cut = cuts[segment - 1]
-            out.append(Placement(name, cut + 1, after=chain[cut].name))
+            place = Placement(name, cut + 1, after=chain[cut].name)
         else:  # earlier: right before the mixing stage that closes the segment
             cut = cuts[segment]
-            out.append(Placement(name, cut, before=chain[cut].name))
+            place = Placement(name, cut, before=chain[cut].name)
+        if place.index >= earliest:
+            out.append(place)
     return out
 
 

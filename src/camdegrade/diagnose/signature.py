@@ -6,10 +6,12 @@ the profile's other stages. A change names a cause only where the statistics its
 (:attr:`~camdegrade.effects.Effect.explains`; for the network, the families of its own faults,
 :attr:`~camdegrade.measures.Family.network_fault`) say so: at least one of them differs between the simulation and
 the captures beyond the measurement's own noise (the ``where`` rule: above three times its null band and above one
-unit), and the change moves them toward the captures by a significant amount (the rule every reduction is held
-to: above three bootstrap standard errors, over the held-out pairs, and the smallest reduction that can count) that
-is most of what it takes off the gap (the rest is a side effect, not evidence). A change that fails is kept in the
-ranking, marked (:attr:`Agreement.agrees` false, said in its description), and never accepted.
+unit), and the change moves them toward the captures by as much as any reduction must be to count (the rule the
+whole gap's reduction is held to, :mod:`camdegrade.diagnose.search`: above three bootstrap standard errors over the
+held-out pairs and above the smallest reduction that can count on that gap). What it takes off the other families is
+a side effect, not evidence: an effect moves more than its signature (a vignetting's dark corners lower the tone
+residual of every bin too), so the other families neither count for nor against it. A change that fails is kept in
+the ranking, marked (:attr:`Agreement.agrees` false, said in its description), and never accepted.
 """
 
 from __future__ import annotations
@@ -28,10 +30,7 @@ if TYPE_CHECKING:
     from camdegrade.diagnose.changes import Change
     from camdegrade.diagnose.search import Round
 
-__all__ = ["OWN_SHARE", "Agreement", "agreement", "judge_cause", "own_families"]
-
-#: A change's own families must carry at least this share of the gap it closes (most of it).
-OWN_SHARE = 0.5
+__all__ = ["Agreement", "agreement", "judge_cause", "own_families"]
 
 
 def own_families(kind: str, name: str) -> tuple[str, ...]:
@@ -44,18 +43,20 @@ def own_families(kind: str, name: str) -> tuple[str, ...]:
 @dataclass
 class Agreement:
     """What the change's own families say: which of them differ significantly before it (``differing``), by how
-    much it lowers their summed score (``reduction`` ± ``se``), against the whole gap's ``total``."""
+    much it lowers their summed score (``reduction`` ± ``se``), and the smallest reduction that can count where it
+    was tried (``needed``)."""
 
     families: tuple[str, ...]
     differing: tuple[str, ...]
     reduction: float
     se: float
-    total: float
+    needed: float
 
     @property
     def agrees(self) -> bool:
-        moved = self.reduction > max(SIGNIFICANCE * self.se, MIN_REDUCTION) if math.isfinite(self.se) else False
-        return bool(self.differing) and moved and self.reduction >= OWN_SHARE * self.total
+        if not (self.differing and math.isfinite(self.se)):
+            return False
+        return self.reduction > max(SIGNIFICANCE * self.se, self.needed, MIN_REDUCTION)
 
     def describe(self) -> str:
         """Why it is not a cause, in words (empty when it agrees)."""
@@ -65,8 +66,8 @@ class Agreement:
         if not self.differing:
             return f"not a cause: its own statistics ({own}) match the camera already"
         return (
-            f"not a cause: it lowers its own statistics ({own}) by {self.reduction:+.2f} ± {self.se:.2f} of the "
-            f"{self.total:.2f} it takes off the gap"
+            f"not a cause: it lowers its own statistics ({own}) by {self.reduction:+.2f} ± {self.se:.2f}, less than "
+            f"a reduction must be to count ({max(SIGNIFICANCE * self.se, self.needed, MIN_REDUCTION):.2f})"
         )
 
 
@@ -80,7 +81,7 @@ def agreement(change: Change, round_: Round) -> Agreement:
     after = change.families
     reduction = sum(before[f] - after[f] for f in families)
     se = _own_spread(held, round_.stats, change.stats, families) if differing and change.stats is not None else math.nan
-    return Agreement(families, differing, reduction, se, change.reduction)
+    return Agreement(families, differing, reduction, se, change.reduction_needed)
 
 
 def _own_spread(held: HeldOut, before: StatisticSet, after: StatisticSet, families: tuple[str, ...]) -> float:
