@@ -14,7 +14,7 @@ from camdegrade.diagnose import diagnose
 from camdegrade.diagnose.changes import KINDS, Change
 from camdegrade.diagnose.heldout import Baseline, HeldOut
 from camdegrade.diagnose.placement import Placement, placements
-from camdegrade.diagnose.signature import Agreement, judge_cause, own_families
+from camdegrade.diagnose.signature import Agreement, judge_cause, not_a_cause_clause, own_families
 from camdegrade.effects import Blur, Color, Noise, Resolution, Sharpen, Vignetting
 from camdegrade.measures import family_gaps
 from camdegrade.profile import CameraProfile
@@ -101,6 +101,9 @@ def test_a_refit_that_lowers_the_gap_through_statistics_it_does_not_explain_is_n
     assert not refit.significant and refit.not_a_cause
     assert "not a cause: its own statistics (frequency) match the camera already" in refit.description
     assert add.significant and not add.not_a_cause and add.description == ""
+    clause = not_a_cause_clause([add, refit])
+    assert clause.startswith(" Lowering the gap without naming its cause: refit sharpen (gap −"), clause
+    assert clause.count("not a cause") == 1 and not_a_cause_clause([add]) == ""
     assert own_families("network", "network") == ("frequency", "blocks")
 
 

@@ -15,6 +15,7 @@ from camdegrade.diagnose.changes import KINDS, Change, check_kinds, effect_param
 from camdegrade.diagnose.critic_check import CriticCheck, check_changes, uncovered_clause
 from camdegrade.diagnose.critique import CRITIC_CHANCE, Critique, critiques
 from camdegrade.diagnose.report import DiagnosisReport, example_crops, flat_crops
+from camdegrade.diagnose.signature import not_a_cause_clause
 from camdegrade.diagnose.where import findings, visible
 from camdegrade.errors import PairsError
 from camdegrade.measures import check_explains
@@ -257,7 +258,7 @@ def _verdict(
         text = (
             f"Unexplained gap: {baseline.gap:.2f} (noise floor {result.noise_floor:.2f}), mostly in "
             f"{where[0]['axis']}; no change to the profile closes a significant part of it."
-        )
+        ) + not_a_cause_clause(result.singles)
     else:
         text = " ".join(
             _finding_sentence(misfit, changes, refit)

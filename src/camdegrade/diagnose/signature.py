@@ -30,7 +30,7 @@ if TYPE_CHECKING:
     from camdegrade.diagnose.changes import Change
     from camdegrade.diagnose.search import Round
 
-__all__ = ["Agreement", "agreement", "judge_cause", "own_families"]
+__all__ = ["Agreement", "agreement", "judge_cause", "not_a_cause_clause", "own_families"]
 
 
 def own_families(kind: str, name: str) -> tuple[str, ...]:
@@ -116,3 +116,13 @@ def judge_cause(change: Change, round_: Round) -> None:
         return
     change.significant, change.not_a_cause = False, True
     change.description = "; ".join(part for part in (change.description, verdict.describe()) if part)
+
+
+def not_a_cause_clause(changes: list[Change]) -> str:
+    """The changes that lower the gap significantly but are not a cause, in words (for a verdict that accepts
+    nothing), or nothing."""
+    named = [change for change in changes if change.not_a_cause]
+    if not named:
+        return ""
+    said = "; ".join(f"{change.label} (gap −{change.reduction:.2f}): {change.description}" for change in named)
+    return f" Lowering the gap without naming its cause: {said}."
