@@ -46,6 +46,21 @@ def test_noise_is_tried_after_each_stage_that_mixes_pixels_and_a_tone_curve_nowh
     assert placements(CameraProfile(None, [Blur(sigma_x=1.0), Noise(a=0.0004)]), "jpeg") == []  # not before the lens
 
 
+def test_a_place_stays_when_a_change_removes_the_stage_it_followed() -> None:
+    """A phone's profile: the sensor's noise, then a sharpening. Noise after the sharpening is tried; once a change
+    removes the sharpening (the camera lacks it), that place is still tried, at the end of the chain, beside the
+    sensor's noise; a codec's place before the sharpening is then its own, not tried twice."""
+    diagnosed = CameraProfile(None, [Noise(a=0.0004), Sharpen(1.0, 0.5)])
+    assert placements(diagnosed, "noise") == [Placement("noise", 2, after="sharpen")]
+    current = CameraProfile(None, [Noise(a=0.0004)])
+    assert placements(current, "noise") == []
+    (moved,) = placements(current, "noise", diagnosed)
+    assert moved == Placement("noise", 1, after="noise", was_after="sharpen")
+    assert moved.where == "after noise, where sharpen was"
+    assert placements(current, "jpeg", diagnosed) == []
+    assert placements(_webcam(), "noise", _webcam()) == placements(_webcam(), "noise")
+
+
 def test_a_placed_candidate_is_added_beside_the_stages_it_follows_and_the_profile_saves_and_loads(tmp_path) -> None:
     """The second noise source after the upscale keeps the sensor's; the add plans carry it although the profile
     has a noise stage already; the profile with it saves and loads back in that order."""

@@ -145,13 +145,19 @@ class AddEffect(ChangeKind):
 
     def plans(self, current: CameraProfile, adds: Sequence[str], axes: set[str]) -> list[Plan]:
         """Each candidate the profile lacks at its stage, and each at the other places in the chain where it would
-        look different (:func:`~camdegrade.diagnose.placement.placements`)."""
+        look different (:func:`~camdegrade.diagnose.placement.placements`; those of the profile as diagnosed are
+        added by :meth:`~camdegrade.diagnose.search.Search.plans`)."""
+        return self.placed_plans(current, adds)
+
+    def placed_plans(
+        self, current: CameraProfile, adds: Sequence[str], diagnosed: CameraProfile | None = None
+    ) -> list[Plan]:
         present = {type(effect) for effect in current.effects}
         own = [Plan(self, name, name, (0, i)) for i, name in enumerate(adds) if EFFECTS[name] not in present]
         placed = [
             Plan(self, name, place, (0, i, j + 1))
             for i, name in enumerate(adds)
-            for j, place in enumerate(placements(current, name))
+            for j, place in enumerate(placements(current, name, diagnosed))
         ]
         return own + placed
 

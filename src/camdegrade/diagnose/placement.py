@@ -12,10 +12,15 @@ reaches the sensor through the optics: a stage of the sensor or later is never p
 
 Placed elsewhere than at its stage, the candidate is added beside the profile's stages of its kind (a second noise
 source after the resize, the sensor's noise kept), never in place of them: the camera has both.
+
+The places are the camera's, found on the profile as diagnosed: when an accepted change removes the stage a place
+follows (a sharpening the camera lacks), the place stays, after the stage before it (:func:`placements` with
+``diagnosed``), so a missing effect there is still tried once the misfit is fixed.
 """
 
 from __future__ import annotations
 
+from collections import Counter
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
@@ -55,6 +60,8 @@ class Placement:
     index: int
     after: str | None = None
     before: str | None = None
+    #: The stage of the profile as diagnosed that this place followed, where a change has removed it since.
+    was_after: str | None = None
 
     def insert(self, profile: CameraProfile, effect: Effect) -> CameraProfile:
         """``profile`` with ``effect`` at this place, the profile's own stages kept."""
@@ -64,7 +71,9 @@ class Placement:
 
     @property
     def where(self) -> str:
-        """The place in words: "after resolution", "before sharpen"."""
+        """The place in words: "after resolution", "before sharpen", "at the end, where frequency_response was"."""
+        if self.was_after is not None:
+            return f"{f'after {self.after}' if self.after else 'at the start'}, where {self.was_after} was"
         return f"after {self.after}" if self.after is not None else f"before {self.before}"
 
 
@@ -89,14 +98,33 @@ def _segment(chain: Sequence[Effect], index: int) -> int:
     return sum(1 for effect in chain[:index] if mixes_pixels(effect))
 
 
-def placements(profile: CameraProfile, name: str) -> list[Placement]:
-    """The places other than its own where the candidate ``name`` looks different (see the module): one per segment
-    of the chain that neither its own place nor a stage of its kind already occupies, at the segment's edge nearest
-    its own place. None for an effect whose signature does not depend on its place."""
+def placements(profile: CameraProfile, name: str, diagnosed: CameraProfile | None = None) -> list[Placement]:
+    """The places other than its own where the candidate ``name`` looks different in ``profile`` (see the module):
+    one per segment of the chain that neither its own place nor a stage of its kind already occupies, at the
+    segment's edge nearest its own place; with ``diagnosed`` (the profile ``profile`` was changed from), also the
+    places found there whose stage a change has removed. None for an effect whose signature does not depend on its
+    place."""
     kind = EFFECTS[name]
     if not _moves_with_place(kind):
         return []
+    out = _segment_places(list(profile.effects), name)
+    if diagnosed is None or diagnosed is profile:
+        return out
     chain = list(profile.effects)
+    present = any(type(effect) is kind for effect in chain)
+    own = _segment(chain, _own_place(chain, kind))
+    for place in _segment_places(list(diagnosed.effects), name):
+        moved = _moved(place, list(diagnosed.effects), chain)
+        duplicate = any(moved.index == other.index for other in out) or (
+            not present and _segment(chain, moved.index) == own
+        )
+        if moved.was_after is not None and not duplicate:
+            out.append(moved)
+    return out
+
+
+def _segment_places(chain: list[Effect], name: str) -> list[Placement]:
+    kind = EFFECTS[name]
     replaced = [effect for effect in chain if not (type(effect) is kind and kind.draws_only_noise())]
     own = _segment(replaced, _own_place(replaced, kind))
     taken = {own} | {_segment(chain, i) for i, effect in enumerate(chain) if type(effect) is kind}
@@ -116,6 +144,23 @@ def placements(profile: CameraProfile, name: str) -> list[Placement]:
         if place.index >= earliest:
             out.append(place)
     return out
+
+
+def _moved(place: Placement, diagnosed: list[Effect], chain: list[Effect]) -> Placement:
+    """``place`` (in the ``diagnosed`` chain) in ``chain``: after the last stage of ``chain`` that stood before it
+    there (matched by name, in order); ``was_after`` set where the stage it followed is gone."""
+    before = Counter(effect.name for effect in diagnosed[: place.index])
+    last = -1
+    for index, effect in enumerate(chain):
+        if before[effect.name] > 0:
+            before[effect.name] -= 1
+            last = index
+    index = last + 1
+    after = chain[last].name if last >= 0 else None
+    gone = place.after is not None and all(effect.name != place.after for effect in chain)
+    if not gone:
+        return Placement(place.name, index, after=place.after, before=place.before)
+    return Placement(place.name, index, after=after, was_after=place.after)
 
 
 def placed_name(placement: Placement) -> str:

@@ -6,10 +6,11 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import cast
 
 from torch import Tensor
 
-from camdegrade.diagnose.changes import KINDS, Change, Made, Plan, add_effect
+from camdegrade.diagnose.changes import KINDS, AddEffect, Change, Made, Plan, add_effect
 from camdegrade.diagnose.heldout import SIGNIFICANCE, Baseline, HeldOut, ImagePairs
 from camdegrade.diagnose.signature import judge_cause
 from camdegrade.diagnose.strength import refine_strength
@@ -78,7 +79,9 @@ class Search:
     def plans(self, current: CameraProfile, adds: Sequence[str]) -> list[Plan]:
         """Every change worth trying on ``current``: candidates, then stage by stage, then the network."""
         axes = self.baseline.significant_axes()
-        return sorted((plan for kind in KINDS.values() for plan in kind.plans(current, adds, axes)), key=_order)
+        plans = [plan for name, kind in KINDS.items() if name != "add" for plan in kind.plans(current, adds, axes)]
+        plans += cast(AddEffect, KINDS["add"]).placed_plans(current, adds, self.profile)
+        return sorted(plans, key=_order)
 
     def fit_in_chain(self, profile: CameraProfile, kind: type[Effect]) -> Effect:
         """A stage of ``kind`` fitted at its place in ``profile`` (:meth:`Effect.fit_in_chain`)."""
