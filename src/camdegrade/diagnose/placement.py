@@ -2,13 +2,14 @@
 
 A camera's chain is not always the textbook order: noise can enter after the ISP's resize or demosaic (an analog
 link, a second gain stage), a codec can run at the sensor's resolution before an upscale. Where the candidate is
-put matters when a stage between two places mixes neighbouring pixels (a resampler, a filter, a codec: any stage
-that changes the transfer function, ``"frequency"`` in its :attr:`~camdegrade.effects.Effect.explains`) and the
-candidate's own signature is a pattern at the pixel scale (the noise's correlation with the next pixel, the 8×8
-block edges): through such a stage white noise comes out correlated and upsampled, block edges smoothed. Between two
-places with no mixing stage in between, the candidate looks the same; so the chain is cut at its mixing stages into
-segments and the candidate is tried once in each segment, at the place nearest its own (:func:`placements`). Light
-reaches the sensor through the optics: a stage of the sensor or later is never put before an optics stage.
+put matters when a stage between two places mixes neighbouring pixels (a resampler, a filter, a codec: a stage whose
+signature is in a :attr:`~camdegrade.measures.Family.mixing` family, the transfer function) and the candidate's own
+signature is a pattern at the pixel scale (:attr:`~camdegrade.measures.Family.pixel_pattern`: the noise's
+correlation with the next pixel, the 8×8 block edges): through such a stage white noise comes out correlated and
+upsampled, block edges smoothed. Between two places with no mixing stage in between, the candidate looks the same;
+so the chain is cut at its mixing stages into segments and the candidate is tried once in each segment, at the
+place nearest its own (:func:`placements`). Light reaches the sensor through the optics: a stage of the sensor or
+later is never put before an optics stage.
 
 Placed elsewhere than at its stage, the candidate is added beside the profile's stages of its kind (a second noise
 source after the resize, the sensor's noise kept), never in place of them: the camera has both.
@@ -36,19 +37,12 @@ if TYPE_CHECKING:
     from camdegrade.diagnose.search import Round
 
 __all__ = [
-    "MIXING_FAMILY",
-    "PIXEL_SCALE_FAMILIES",
     "Placement",
     "make_placed",
     "mixes_pixels",
     "placed_name",
     "placements",
 ]
-
-#: A stage whose signature includes this family changes the transfer function: it mixes neighbouring pixels.
-MIXING_FAMILY = "frequency"
-#: Families whose statistic is a pattern at the pixel scale, which any stage mixing neighbouring pixels changes.
-PIXEL_SCALE_FAMILIES = ("noise_correlation", "blocks")
 
 
 @dataclass(frozen=True)
@@ -79,11 +73,11 @@ class Placement:
 
 def mixes_pixels(effect: Effect | type[Effect]) -> bool:
     """Whether a stage of this kind mixes neighbouring pixels (it changes the transfer function)."""
-    return MIXING_FAMILY in effect.explains
+    return any(family in FAMILIES and FAMILIES[family].mixing for family in effect.explains)
 
 
 def _moves_with_place(kind: type[Effect]) -> bool:
-    return any(family in FAMILIES and family in kind.explains for family in PIXEL_SCALE_FAMILIES)
+    return any(family in FAMILIES and FAMILIES[family].pixel_pattern for family in kind.explains)
 
 
 def _own_place(chain: Sequence[Effect], kind: type[Effect]) -> int:
