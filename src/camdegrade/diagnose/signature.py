@@ -10,8 +10,18 @@ unit), and the change moves them toward the captures by as much as any reduction
 whole gap's reduction is held to, :mod:`camdegrade.diagnose.search`: above three bootstrap standard errors over the
 held-out pairs and above the smallest reduction that can count on that gap). What it takes off the other families is
 a side effect, not evidence: an effect moves more than its signature (a vignetting's dark corners lower the tone
-residual of every bin too), so the other families neither count for nor against it. A change that fails is kept in
-the ranking, marked (:attr:`Agreement.agrees` false, said in its description), and never accepted.
+residual of every bin too), so the other families neither count for nor against it.
+
+A change whose signature is the transfer function (a :attr:`~camdegrade.measures.Family.mixing` family: a blur, a
+sharpening, a denoiser, a codec, the network) also changes what a person sees, the texture's band power: where it
+takes the texture away from the camera's (its largest visible band difference grows by more than a band must differ
+to be seen, :data:`~camdegrade.measures.visible.TEXTURE_LOG2`), the transfer it fixes is not the camera's detail but
+something else in the captures (noise, aliasing the profile lacks), and it is not the cause: a frequency response
+removed from a phone's profile matches the transfer of the captures and leaves the texture too smooth (0.59× the
+camera's power at 0.35–0.5 cycles/px).
+
+A change that fails is kept in the ranking, marked (:attr:`Agreement.agrees` false, said in its description), and
+never accepted.
 """
 
 from __future__ import annotations
@@ -25,6 +35,8 @@ import torch
 from camdegrade.diagnose.heldout import MIN_REDUCTION, SIGNIFICANCE, HeldOut
 from camdegrade.effects import EFFECTS
 from camdegrade.measures import FAMILIES, StatisticSet, family_gaps
+from camdegrade.measures.visible import TEXTURE_LOG2, TextureComparison, compare_texture
+from camdegrade.profile import CameraProfile
 
 if TYPE_CHECKING:
     from camdegrade.diagnose.changes import Change
@@ -51,10 +63,12 @@ class Agreement:
     reduction: float
     se: float
     needed: float
+    #: The texture before and after the change, where it moves away from the camera's (else None).
+    texture: tuple[TextureComparison, TextureComparison] | None = None
 
     @property
     def agrees(self) -> bool:
-        if not (self.differing and math.isfinite(self.se)):
+        if not (self.differing and math.isfinite(self.se)) or self.texture is not None:
             return False
         return self.reduction > max(SIGNIFICANCE * self.se, self.needed, MIN_REDUCTION)
 
@@ -63,6 +77,10 @@ class Agreement:
         if self.agrees:
             return ""
         own = ", ".join(self.families) or "none"
+        if self.texture is not None:
+            return f"not a cause: it moves its own statistics ({own}) but the texture away from the camera's: " + (
+                self.texture[1].describe()
+            )
         if not self.differing:
             return f"not a cause: its own statistics ({own}) match the camera already"
         return (
@@ -81,7 +99,33 @@ def agreement(change: Change, round_: Round) -> Agreement:
     after = change.families
     reduction = sum(before[f] - after[f] for f in families)
     se = _own_spread(held, round_.stats, change.stats, families) if differing and change.stats is not None else math.nan
-    return Agreement(families, differing, reduction, se, change.reduction_needed)
+    texture = _texture_away(change, round_) if any(FAMILIES[f].mixing for f in families) else None
+    return Agreement(families, differing, reduction, se, change.reduction_needed, texture)
+
+
+def _texture_away(change: Change, round_: Round) -> tuple[TextureComparison, TextureComparison] | None:
+    """The texture of the round's profile and of the changed one on the held-out pairs, where the change takes it
+    away from the camera's (its largest visible band difference grows by more than :data:`TEXTURE_LOG2`)."""
+    held = round_.search.held
+    if change.profile is None:
+        return None
+    before = _texture(held, round_.current)
+    after = compare_texture(change.profile.simulate(held.cleans, held.seed, stream=held.stream), held.reals)
+    return (before, after) if after.worst > before.worst + TEXTURE_LOG2 else None
+
+
+#: The texture of the last profile a round measured changes on (its held-out simulations against the captures).
+_TEXTURES: dict[int, tuple[CameraProfile, TextureComparison]] = {}
+
+
+def _texture(held: HeldOut, profile: CameraProfile) -> TextureComparison:
+    cached = _TEXTURES.get(id(profile))
+    if cached is None or cached[0] is not profile:
+        _TEXTURES.clear()
+        sims = profile.simulate(held.cleans, held.seed, stream=held.stream)
+        cached = profile, compare_texture(sims, held.reals)
+        _TEXTURES[id(profile)] = cached
+    return cached[1]
 
 
 def _own_spread(held: HeldOut, before: StatisticSet, after: StatisticSet, families: tuple[str, ...]) -> float:
