@@ -135,7 +135,7 @@ class Round:
         change.description = description
         judge_cause(change, self)
         marker = " *" if change.significant else ""
-        said = f" — {description}" if description else ""
+        said = f" — {change.description}" if change.description else ""
         self.say(f"  {change.label}: gap {change.gap_after:.2f} (reduction {change.reduction_text()}){marker}{said}")
         return change
 
