@@ -14,7 +14,8 @@ from camdegrade.diagnose import diagnose
 from camdegrade.diagnose.changes import KINDS, Change
 from camdegrade.diagnose.heldout import Baseline, HeldOut
 from camdegrade.diagnose.placement import Placement, placements
-from camdegrade.diagnose.signature import Agreement, agreement, judge_cause, not_a_cause_clause, own_families
+from camdegrade.diagnose.search import prefer_simpler
+from camdegrade.diagnose.signature import Agreement, _texture, agreement, judge_cause, not_a_cause_clause, own_families
 from camdegrade.effects import Blur, Color, Noise, Resolution, Sharpen, Vignetting
 from camdegrade.measures import family_gaps
 from camdegrade.profile import CameraProfile
@@ -174,3 +175,24 @@ def test_noise_added_after_the_resampler_is_named_and_placed_after_it() -> None:
     assert report.accepted[:1] == ["add noise"], report.verdict
     assert report.changes[0]["description"] == "adds noise after resolution", report.changes[0]
     assert [stage.name for stage in report.profile.effects] == ["noise", "resolution", "noise"]
+
+
+def test_a_simpler_change_that_is_not_a_cause_does_not_go_first() -> None:
+    """Removing a frequency response that leaves the texture too smooth does as well as refitting it 3.5× weaker;
+    the removal is not a cause, so the refit stays first (and may be accepted)."""
+    refit = Change("refit", "frequency_response", None, None, 9.2, 3.4, 0.4, True)
+    removal = Change("remove", "frequency_response", None, None, 8.7, 3.9, 0.5, False, not_a_cause=True)
+    assert prefer_simpler([refit, removal]) == [refit, removal]
+    removal.not_a_cause = False
+    assert prefer_simpler([refit, removal]) == [removal, refit]
+
+
+def test_the_texture_a_change_is_judged_against_is_that_of_its_own_held_out_pairs() -> None:
+    """One profile object diagnosed on two sets of pairs (a bench runs its scenarios in one process): each set's
+    texture is its own, not the one measured first."""
+    profile = CameraProfile(None, [])
+    cleans = scenes(4, 48, seed=7)
+    blurred = CameraProfile(None, [Blur(sigma_x=2.0)]).simulate(cleans, 0, stream="camera")
+    sharp, soft = (HeldOut.build(list(zip(cleans, reals)), 0, "held-out") for reals in (cleans, blurred))
+    assert _texture(sharp, profile).worst == 0.0
+    assert _texture(soft, profile).worst > 1.0 and _texture(sharp, profile).worst == 0.0

@@ -182,7 +182,7 @@ class Round:
 def prefer_simpler(ranked: list[Change]) -> list[Change]:
     """``ranked`` (by held-out gap) with a simpler change of the same stage moved ahead of the best when it does as
     well (within half the best's reduction SE, or 2 % of its gap): removing vignetting, rather than refitting it to
-    nothing."""
+    nothing. Not one that is not a cause (:mod:`camdegrade.diagnose.signature`)."""
     if len(ranked) < 2 or ranked[0].error is not None:
         return ranked
     best = ranked[0]
@@ -192,6 +192,7 @@ def prefer_simpler(ranked: list[Change]) -> list[Change]:
         change
         for change in ranked[1:]
         if change.name == best.name
+        and not change.not_a_cause
         and simplicity[change.kind] < simplicity[best.kind]
         and change.gap_after <= best.gap_after + tolerance
     ]

@@ -115,17 +115,17 @@ def _texture_away(change: Change, round_: Round) -> tuple[TextureComparison, Tex
 
 
 #: The texture of the last profile a round measured changes on (its held-out simulations against the captures).
-_TEXTURES: dict[int, tuple[CameraProfile, TextureComparison]] = {}
+_TEXTURES: dict[tuple[int, int], tuple[HeldOut, CameraProfile, TextureComparison]] = {}
 
 
 def _texture(held: HeldOut, profile: CameraProfile) -> TextureComparison:
-    cached = _TEXTURES.get(id(profile))
-    if cached is None or cached[0] is not profile:
+    cached = _TEXTURES.get((id(held), id(profile)))
+    if cached is None or cached[0] is not held or cached[1] is not profile:
         _TEXTURES.clear()
         sims = profile.simulate(held.cleans, held.seed, stream=held.stream)
-        cached = profile, compare_texture(sims, held.reals)
-        _TEXTURES[id(profile)] = cached
-    return cached[1]
+        cached = held, profile, compare_texture(sims, held.reals)
+        _TEXTURES[(id(held), id(profile))] = cached
+    return cached[2]
 
 
 def _own_spread(held: HeldOut, before: StatisticSet, after: StatisticSet, families: tuple[str, ...]) -> float:
@@ -137,17 +137,17 @@ def _own_spread(held: HeldOut, before: StatisticSet, after: StatisticSet, famili
 
 #: The family scores of the last profile a round measured changes on, on every resample (a round judges all its
 #: changes against one profile).
-_RESAMPLED: dict[tuple[int, int], tuple[StatisticSet, list[dict[str, float]]]] = {}
+_RESAMPLED: dict[tuple[int, int], tuple[HeldOut, StatisticSet, list[dict[str, float]]]] = {}
 
 
 def _resampled(held: HeldOut, stats: StatisticSet) -> list[dict[str, float]]:
     key = (id(held), id(stats))
     cached = _RESAMPLED.get(key)
-    if cached is None or cached[0] is not stats:
+    if cached is None or cached[0] is not held or cached[1] is not stats:
         _RESAMPLED.clear()
-        cached = stats, [family_gaps(held.real, stats, index, held.scale) for index in held.indices]
+        cached = held, stats, [family_gaps(held.real, stats, index, held.scale) for index in held.indices]
         _RESAMPLED[key] = cached
-    return cached[1]
+    return cached[2]
 
 
 def judge_cause(change: Change, round_: Round) -> None:
