@@ -16,7 +16,7 @@ from camdegrade.diagnose.heldout import Baseline, HeldOut
 from camdegrade.diagnose.placement import Placement, placements
 from camdegrade.diagnose.search import prefer_simpler
 from camdegrade.diagnose.signature import Agreement, _texture, agreement, judge_cause, not_a_cause_clause, own_families
-from camdegrade.effects import Blur, Color, Noise, Resolution, Sharpen, Vignetting
+from camdegrade.effects import EFFECTS, Blur, Color, Noise, Resolution, Sharpen, Vignetting
 from camdegrade.measures import family_gaps
 from camdegrade.profile import CameraProfile
 from test_diagnose_critic import named, scenes
@@ -196,3 +196,12 @@ def test_the_texture_a_change_is_judged_against_is_that_of_its_own_held_out_pair
     sharp, soft = (HeldOut.build(list(zip(cleans, reals)), 0, "held-out") for reals in (cleans, blurred))
     assert _texture(sharp, profile).worst == 0.0
     assert _texture(soft, profile).worst > 1.0 and _texture(sharp, profile).worst == 0.0
+
+
+def test_noise_before_a_codec_shows_as_the_codec_s_signature_too() -> None:
+    """Noise before a JPEG stage changes its block edges and transfer: those are noise's own statistics there; a
+    tone curve before it keeps its own, and noise after every mixing stage has only its own."""
+    codec = [EFFECTS["jpeg"](quality=60)]
+    assert own_families("add", "noise", codec) == ("noise", "noise_correlation", "banding", "frequency", "blocks")
+    assert own_families("add", "tone", codec) == ("spatial", "intensity", "color")
+    assert own_families("refit", "noise", [EFFECTS["tone"]()]) == ("noise", "noise_correlation", "banding")

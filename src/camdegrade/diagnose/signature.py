@@ -3,7 +3,8 @@
 The gap sums every family, so a change can close it through families its effect does not explain: a network
 fine-tune absorbs a colour cast, a smoothing refit hides noise it does not draw, a tone curve evens out a misfit of
 the profile's other stages. A change names a cause only where the statistics its effect's signature names
-(:attr:`~camdegrade.effects.Effect.explains`; for the network, the families of its own faults,
+(:attr:`~camdegrade.effects.Effect.explains`, and for a pixel-scale pattern such as noise also what the later
+stages that mix pixels make of it, :func:`own_families`; for the network, the families of its own faults,
 :attr:`~camdegrade.measures.Family.network_fault`) say so: at least one of them differs between the simulation and
 the captures beyond the measurement's own noise (the ``where`` rule: above three times its null band and above one
 unit), and the change moves them toward the captures by as much as any reduction must be to count (the rule the
@@ -27,13 +28,15 @@ never accepted.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import torch
 
 from camdegrade.diagnose.heldout import MIN_REDUCTION, SIGNIFICANCE, HeldOut
-from camdegrade.effects import EFFECTS
+from camdegrade.diagnose.placement import mixes_pixels
+from camdegrade.effects import EFFECTS, Effect
 from camdegrade.measures import FAMILIES, StatisticSet, family_gaps
 from camdegrade.measures.visible import TEXTURE_LOG2, TextureComparison, compare_texture
 from camdegrade.profile import CameraProfile
@@ -45,11 +48,27 @@ if TYPE_CHECKING:
 __all__ = ["Agreement", "agreement", "judge_cause", "not_a_cause_clause", "own_families"]
 
 
-def own_families(kind: str, name: str) -> tuple[str, ...]:
-    """The families whose signature the change names: its effect's (add, remove, refit) or the network's faults."""
+def own_families(kind: str, name: str, later: Sequence[Effect] = ()) -> tuple[str, ...]:
+    """The families whose signature the change names: its effect's (add, remove, refit) or the network's faults.
+    An effect whose signature is a pattern at the pixel scale (:attr:`~camdegrade.measures.Family.pixel_pattern`:
+    noise, a codec's blocks) shows it through the stages ``later`` in the chain that mix pixels as theirs too: noise
+    before a codec changes its block edges, blocks before an upscale its transfer function."""
     if kind == "network":
         return tuple(family for family, cls in FAMILIES.items() if cls.network_fault)
-    return tuple(family for family in EFFECTS[name].explains if family in FAMILIES)
+    own = [family for family in EFFECTS[name].explains if family in FAMILIES]
+    if any(FAMILIES[family].pixel_pattern for family in own):
+        own += [family for stage in later if mixes_pixels(stage) for family in stage.explains if family in FAMILIES]
+    return tuple(dict.fromkeys(own))
+
+
+def _later(change: Change, round_: Round) -> list[Effect]:
+    """The stages after the one ``change`` adds, refits or removes (the last of its kind), in the chain it acts on."""
+    profile = round_.current if change.kind == "remove" else change.profile
+    if change.kind == "network" or profile is None:
+        return []
+    chain = list(profile.effects)
+    places = [index for index, stage in enumerate(chain) if stage.name == change.name]
+    return chain[places[-1] + 1 :] if places else []
 
 
 @dataclass
@@ -92,14 +111,15 @@ class Agreement:
 def agreement(change: Change, round_: Round) -> Agreement:
     """The change's own families before it (the round's profile) and after it, on the held-out pairs."""
     held, baseline = round_.search.held, round_.search.baseline
-    families = own_families(change.kind, change.name)
+    families = own_families(change.kind, change.name, _later(change, round_))
     before = family_gaps(held.real, round_.stats, scale=held.scale)
     nulls = baseline.null_families
     differing = tuple(f for f in families if before[f] > max(3 * nulls.get(f, 0.0), 1.0))
     after = change.families
     reduction = sum(before[f] - after[f] for f in families)
     se = _own_spread(held, round_.stats, change.stats, families) if differing and change.stats is not None else math.nan
-    texture = _texture_away(change, round_) if any(FAMILIES[f].mixing for f in families) else None
+    transfer = any(FAMILIES[f].mixing for f in own_families(change.kind, change.name))
+    texture = _texture_away(change, round_) if transfer else None
     return Agreement(families, differing, reduction, se, change.reduction_needed, texture)
 
 
