@@ -18,8 +18,8 @@ sharpening, a denoiser, a codec, the network) also changes what a person sees, t
 takes the texture away from the camera's (its largest visible band difference grows by more than a band must differ
 to be seen, :data:`~camdegrade.measures.visible.TEXTURE_LOG2`), the transfer it fixes is not the camera's detail but
 something else in the captures (noise, aliasing the profile lacks), and it is not the cause: a frequency response
-removed from a phone's profile matches the transfer of the captures and leaves the texture too smooth (0.59× the
-camera's power at 0.35–0.5 cycles/px).
+removed from a phone's profile matches the transfer of the captures and leaves the texture too smooth
+(docs/results.md, *Which change is the cause*).
 
 A change that fails is kept in the ranking, marked (:attr:`Agreement.agrees` false, said in its description), and
 never accepted.
