@@ -10,6 +10,7 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, ClassVar
 
+from camdegrade.diagnose.placement import Placement, make_placed, placements
 from camdegrade.effects import EFFECTS, Effect
 from camdegrade.fitting.in_chain import replace_stage
 from camdegrade.fitting.network.finetune import finetune_network
@@ -58,6 +59,9 @@ class Change:
     stats: StatisticSet | None = field(default=None, repr=False)
     #: The smallest reduction that could count where this change was tried (NaN: not evaluated).
     reduction_needed: float = float("nan")
+    #: It lowers the gap significantly, but its own statistics do not agree that it is the cause
+    #: (:mod:`camdegrade.diagnose.signature`): never accepted, ranked after the changes that name a cause.
+    not_a_cause: bool = False
 
     @property
     def label(self) -> str:
@@ -140,10 +144,26 @@ class AddEffect(ChangeKind):
     simplicity = 1
 
     def plans(self, current: CameraProfile, adds: Sequence[str], axes: set[str]) -> list[Plan]:
+        """Each candidate the profile lacks at its stage, and each at the other places in the chain where it would
+        look different (:func:`~camdegrade.diagnose.placement.placements`; those of the profile as diagnosed are
+        added by :meth:`~camdegrade.diagnose.search.Search.plans`)."""
+        return self.placed_plans(current, adds)
+
+    def placed_plans(
+        self, current: CameraProfile, adds: Sequence[str], diagnosed: CameraProfile | None = None
+    ) -> list[Plan]:
         present = {type(effect) for effect in current.effects}
-        return [Plan(self, name, name, (0, i)) for i, name in enumerate(adds) if EFFECTS[name] not in present]
+        own = [Plan(self, name, name, (0, i)) for i, name in enumerate(adds) if EFFECTS[name] not in present]
+        placed = [
+            Plan(self, name, place, (0, i, j + 1))
+            for i, name in enumerate(adds)
+            for j, place in enumerate(placements(current, name, diagnosed))
+        ]
+        return own + placed
 
     def make(self, round_: Round, target: Any) -> Made:
+        if isinstance(target, Placement):
+            return make_placed(round_, target)
         cls = EFFECTS[target]
         if cls.draws_only_noise() or cls.calibrates_in_chain():
             effect = round_.search.fit_in_chain(round_.current, cls)

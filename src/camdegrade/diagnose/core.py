@@ -12,9 +12,10 @@ from camdegrade._support.checks import check_seed
 from camdegrade._support.text import not_an_option
 from camdegrade.diagnose.attribute import Attribution, attribute, check_candidates, keeping
 from camdegrade.diagnose.changes import KINDS, Change, check_kinds, effect_params
-from camdegrade.diagnose.critic_check import CriticCheck, check_changes
+from camdegrade.diagnose.critic_check import CriticCheck, check_changes, uncovered_clause
 from camdegrade.diagnose.critique import CRITIC_CHANCE, Critique, critiques
 from camdegrade.diagnose.report import DiagnosisReport, example_crops, flat_crops
+from camdegrade.diagnose.signature import not_a_cause_clause
 from camdegrade.diagnose.where import findings, visible
 from camdegrade.errors import PairsError
 from camdegrade.measures import check_explains
@@ -257,7 +258,7 @@ def _verdict(
         text = (
             f"Unexplained gap: {baseline.gap:.2f} (noise floor {result.noise_floor:.2f}), mostly in "
             f"{where[0]['axis']}; no change to the profile closes a significant part of it."
-        )
+        ) + not_a_cause_clause(result.singles)
     else:
         text = " ".join(
             _finding_sentence(misfit, changes, refit)
@@ -269,7 +270,7 @@ def _verdict(
             f"{_fraction_closed(result):.0%} of the held-out gap ({baseline.gap:.2f} → {result.gap_after:.2f}; "
             f"noise floor {result.noise_floor:.2f})."
         ) + held_back
-    return text + _seen_clause(seen) + _critic_clause(baseline.significant, critics)
+    return text + uncovered_clause(check) + _seen_clause(seen) + _critic_clause(baseline.significant, critics)
 
 
 def _held_back_clause(check: CriticCheck | None, refit: str) -> str:

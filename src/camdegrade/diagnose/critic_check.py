@@ -15,6 +15,12 @@ The critic alone is not enough: a right change can make it surer by laying bare 
 the profile's noise and a tone curve the profile lacks: adding the tone curve closes 96 % of the statistics' gap,
 and from the image alone the critic goes 0.57 → 0.78, now seeing the noise (``tests/test_diagnose_critic.py``).
 The texture does not move there; on City100 the denoise refit takes it from within the camera's to too smooth.
+
+Nor is a change held back that closes most of the gap (more than half of it above the profile against itself,
+:data:`MOST`): an exposure error fixed by a tone curve leaves the noise and the texture as the only differences, and
+a critic that sees them more easily has found what is left, not a fault of the fix. The change is kept, and what it
+uncovers is reported (:attr:`CriticCheck.uncovered`): the critic before and after it, the family that differs most
+with it, and the texture.
 """
 
 from __future__ import annotations
@@ -28,7 +34,10 @@ from camdegrade.diagnose.critique import CRITIC_CHANCE, Critique, critiques
 from camdegrade.measures.visible import TEXTURE_LOG2, TextureComparison, compare_texture
 from camdegrade.pairs.pairset import PairSet
 
-__all__ = ["CriticCheck", "check_changes"]
+__all__ = ["MOST", "CriticCheck", "check_changes", "closes_most", "uncovered_clause"]
+
+#: A change that closes more than this share of the gap (above the profile against itself) is never held back.
+MOST = 0.5
 
 
 @dataclass
@@ -42,6 +51,9 @@ class CriticCheck:
     later: list[Change] = field(default_factory=list)
     #: The texture before and after the change held back.
     texture: tuple[TextureComparison, TextureComparison] | None = None
+    #: The changes kept although the critic is surer with them, because they close most of the gap: each with
+    #: the critic before and after it and the texture after it (what it uncovers).
+    uncovered: list[tuple[Change, Critique, Critique, TextureComparison]] = field(default_factory=list)
 
     @property
     def kept(self) -> int:
@@ -57,7 +69,16 @@ class CriticCheck:
             if self.texture is not None:
                 held_back["texture_before"], held_back["texture_after"] = (t.describe() for t in self.texture)
         steps = [{"change": label, **_score(critique)} for label, critique in self.steps]
-        return {"steps": steps, "held_back": held_back, "later_held_back": [change.label for change in self.later]}
+        uncovered = [
+            {"change": change.label, "before": _score(before), "after": _score(after), "texture": texture.describe()}
+            for change, before, after, texture in self.uncovered
+        ]
+        return {
+            "steps": steps,
+            "held_back": held_back,
+            "later_held_back": [change.label for change in self.later],
+            "uncovered": uncovered,
+        }
 
 
 def check_changes(
@@ -81,13 +102,39 @@ def check_changes(
         previous = check.steps[-1][1].result
         surer = after.result.accuracy > previous.high and after.result.low > CRITIC_CHANCE
         texture_after = compare_texture(sims, reals)
-        if surer and texture_after.worst > texture.worst + TEXTURE_LOG2:
+        if surer and closes_most(change, result.baseline.null):
+            check.uncovered.append((change, check.steps[-1][1], after, texture_after))
+        elif surer and texture_after.worst > texture.worst + TEXTURE_LOG2:
             check.held_back, check.later = (change, after), result.accepted[index + 1 :]
             check.texture = (texture, texture_after)
             return check
         check.steps.append((change.label, after))
         texture = texture_after
     return check
+
+
+def closes_most(change: Change, null: float) -> bool:
+    """Whether ``change`` takes more than :data:`MOST` of the gap it was tried on, above the noise ``null`` (the
+    profile against itself)."""
+    gap_now = change.gap_after + change.reduction
+    return change.reduction > MOST * max(0.0, gap_now - null)
+
+
+def uncovered_clause(check: CriticCheck | None) -> str:
+    """What the kept changes that made the critic surer uncover, in words, or nothing."""
+    if check is None:
+        return ""
+    parts = []
+    for change, before, after, texture in check.uncovered:
+        b, a = before.result, after.result
+        family = max(change.families, key=change.families.__getitem__) if change.families else None
+        left = f"; what is left differs most in {family} ({change.families[family]:.2f})" if family else ""
+        parts.append(
+            f" Uncovered: with {change.label}, which closes most of the gap, a critic tells the simulation from the "
+            f"camera more easily from the image alone ({b.accuracy:.2f} [{b.low:.2f}–{b.high:.2f}] → "
+            f"{a.accuracy:.2f} [{a.low:.2f}–{a.high:.2f}]): it sees what the change leaves{left}; {texture.describe()}."
+        )
+    return "".join(parts)
 
 
 def _score(critique: Critique) -> dict:

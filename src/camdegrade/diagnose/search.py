@@ -6,11 +6,13 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import cast
 
 from torch import Tensor
 
-from camdegrade.diagnose.changes import KINDS, Change, Made, Plan, add_effect
+from camdegrade.diagnose.changes import KINDS, AddEffect, Change, Made, Plan, add_effect
 from camdegrade.diagnose.heldout import SIGNIFICANCE, Baseline, HeldOut, ImagePairs
+from camdegrade.diagnose.signature import judge_cause
 from camdegrade.diagnose.strength import refine_strength
 from camdegrade.effects import Effect
 from camdegrade.effects.base import evenly_spaced
@@ -72,12 +74,14 @@ class Search:
             for plan in self.plans(current, adds)
             if plan.kind.kind in self.kinds and (allowed is None or (plan.kind.kind, plan.name) in allowed)
         ]
-        return prefer_simpler(sorted(results, key=lambda change: change.gap_after))
+        return prefer_simpler(sorted(results, key=lambda change: (change.not_a_cause, change.gap_after)))
 
     def plans(self, current: CameraProfile, adds: Sequence[str]) -> list[Plan]:
         """Every change worth trying on ``current``: candidates, then stage by stage, then the network."""
         axes = self.baseline.significant_axes()
-        return sorted((plan for kind in KINDS.values() for plan in kind.plans(current, adds, axes)), key=_order)
+        plans = [plan for name, kind in KINDS.items() if name != "add" for plan in kind.plans(current, adds, axes)]
+        plans += cast(AddEffect, KINDS["add"]).placed_plans(current, adds, self.profile)
+        return sorted(plans, key=_order)
 
     def fit_in_chain(self, profile: CameraProfile, kind: type[Effect]) -> Effect:
         """A stage of ``kind`` fitted at its place in ``profile`` (:meth:`Effect.fit_in_chain`)."""
@@ -129,8 +133,9 @@ class Round:
         profile, effect, description = made
         change = self.measured(kind, name, profile, effect)
         change.description = description
+        judge_cause(change, self)
         marker = " *" if change.significant else ""
-        said = f" — {description}" if description else ""
+        said = f" — {change.description}" if change.description else ""
         self.say(f"  {change.label}: gap {change.gap_after:.2f} (reduction {change.reduction_text()}){marker}{said}")
         return change
 
@@ -177,7 +182,7 @@ class Round:
 def prefer_simpler(ranked: list[Change]) -> list[Change]:
     """``ranked`` (by held-out gap) with a simpler change of the same stage moved ahead of the best when it does as
     well (within half the best's reduction SE, or 2 % of its gap): removing vignetting, rather than refitting it to
-    nothing."""
+    nothing. Not one that is not a cause (:mod:`camdegrade.diagnose.signature`)."""
     if len(ranked) < 2 or ranked[0].error is not None:
         return ranked
     best = ranked[0]
@@ -187,6 +192,7 @@ def prefer_simpler(ranked: list[Change]) -> list[Change]:
         change
         for change in ranked[1:]
         if change.name == best.name
+        and not change.not_a_cause
         and simplicity[change.kind] < simplicity[best.kind]
         and change.gap_after <= best.gap_after + tolerance
     ]

@@ -4,7 +4,7 @@ depends on the stages after it (noise, through the tone curve and the codec) is 
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import torch
 from torch import Tensor
@@ -30,10 +30,13 @@ def fit_stage_in_chain(
     seed: int = 0,
     calibration_pairs: int | None = None,
     sources: Sequence[Tensor] | None = None,
+    insert: Callable[[CameraProfile, Effect], CameraProfile] | None = None,
 ) -> Effect:
     """A stage of ``kind`` for ``profile`` (its stages of that kind that draw only noise are replaced), fitted by
     ``kind.fit_in_chain`` on ``(profile's deterministic output, capture)`` pairs. ``sources``: that output, when
-    the caller already has it (it draws nothing, so any seed gives the same images)."""
+    the caller already has it (it draws nothing, so any seed gives the same images). ``insert``: how the stage is
+    put into the profile (default :func:`replace_stage`; the diagnosis tries other places in the chain)."""
+    insert = replace_stage if insert is None else insert
     if sources is None:
         sources = profile.simulate(cleans, seed, stream="noise-sources", deterministic=True)
     network_outputs: dict[int, Tensor] = {}
@@ -43,7 +46,7 @@ def fit_stage_in_chain(
         for index in indices:
             if index not in network_outputs:
                 network_outputs[index] = _network_output(profile, cleans[index])
-        stages = CameraProfile(None, replace_stage(profile, effect).effects)
+        stages = CameraProfile(None, insert(profile, effect).effects)
         return stages.simulate([network_outputs[index] for index in indices], seed, stream="noise-calibration")
 
     return kind.fit_in_chain(

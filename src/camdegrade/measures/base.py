@@ -90,6 +90,12 @@ class Family:
     #: The network's own artefact this family shows (why a significant score sends the network to a fine-tune),
     #: or empty when the network leaves no signature here.
     network_fault: ClassVar[str] = ""
+    #: Whether every stage that leaves its signature here mixes neighbouring pixels (the transfer function).
+    mixing: ClassVar[bool] = False
+    #: Whether the statistic is a pattern at the pixel scale (the noise's next-pixel correlation, 8×8 block edges),
+    #: which a stage mixing neighbouring pixels changes: an effect with this signature looks different on either side
+    #: of such a stage (the diagnosis tries it on both, :mod:`camdegrade.diagnose.placement`).
+    pixel_pattern: ClassVar[bool] = False
     paired: ClassVar[bool] = True
 
     def suspects(self) -> list[str]:

@@ -46,6 +46,7 @@ class Blocks(PairedFamily):
     unit = "relative gradient energy"
     description = "luma gradient energy at each of the 8 column/row phases of the 8×8 grid, relative to the mean"
     network_fault = "the stride-2 transposed convolutions' 4-pixel pattern"
+    pixel_pattern = True
 
     def measure(self, pair: MeasuredPair) -> tuple[Tensor, Tensor]:
         return block_phase_energy(pair.image)

@@ -41,6 +41,7 @@ class Frequency(PairedFamily):
     unit = "transfer ratio"
     description = "transfer function Re(X·C*)/|C|² in 8 radial bands (luma), relative to the lowest band"
     network_fault = "the network's high-frequency transfer"
+    mixing = True
 
     def measure(self, pair: MeasuredPair) -> tuple[Tensor, Tensor]:
         x, c = pair.image, pair.clean

@@ -124,6 +124,7 @@ class NoiseCorrelation(PairedFamily):
     tau = 0.05
     unit = "correlation"
     description = "the noise residual's correlation at lags 1, 2 per channel, and between channels (chroma noise)"
+    pixel_pattern = True
 
     def measure(self, pair: MeasuredPair) -> tuple[Tensor, Tensor]:
         return pair.shared(_noise_sums)[self.name]
