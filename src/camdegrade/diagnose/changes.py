@@ -8,9 +8,10 @@ from __future__ import annotations
 import math
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, ClassVar
+from typing import Any, ClassVar
 
 from camdegrade.diagnose.placement import Placement, make_placed, placements
+from camdegrade.diagnose.round_view import Made, Round
 from camdegrade.effects import EFFECTS, Effect
 from camdegrade.fitting.in_chain import replace_stage
 from camdegrade.fitting.network.finetune import finetune_network
@@ -18,15 +19,11 @@ from camdegrade.measures import FAMILIES, StatisticSet
 from camdegrade.measures.families.noise import NoiseLevel, noise_stage_text
 from camdegrade.profile import CameraProfile
 
-if TYPE_CHECKING:
-    from camdegrade.diagnose.search import Round
-
 __all__ = [
     "KINDS",
     "AddEffect",
     "Change",
     "ChangeKind",
-    "Made",
     "Plan",
     "RefitNetwork",
     "RefitStage",
@@ -94,9 +91,6 @@ class Plan:
     name: str
     target: Any
     order: tuple[int, ...]
-
-
-Made = tuple[CameraProfile, Effect | None, str]
 
 
 def effect_params(effect: Effect) -> dict[str, Any]:

@@ -33,8 +33,7 @@ from camdegrade.measures import FAMILIES
 from camdegrade.profile import CameraProfile
 
 if TYPE_CHECKING:
-    from camdegrade.diagnose.changes import Made
-    from camdegrade.diagnose.search import Round
+    from camdegrade.diagnose.round_view import Made, Round
 
 __all__ = [
     "Placement",

@@ -10,8 +10,9 @@ from typing import cast
 
 from torch import Tensor
 
-from camdegrade.diagnose.changes import KINDS, AddEffect, Change, Made, Plan, add_effect
+from camdegrade.diagnose.changes import KINDS, AddEffect, Change, Plan, add_effect
 from camdegrade.diagnose.heldout import SIGNIFICANCE, Baseline, HeldOut, ImagePairs
+from camdegrade.diagnose.round_view import Made
 from camdegrade.diagnose.signature import judge_cause
 from camdegrade.diagnose.strength import refine_strength
 from camdegrade.effects import Effect

@@ -43,7 +43,7 @@ from camdegrade.profile import CameraProfile
 
 if TYPE_CHECKING:
     from camdegrade.diagnose.changes import Change
-    from camdegrade.diagnose.search import Round
+    from camdegrade.diagnose.round_view import Round
 
 __all__ = ["Agreement", "agreement", "judge_cause", "not_a_cause_clause", "own_families"]
 
