@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from camdegrade.diagnose.changes import Change
-from camdegrade.diagnose.core import _finding, _reference, refit_command
+from camdegrade.diagnose.verdict import command_reference, finding, refit_command
 from camdegrade.pairs.pair import PairReport
 from camdegrade.profile import CameraProfile
 
@@ -46,20 +46,20 @@ def test_a_hostile_name_as_the_whole_argument_stays_one_argument(hostile):
 def test_the_command_names_the_path_given_not_the_profile_s_stored_name(tmp_path):
     path = tmp_path / "my cam; rm -rf x.safetensors"
     CameraProfile(None, name="cam; touch PWNED #").save(path)
-    assert _reference(path, "PROFILE") == str(path)
-    assert _reference(str(path), "PROFILE") == str(path)
-    assert _reference(CameraProfile(None, name="cam; touch PWNED #"), "PROFILE") == "PROFILE"
+    assert command_reference(path, "PROFILE") == str(path)
+    assert command_reference(str(path), "PROFILE") == str(path)
+    assert command_reference(CameraProfile(None, name="cam; touch PWNED #"), "PROFILE") == "PROFILE"
 
 
 def test_pairs_are_named_by_the_folder_they_were_found_in_or_a_placeholder(tmp_path):
-    assert _reference(PairReport(pairs=[], source=tmp_path), "PAIRS") == str(tmp_path)
-    assert _reference(PairReport(pairs=[]), "PAIRS") == "PAIRS"
-    assert _reference([(torch.zeros(3, 8, 8), torch.zeros(3, 8, 8))], "PAIRS") == "PAIRS"
+    assert command_reference(PairReport(pairs=[], source=tmp_path), "PAIRS") == str(tmp_path)
+    assert command_reference(PairReport(pairs=[]), "PAIRS") == "PAIRS"
+    assert command_reference([(torch.zeros(3, 8, 8), torch.zeros(3, 8, 8))], "PAIRS") == "PAIRS"
 
 
 def test_a_network_finding_carries_the_quoted_command():
     change = Change(kind="network", name="network", profile=None, effect=None, gap_after=0.0)
     command = refit_command(str(Path("/tmp/cam; touch PWNED #.safetensors")), "/tmp/new pairs")
-    _, fix = _finding(change, command)
+    _, fix = finding(change, command)
     inside = fix[fix.index("(") + 1 : fix.rindex(")")]
     assert shlex.split(inside) == _intended("/tmp/new pairs", "/tmp/cam; touch PWNED #.safetensors")

@@ -14,9 +14,9 @@ import camdegrade.diagnose.core as core
 from camdegrade.diagnose import diagnose
 from camdegrade.diagnose.attribute import attribute, keeping
 from camdegrade.diagnose.changes import Change, add_effect
-from camdegrade.diagnose.core import _held_back_clause
 from camdegrade.diagnose.critic_check import CriticCheck, check_changes, closes_most, uncovered_clause
 from camdegrade.diagnose.critique import Critique
+from camdegrade.diagnose.verdict import held_back_clause
 from camdegrade.effects import Blur, Noise
 from camdegrade.measures.critic import CriticResult
 from camdegrade.measures.visible import TextureComparison
@@ -145,7 +145,7 @@ def test_the_verdict_names_the_change_held_back_and_the_ones_accepted_on_top_of_
         later=[jpeg],
         texture=(within, smooth),
     )
-    clause = _held_back_clause(check, "phone")
+    clause = held_back_clause(check, "phone")
     assert clause.startswith(" Held back: refitting denoise closes the statistics' gap (−1.30)"), clause
     assert "(0.62 [0.58–0.66] → 0.79 [0.74–0.85])" in clause and smooth.describe() in clause
     assert clause.endswith(" Held back with it, as accepted on top of it: add jpeg."), clause

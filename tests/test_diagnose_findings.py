@@ -11,7 +11,8 @@ from types import SimpleNamespace
 
 from camdegrade.diagnose.attribute import Attribution, _grow
 from camdegrade.diagnose.changes import Change
-from camdegrade.diagnose.core import _finding_sentence, _missing_rows
+from camdegrade.diagnose.core import _missing_rows
+from camdegrade.diagnose.verdict import finding_sentence
 from camdegrade.profile import CameraProfile
 
 
@@ -80,11 +81,11 @@ def test_the_findings_in_words() -> None:
     refit = _change("refit", "blur", 3.0, 14.6, True)
     refit.description = "blur stage is 2.0× too weak"
     added = _change("add", "chromatic_aberration", 1.7, 1.3, True)
-    assert _finding_sentence(True, [refit], "p") == (
+    assert finding_sentence(True, [refit], "p") == (
         "The profile does not reproduce the camera: the profile's blur stage is 2.0× too weak; fix: refitting blur "
         "(gap −14.60)."
     )
-    assert _finding_sentence(False, [added], "p") == (
+    assert finding_sentence(False, [added], "p") == (
         "The camera has an effect the profile lacks: chromatic_aberration; fix: adding chromatic_aberration "
         "(gap −1.30)."
     )

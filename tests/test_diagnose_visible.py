@@ -198,15 +198,15 @@ def test_a_camera_that_sharpens_is_mended_by_adding_sharpen() -> None:
 def test_the_verdict_says_what_a_change_leaves_seen() -> None:
     """A change the statistics accept can deepen what a person sees (on City100 the accepted blur refit leaves the
     texture smoother still): the verdict then says what is still seen with the changes."""
-    from camdegrade.diagnose.core import _seen_clause
+    from camdegrade.diagnose.verdict import seen_clause
 
     cleans = photo_crops(6, seed=0)
     reals = noisy(cleans, seed=1)
     soft = [blur_image(image[None], 1.0)[0] for image in reals]
     softer = [blur_image(image[None], 2.0)[0] for image in reals]
-    deepened = _seen_clause(visible(reals, soft, softer))
+    deepened = seen_clause(visible(reals, soft, softer))
     assert deepened.startswith(" What a person sees: texture too smooth at "), deepened
     assert " With the changes: texture too smooth at " in deepened
-    mended = _seen_clause(visible(reals, soft, reals))
+    mended = seen_clause(visible(reals, soft, reals))
     assert "What a person sees: texture too smooth" in mended and "With the changes" not in mended
-    assert _seen_clause(visible(reals, reals, reals)) == ""
+    assert seen_clause(visible(reals, reals, reals)) == ""
