@@ -12,7 +12,7 @@ import torch.nn.functional as F
 
 from camdegrade.__main__ import main
 from camdegrade.diagnose import DiagnosisReport, diagnose
-from camdegrade.diagnose.changes import add_effect
+from camdegrade.diagnose.attribution.changes import add_effect
 from camdegrade.diagnose.heldout import HeldOut
 from camdegrade.diagnose.report import REQUIRED_KEYS
 from camdegrade.effects import EFFECTS, JPEG, Noise, Tone, Vignetting

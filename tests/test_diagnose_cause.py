@@ -1,6 +1,6 @@
 """Which change the diagnosis names as the cause (issue 42, item 3): a candidate at every place in the chain where it
-would look different (:mod:`camdegrade.diagnose.placement`), and a change accepted only where its own statistics
-agree (:mod:`camdegrade.diagnose.signature`)."""
+would look different (:mod:`camdegrade.diagnose.attribution.placement`), and a change accepted only where its own
+statistics agree (:mod:`camdegrade.diagnose.attribution.signature`)."""
 
 from __future__ import annotations
 
@@ -11,11 +11,18 @@ import torch
 
 from camdegrade import load_profile
 from camdegrade.diagnose import diagnose
-from camdegrade.diagnose.changes import KINDS, Change
+from camdegrade.diagnose.attribution.changes import KINDS, Change
+from camdegrade.diagnose.attribution.placement import Placement, placements
+from camdegrade.diagnose.attribution.search import prefer_simpler
+from camdegrade.diagnose.attribution.signature import (
+    Agreement,
+    _texture,
+    agreement,
+    judge_cause,
+    not_a_cause_clause,
+    own_families,
+)
 from camdegrade.diagnose.heldout import Baseline, HeldOut
-from camdegrade.diagnose.placement import Placement, placements
-from camdegrade.diagnose.search import prefer_simpler
-from camdegrade.diagnose.signature import Agreement, _texture, agreement, judge_cause, not_a_cause_clause, own_families
 from camdegrade.effects import EFFECTS, Blur, Color, Noise, Resolution, Sharpen, Vignetting
 from camdegrade.measures import family_gaps
 from camdegrade.profile import CameraProfile

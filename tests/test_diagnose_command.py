@@ -6,7 +6,7 @@ from pathlib import Path
 import pytest
 import torch
 
-from camdegrade.diagnose.changes import Change
+from camdegrade.diagnose.attribution.changes import Change
 from camdegrade.diagnose.verdict import command_reference, finding, refit_command
 from camdegrade.pairs.pair import PairReport
 from camdegrade.profile import CameraProfile

@@ -12,8 +12,8 @@ import torch
 from PIL import Image
 
 from camdegrade.diagnose import DiagnosisReport, diagnose
-from camdegrade.diagnose._html import png_url
-from camdegrade.diagnose.critic_html import DETAIL_GAIN
+from camdegrade.diagnose.report._html import png_url
+from camdegrade.diagnose.report.critic_html import DETAIL_GAIN
 from camdegrade.effects import Noise, Tone
 from camdegrade.measures.critic import PATCH, alternate_scenes
 from camdegrade.measures.critic.explain import GROUPINGS, crossfit_critic_test, surest_png

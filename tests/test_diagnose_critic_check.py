@@ -12,8 +12,8 @@ import torch
 
 import camdegrade.diagnose.core as core
 from camdegrade.diagnose import diagnose
-from camdegrade.diagnose.attribute import attribute, keeping
-from camdegrade.diagnose.changes import Change, add_effect
+from camdegrade.diagnose.attribution.attribute import attribute, keeping
+from camdegrade.diagnose.attribution.changes import Change, add_effect
 from camdegrade.diagnose.critic_check import CriticCheck, check_changes, closes_most, uncovered_clause
 from camdegrade.diagnose.critique import Critique
 from camdegrade.diagnose.verdict import held_back_clause

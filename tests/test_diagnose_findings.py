@@ -1,5 +1,6 @@
-"""The diagnosis' two findings (:mod:`camdegrade.diagnose.attribute`): the profile's own misfit (changes to what it
-has) apart from the effects it lacks, and a missing effect that a large misfit hid, found once the misfit is fixed.
+"""The diagnosis' two findings (:mod:`camdegrade.diagnose.attribution.attribute`): the profile's own misfit (changes to
+what it has) apart from the effects it lacks, and a missing effect that a large misfit hid, found once the misfit is
+fixed.
 
 The search is a stub here (no images): it returns the changes a real search returned on the suite's
 ``underfit-chromatic_aberration`` scenario (``bench/bench_diagnose.py``: a blur stage half as wide as the camera's
@@ -9,8 +10,8 @@ from __future__ import annotations
 
 from types import SimpleNamespace
 
-from camdegrade.diagnose.attribute import Attribution, _grow
-from camdegrade.diagnose.changes import Change
+from camdegrade.diagnose.attribution.attribute import Attribution, _grow
+from camdegrade.diagnose.attribution.changes import Change
 from camdegrade.diagnose.core import _missing_rows
 from camdegrade.diagnose.verdict import finding_sentence
 from camdegrade.profile import CameraProfile

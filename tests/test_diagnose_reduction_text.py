@@ -9,7 +9,7 @@ import re
 import torch
 
 from camdegrade.diagnose import diagnose
-from camdegrade.diagnose.changes import Change
+from camdegrade.diagnose.attribution.changes import Change
 from camdegrade.effects import Noise, Vignetting
 from camdegrade.profile import CameraProfile
 from camdegrade.sim import VirtualCamera

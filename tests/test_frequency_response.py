@@ -10,7 +10,7 @@ import torch
 from torch import Tensor
 
 from camdegrade import CameraProfile
-from camdegrade.diagnose.attribute import check_candidates
+from camdegrade.diagnose.attribution.attribute import check_candidates
 from camdegrade.effects import EFFECTS, FrequencyResponse
 from camdegrade.fitting.steps.response import ResponseMatch
 from camdegrade.functional import frequency_response_image

@@ -128,7 +128,7 @@ def test_a_weight_out_of_range_is_refused_at_save(tmp_path) -> None:
 def test_the_diagnosis_may_remove_a_learned_stage_but_never_refits_it() -> None:
     """A refit calls the stage's pair fitter, which a learned stage lacks: it used to end the diagnosis with a
     NotImplementedError."""
-    from camdegrade.diagnose.changes import RefitStage, RemoveStage
+    from camdegrade.diagnose.attribution.changes import RefitStage, RemoveStage
 
     profile = CameraProfile(None, [Blur(0.8), strong("learned_texture")])
     assert [plan.target for plan in RefitStage().plans(profile, [], {"frequency"})] == [0]

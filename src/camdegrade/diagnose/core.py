@@ -8,11 +8,12 @@ import os
 from collections.abc import Callable, Iterable
 
 from camdegrade._support.checks import check_seed
-from camdegrade.diagnose.attribute import Attribution, attribute, check_candidates, keeping
-from camdegrade.diagnose.changes import KINDS, Change, check_kinds, effect_params
+from camdegrade.diagnose.attribution.attribute import Attribution, attribute, check_candidates, keeping
+from camdegrade.diagnose.attribution.changes import KINDS, Change, check_kinds, effect_params
 from camdegrade.diagnose.critic_check import CriticCheck, check_changes
 from camdegrade.diagnose.critique import Critique, critiques
-from camdegrade.diagnose.report import DiagnosisReport, example_crops, flat_crops
+from camdegrade.diagnose.report import DiagnosisReport
+from camdegrade.diagnose.report.crops import example_crops, flat_crops
 from camdegrade.diagnose.verdict import IMAGE_ONLY, command_reference, fraction_closed, refit_command, verdict_text
 from camdegrade.diagnose.where import findings, visible
 from camdegrade.errors import PairsError

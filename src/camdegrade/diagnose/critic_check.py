@@ -28,8 +28,8 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
-from camdegrade.diagnose.attribute import Attribution
-from camdegrade.diagnose.changes import Change
+from camdegrade.diagnose.attribution.attribute import Attribution
+from camdegrade.diagnose.attribution.changes import Change
 from camdegrade.diagnose.critique import CRITIC_CHANCE, Critique, critiques
 from camdegrade.measures.visible import TEXTURE_LOG2, TextureComparison, compare_texture
 from camdegrade.pairs.pairset import PairSet

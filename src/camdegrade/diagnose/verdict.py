@@ -8,11 +8,11 @@ import os
 import shlex
 
 from camdegrade._support.text import not_an_option
-from camdegrade.diagnose.attribute import Attribution
-from camdegrade.diagnose.changes import Change
+from camdegrade.diagnose.attribution.attribute import Attribution
+from camdegrade.diagnose.attribution.changes import Change
+from camdegrade.diagnose.attribution.signature import not_a_cause_clause
 from camdegrade.diagnose.critic_check import CriticCheck, uncovered_clause
 from camdegrade.diagnose.critique import CRITIC_CHANCE, Critique
-from camdegrade.diagnose.signature import not_a_cause_clause
 from camdegrade.pairs.pair import PairReport
 
 __all__ = [

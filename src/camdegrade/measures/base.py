@@ -94,7 +94,7 @@ class Family:
     mixing: ClassVar[bool] = False
     #: Whether the statistic is a pattern at the pixel scale (the noise's next-pixel correlation, 8×8 block edges),
     #: which a stage mixing neighbouring pixels changes: an effect with this signature looks different on either side
-    #: of such a stage (the diagnosis tries it on both, :mod:`camdegrade.diagnose.placement`).
+    #: of such a stage (the diagnosis tries it on both, :mod:`camdegrade.diagnose.attribution.placement`).
     pixel_pattern: ClassVar[bool] = False
     paired: ClassVar[bool] = True
 

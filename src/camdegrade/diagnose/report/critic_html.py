@@ -9,7 +9,7 @@ import html
 from collections.abc import Mapping, Sequence
 from typing import Any
 
-from camdegrade.diagnose._html import png_url, table
+from camdegrade.diagnose.report._html import png_url, table
 from camdegrade.measures.critic.explain import SurePatch, surest_png
 
 __all__ = ["DETAIL_GAIN", "critic_section"]

@@ -7,31 +7,25 @@ base64; without matplotlib the same evidence is shown as tables. Example crops a
 from __future__ import annotations
 
 import html
-import io
 import json
 import math
 import os
-from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import torch
 from torch import Tensor
 
 from camdegrade._support.files import atomic_path
-from camdegrade.diagnose._html import image_url, png_url, table
-from camdegrade.diagnose.critic_html import critic_section
-from camdegrade.functional.analysis.images import flattest_window
+from camdegrade.diagnose.report._html import table
+from camdegrade.diagnose.report.critic_html import critic_section
+from camdegrade.diagnose.report.crops import crop_grid
+from camdegrade.diagnose.report.plots import evidence_plots, fallback_tables
 from camdegrade.measures import FAMILIES
 from camdegrade.measures.critic.explain import SurePatch
-from camdegrade.measures.families.frequency import BANDS, Frequency
-from camdegrade.measures.families.intensity import INTENSITY_BINS
-from camdegrade.measures.families.noise import NOISE_BINS, NoiseLevel
-from camdegrade.measures.families.spatial import TILES
 from camdegrade.profile import CameraProfile
 
-__all__ = ["REQUIRED_KEYS", "DiagnosisReport", "example_crops", "flat_crops", "render_html"]
+__all__ = ["REQUIRED_KEYS", "DiagnosisReport", "render_html"]
 
 #: Keys every JSON report has at the top level (more follow them).
 REQUIRED_KEYS = ("gap_before", "gap_after", "noise_floor", "where", "effects", "added")
@@ -143,136 +137,11 @@ def _number(value: float) -> float:
     return round(float(value), 4) if math.isfinite(float(value)) else 0.0
 
 
-def example_crops(
-    cleans: Sequence[Tensor], reals: Sequence[Tensor], before: Sequence[Tensor], after: Sequence[Tensor], count: int = 3
-) -> list[tuple[str, list[Tensor]]]:
-    """Up to ``count`` crops (clean, real, sim before, sim after) from the most textured held-out images,
-    taken where real and simulation before differ most (96 px at most)."""
-    scored = sorted(range(len(cleans)), key=lambda i: -float((reals[i] - before[i]).abs().mean()))[:count]
-    out = []
-    for index in scored:
-        height, width = cleans[index].shape[-2:]
-        side = min(96, height, width)
-        diff = (reals[index] - before[index]).abs().mean(0)
-        window = torch.nn.functional.avg_pool2d(diff[None, None], side, stride=max(1, side // 4))[0, 0]
-        top, left = divmod(int(window.argmax()), window.shape[-1])
-        top, left = top * max(1, side // 4), left * max(1, side // 4)
-        crop = (slice(top, top + side), slice(left, left + side))
-        out.append(
-            (
-                f"held-out pair {index}",
-                [image[:, crop[0], crop[1]] for image in (cleans[index], reals[index], before[index], after[index])],
-            )
-        )
-    return out
-
-
-def flat_crops(
-    cleans: Sequence[Tensor], reals: Sequence[Tensor], before: Sequence[Tensor], after: Sequence[Tensor], side: int = 96
-) -> list[tuple[str, list[Tensor]]]:
-    """One ``side``² crop at 1:1 (real, sim before, sim after) of the held-out pair with the largest flat region,
-    where the clean image is flattest: noise and banding show there first."""
-    side = min(side, *(min(clean.shape[-2:]) for clean in cleans))
-    windows = [flattest_window(clean, side, step=max(1, side // 4)) for clean in cleans]
-    if not windows:
-        return []
-    best = max(range(len(windows)), key=lambda index: windows[index][1])
-    (rows, cols), share = windows[best]
-    crop = (slice(None), rows, cols)
-    label = f"held-out pair {best}, {share:.0%} flat"
-    return [(label, [image[crop] for image in (reals[best], before[best], after[best])])]
-
-
-def _figure_png(figure: Any) -> str:
-    buffer = io.BytesIO()
-    figure.savefig(buffer, format="png", dpi=80, bbox_inches="tight")
-    import matplotlib.pyplot as plt
-
-    plt.close(figure)
-    return png_url(buffer.getvalue())
-
-
-def _plots(report: DiagnosisReport) -> list[tuple[str, str]]:
-    """(caption, data URL) for each evidence plot; empty without matplotlib or statistics."""
-    try:
-        import matplotlib
-
-        matplotlib.use("Agg", force=False)
-        import matplotlib.pyplot as plt
-    except ImportError:
-        return []
-    stats = report.statistics
-    if not stats:
-        return []
-    real, before, after = stats["real"], stats["before"], stats["after"]
-    plots = []
-    figure, axes = plt.subplots(1, 3, figsize=(9, 3))
-    vmax = max(1.0, float((real["spatial"] - before["spatial"]).abs().max()))
-    for axis, (label, sim) in zip(axes, (("before", before), ("after", after), ("", None)), strict=True):
-        if sim is None:
-            axis.axis("off")
-            continue
-        diff = (real["spatial"] - sim["spatial"]).reshape(3, TILES, TILES).mean(0)
-        shown = axis.imshow(diff.numpy(), cmap="coolwarm", vmin=-vmax, vmax=vmax)
-        axis.set_title(f"real − sim {label} (levels)")
-        axis.set_xticks([])
-        axis.set_yticks([])
-    figure.colorbar(shown, ax=axes[2], fraction=0.8)
-    plots.append(("Spatial map: mean difference per tile (vignetting, tone, colour)", _figure_png(figure)))
-
-    figure, axes = plt.subplots(1, 3, figsize=(10, 3))
-    centres = (torch.arange(INTENSITY_BINS) + 0.5) / INTENSITY_BINS
-    for name, sim, style in (("sim before", before, "--"), ("sim after", after, ":")):
-        axes[0].plot(centres, (real["intensity"] - sim["intensity"]).reshape(3, -1).T.numpy(), style)
-        axes[0].plot([], [], "k" + style, label=name)
-    axes[0].axhline(0, color="k", lw=0.5)
-    axes[0].set_title("tone residual real − sim (levels)")
-    axes[0].set_xlabel("clean value")
-    axes[0].legend(fontsize=7)
-    centres = (torch.arange(NOISE_BINS) + 0.5) / NOISE_BINS
-    for name, values, style in (("real", real, "-"), ("sim before", before, "--"), ("sim after", after, ":")):
-        axes[1].plot(centres, torch.nanmean(values["noise"].reshape(3, -1), 0).numpy(), "k" + style, label=name)
-    axes[1].set_title("noise-level function (std, levels)")
-    axes[1].set_xlabel("clean value")
-    axes[1].legend(fontsize=7)
-    frequencies = (torch.arange(1, BANDS) + 0.5) / BANDS * 0.5
-    for name, values, style in (("real", real, "-"), ("sim before", before, "--"), ("sim after", after, ":")):
-        axes[2].plot(frequencies, values["frequency"].numpy(), "k" + style, label=name)
-    axes[2].set_title("transfer vs clean (rel. to lowest band)")
-    axes[2].set_xlabel("cycles / pixel")
-    axes[2].legend(fontsize=7)
-    figure.tight_layout()
-    plots.append(("Intensity, noise and frequency signatures", _figure_png(figure)))
-    return plots
-
-
 def _pm(value: float, error: float | None, needed: float | None = None) -> str:
     """A reduction with its standard error, or what it needed to count where it was not bootstrapped."""
     if error is not None:
         return f"{value:+.2f} ± {error:.2f}"
     return f"{value:+.2f}" if needed is None else f"{value:+.2f} (below the {needed:.2f} that counts)"
-
-
-def _fallback_tables(report: DiagnosisReport) -> str:
-    stats = report.statistics
-    if not stats:
-        return ""
-    real, before, after = stats["real"], stats["before"], stats["after"]
-    rows = []
-    for name in (NoiseLevel.name, Frequency.name):
-        for k in range(real[name].numel()):
-            rows.append(
-                (
-                    name,
-                    k,
-                    f"{float(real[name][k]):.3f}",
-                    f"{float(before[name][k]):.3f}",
-                    f"{float(after[name][k]):.3f}",
-                )
-            )
-    return "<h2>Signatures (tables: install the 'report' extra for plots)</h2>" + table(
-        rows, ("statistic", "bin/band", "real", "sim before", "sim after")
-    )
 
 
 _STYLE = (
@@ -405,30 +274,17 @@ def _combinations(report: DiagnosisReport) -> str:
 
 
 def _flat_crops(report: DiagnosisReport) -> str:
-    return _crop_grid("A flat region at 1:1 (real | sim before | sim after)", report.flat_crops, scale=1)
+    return crop_grid("A flat region at 1:1 (real | sim before | sim after)", report.flat_crops, scale=1)
 
 
 def _evidence(report: DiagnosisReport) -> str:
     figures = "".join(
         f"<figure><img src='{url}' alt='{html.escape(caption)}'><figcaption>{html.escape(caption)}</figcaption>"
         "</figure>"
-        for caption, url in _plots(report)
+        for caption, url in evidence_plots(report.statistics)
     )
-    return figures or _fallback_tables(report)
+    return figures or fallback_tables(report.statistics)
 
 
 def _crops(report: DiagnosisReport) -> str:
-    return _crop_grid("Examples (clean | real | sim before | sim after)", report.crops)
-
-
-def _crop_grid(title: str, crops: Sequence[tuple[str, Sequence[Tensor]]], scale: int = 2) -> str:
-    """An HTML section of labelled rows of images side by side (nothing when there are none)."""
-    if not crops:
-        return ""
-    rows = "".join(
-        f"<div>{html.escape(label)}<br>"
-        + "".join(f"<img src='{image_url(image, scale)}' alt=''>" for image in images)
-        + "</div>"
-        for label, images in crops
-    )
-    return f"<h2>{html.escape(title)}</h2><div class='crops'>{rows}</div>"
+    return crop_grid("Examples (clean | real | sim before | sim after)", report.crops)

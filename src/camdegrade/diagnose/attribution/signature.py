@@ -8,10 +8,10 @@ stages that mix pixels make of it, :func:`own_families`; for the network, the fa
 :attr:`~camdegrade.measures.Family.network_fault`) say so: at least one of them differs between the simulation and
 the captures beyond the measurement's own noise (the ``where`` rule: above three times its null band and above one
 unit), and the change moves them toward the captures by as much as any reduction must be to count (the rule the
-whole gap's reduction is held to, :mod:`camdegrade.diagnose.search`: above three bootstrap standard errors over the
-held-out pairs and above the smallest reduction that can count on that gap). What it takes off the other families is
-a side effect, not evidence: an effect moves more than its signature (a vignetting's dark corners lower the tone
-residual of every bin too), so the other families neither count for nor against it.
+whole gap's reduction is held to, :mod:`camdegrade.diagnose.attribution.search`: above three bootstrap standard errors
+over the held-out pairs and above the smallest reduction that can count on that gap). What it takes off the other
+families is a side effect, not evidence: an effect moves more than its signature (a vignetting's dark corners lower the
+tone residual of every bin too), so the other families neither count for nor against it.
 
 A change whose signature is the transfer function (a :attr:`~camdegrade.measures.Family.mixing` family: a blur, a
 sharpening, a denoiser, a codec, the network) also changes what a person sees, the texture's band power: where it
@@ -34,16 +34,16 @@ from typing import TYPE_CHECKING
 
 import torch
 
+from camdegrade.diagnose.attribution.placement import mixes_pixels
 from camdegrade.diagnose.heldout import MIN_REDUCTION, SIGNIFICANCE, HeldOut
-from camdegrade.diagnose.placement import mixes_pixels
 from camdegrade.effects import EFFECTS, Effect
 from camdegrade.measures import FAMILIES, StatisticSet, family_gaps
 from camdegrade.measures.visible import TEXTURE_LOG2, TextureComparison, compare_texture
 from camdegrade.profile import CameraProfile
 
 if TYPE_CHECKING:
-    from camdegrade.diagnose.changes import Change
-    from camdegrade.diagnose.round_view import Round
+    from camdegrade.diagnose.attribution.changes import Change
+    from camdegrade.diagnose.attribution.round_view import Round
 
 __all__ = ["Agreement", "agreement", "judge_cause", "not_a_cause_clause", "own_families"]
 

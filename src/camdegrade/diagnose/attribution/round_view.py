@@ -1,6 +1,6 @@
 """What the kinds of change, their placements and the cause rule read of the search round they are made in: the
-round's view as protocols (:class:`~camdegrade.diagnose.search.Round` and its ``Search`` are what runs), so that
-the search imports the kinds and the kinds name no class of the search."""
+round's view as protocols (:class:`~camdegrade.diagnose.attribution.search.Round` and its ``Search`` are what runs), so
+that the search imports the kinds and the kinds name no class of the search."""
 
 from __future__ import annotations
 
@@ -19,7 +19,7 @@ Made = tuple[CameraProfile, Effect | None, str]
 
 
 class SearchView(Protocol):
-    """What a change reads of the search it is made in (:class:`~camdegrade.diagnose.search.Search`)."""
+    """What a change reads of the search it is made in (:class:`~camdegrade.diagnose.attribution.search.Search`)."""
 
     cleans: list[Tensor]
     reals: list[Tensor]
@@ -32,7 +32,7 @@ class SearchView(Protocol):
 
 
 class Round(Protocol):
-    """What a change reads of the round it is made in (:class:`~camdegrade.diagnose.search.Round`)."""
+    """What a change reads of the round it is made in (:class:`~camdegrade.diagnose.attribution.search.Round`)."""
 
     search: SearchView
     current: CameraProfile

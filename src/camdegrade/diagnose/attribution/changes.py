@@ -10,8 +10,8 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
-from camdegrade.diagnose.placement import Placement, make_placed, placements
-from camdegrade.diagnose.round_view import Made, Round
+from camdegrade.diagnose.attribution.placement import Placement, make_placed, placements
+from camdegrade.diagnose.attribution.round_view import Made, Round
 from camdegrade.effects import EFFECTS, Effect
 from camdegrade.fitting.in_chain import replace_stage
 from camdegrade.fitting.network.finetune import finetune_network
@@ -57,7 +57,7 @@ class Change:
     #: The smallest reduction that could count where this change was tried (NaN: not evaluated).
     reduction_needed: float = float("nan")
     #: It lowers the gap significantly, but its own statistics do not agree that it is the cause
-    #: (:mod:`camdegrade.diagnose.signature`): never accepted, ranked after the changes that name a cause.
+    #: (:mod:`camdegrade.diagnose.attribution.signature`): never accepted, ranked after the changes that name a cause.
     not_a_cause: bool = False
 
     @property
@@ -139,8 +139,8 @@ class AddEffect(ChangeKind):
 
     def plans(self, current: CameraProfile, adds: Sequence[str], axes: set[str]) -> list[Plan]:
         """Each candidate the profile lacks at its stage, and each at the other places in the chain where it would
-        look different (:func:`~camdegrade.diagnose.placement.placements`; those of the profile as diagnosed are
-        added by :meth:`~camdegrade.diagnose.search.Search.plans`)."""
+        look different (:func:`~camdegrade.diagnose.attribution.placement.placements`; those of the profile as diagnosed
+        are added by :meth:`~camdegrade.diagnose.attribution.search.Search.plans`)."""
         return self.placed_plans(current, adds)
 
     def placed_plans(

@@ -11,10 +11,10 @@ top of the profile, every change of four kinds is fitted on the calibration part
 - **network**: a short fine-tune of the network through the stages after it, when a signature that no effect
   explains (8×8 blocks, the high-frequency transfer) is significant.
 
-Each kind is one class in :mod:`camdegrade.diagnose.changes`; :mod:`camdegrade.diagnose.search` fits and measures
-them. Changes are ranked by held-out gap. The best is accepted when its reduction is significant (beyond three bootstrap
-standard errors and a minimum size); the other significant changes are then refitted on top of it (combinations),
-until nothing helps or ``max_changes`` are accepted.
+Each kind is one class in :mod:`camdegrade.diagnose.attribution.changes`; :mod:`camdegrade.diagnose.attribution.search`
+fits and measures them. Changes are ranked by held-out gap. The best is accepted when its reduction is significant
+(beyond three bootstrap standard errors and a minimum size); the other significant changes are then refitted on top of
+it (combinations), until nothing helps or ``max_changes`` are accepted.
 
 **Two findings.** A change to what the profile has (refit or remove a stage, fine-tune the network) fixes the
 profile's own **misfit**; adding an effect names one the camera has and the profile **lacks**. A large misfit must
@@ -32,9 +32,9 @@ from dataclasses import dataclass
 
 from torch import Tensor
 
-from camdegrade.diagnose.changes import KINDS, Change, check_kinds
+from camdegrade.diagnose.attribution.changes import KINDS, Change, check_kinds
+from camdegrade.diagnose.attribution.search import Log, Round, Search
 from camdegrade.diagnose.heldout import Baseline, HeldOut, ImagePairs
-from camdegrade.diagnose.search import Log, Round, Search
 from camdegrade.effects import EFFECTS, check_effect_names
 from camdegrade.measures import StatisticSet, family_gaps
 from camdegrade.profile import CameraProfile

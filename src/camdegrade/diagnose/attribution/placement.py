@@ -26,14 +26,14 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
-from camdegrade.diagnose.strength import refine_strength
+from camdegrade.diagnose.attribution.strength import refine_strength
 from camdegrade.effects import EFFECTS, STAGES, Effect
 from camdegrade.fitting.in_chain import fit_stage_in_chain
 from camdegrade.measures import FAMILIES
 from camdegrade.profile import CameraProfile
 
 if TYPE_CHECKING:
-    from camdegrade.diagnose.round_view import Made, Round
+    from camdegrade.diagnose.attribution.round_view import Made, Round
 
 __all__ = [
     "Placement",

@@ -10,11 +10,11 @@ from typing import cast
 
 from torch import Tensor
 
-from camdegrade.diagnose.changes import KINDS, AddEffect, Change, Plan, add_effect
+from camdegrade.diagnose.attribution.changes import KINDS, AddEffect, Change, Plan, add_effect
+from camdegrade.diagnose.attribution.round_view import Made
+from camdegrade.diagnose.attribution.signature import judge_cause
+from camdegrade.diagnose.attribution.strength import refine_strength
 from camdegrade.diagnose.heldout import SIGNIFICANCE, Baseline, HeldOut, ImagePairs
-from camdegrade.diagnose.round_view import Made
-from camdegrade.diagnose.signature import judge_cause
-from camdegrade.diagnose.strength import refine_strength
 from camdegrade.effects import Effect
 from camdegrade.effects.base import evenly_spaced
 from camdegrade.errors import CamdegradeError
@@ -183,7 +183,7 @@ class Round:
 def prefer_simpler(ranked: list[Change]) -> list[Change]:
     """``ranked`` (by held-out gap) with a simpler change of the same stage moved ahead of the best when it does as
     well (within half the best's reduction SE, or 2 % of its gap): removing vignetting, rather than refitting it to
-    nothing. Not one that is not a cause (:mod:`camdegrade.diagnose.signature`)."""
+    nothing. Not one that is not a cause (:mod:`camdegrade.diagnose.attribution.signature`)."""
     if len(ranked) < 2 or ranked[0].error is not None:
         return ranked
     best = ranked[0]
