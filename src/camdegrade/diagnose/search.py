@@ -11,6 +11,7 @@ from torch import Tensor
 
 from camdegrade.diagnose.changes import KINDS, Change, Made, Plan, add_effect
 from camdegrade.diagnose.heldout import SIGNIFICANCE, Baseline, HeldOut, ImagePairs
+from camdegrade.diagnose.memo import GapsByContent
 from camdegrade.diagnose.strength import refine_strength
 from camdegrade.effects import Effect
 from camdegrade.effects.base import evenly_spaced
@@ -51,6 +52,7 @@ class Search:
         self.seed = seed
         self.check = HeldOut.build(evenly_spaced(calibration, REFINE_PAIRS), seed, "strength-check")
         self.check.calibrate(profile)
+        self.check_gaps = GapsByContent(self.check)  # after calibrate: the gaps are on its scale
         pixels = sum(clean.shape[-1] * clean.shape[-2] for clean in self.cleans) / len(self.cleans)
         self.noise_pairs = min(NOISE_PAIRS, max(MIN_NOISE_PAIRS, round(NOISE_PIXELS / pixels)))
 
@@ -112,9 +114,8 @@ class Round:
 
     def check_gap(self, profile: CameraProfile | None = None) -> float:
         """The calibration check set's gap of ``profile`` (default: the current one)."""
-        check = self.search.check
         if profile is not None:
-            return check.gap(check.statistics(profile)[0])
+            return self.search.check_gaps(profile)
         if self._check_gap is None:
             self._check_gap = self.check_gap(self.current)
         return self._check_gap
