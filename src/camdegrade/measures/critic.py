@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import math
 import statistics
+import threading
 import time
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field, fields, replace
@@ -73,6 +74,8 @@ BOOTSTRAP_ROUNDS = 1000
 RADIUS_EDGES = (1 / 3, 2 / 3)
 INTENSITY_EDGES = (1 / 3, 2 / 3)
 FLAT_SHARE = 0.5
+#: Held while a critic's initial weights are drawn from torch's global generator, seeded for it.
+_GLOBAL_RNG = threading.Lock()
 
 
 #: Input planes: clean RGB, residual RGB (image − clean), the image's fine detail RGB (image minus its 3×3
@@ -277,7 +280,7 @@ class CriticResult:
 
 def train_critic(patches: Patches, seed: int, steps: int = STEPS) -> CriticNet:
     """The critic fitted to ``patches`` with Adam, minibatches drawn from a seeded generator."""
-    with torch.random.fork_rng(devices=[]):
+    with _GLOBAL_RNG, torch.random.fork_rng(devices=[]):  # critics may be trained side by side
         torch.manual_seed(derive_seed(seed, "critic-init"))
         net = CriticNet(planes=patches.inputs.shape[1])
     net.standardise(patches.inputs)
