@@ -33,16 +33,18 @@ def torch_threads(threads: int | None) -> Iterator[None]:
 
 
 def side_by_side(calls: Sequence[Callable[[], T]]) -> list[T]:
-    """Each call's result, in order. With at least as many torch threads as calls, the calls run side by side, each
-    in a thread of its own with one torch thread (small operations, such as a critic's on 32² patches, keep two cores
-    busier this way than each split over two threads); otherwise one after the other. Each call draws its randomness
-    from its own generators, and gives the same bytes side by side as alone with one torch thread."""
-    if len(calls) < 2 or torch.get_num_threads() < len(calls):
+    """Each call's result, in order. With two or more torch threads, the calls run side by side on that many worker
+    threads (at most one per call) of one torch thread each: small operations, such as a critic's on 32² patches,
+    keep two cores busier this way than each split over two threads. With one torch thread, one after the other.
+    Each call draws its randomness from its own generators, and gives the same bytes side by side as alone with one
+    torch thread."""
+    workers = min(len(calls), torch.get_num_threads())
+    if workers < 2:
         return [call() for call in calls]
 
     def alone(call: Callable[[], T]) -> T:
         torch.set_num_threads(1)  # this worker thread's own count (OpenMP keeps one per thread)
         return call()
 
-    with ThreadPoolExecutor(len(calls)) as pool:
+    with ThreadPoolExecutor(workers) as pool:
         return list(pool.map(alone, calls))

@@ -10,8 +10,8 @@ from dataclasses import dataclass
 from torch import Tensor
 
 from camdegrade.diagnose.changes import KINDS, Change, Made, Plan, add_effect
+from camdegrade.diagnose.evaluation import GapsByContent, evaluated
 from camdegrade.diagnose.heldout import SIGNIFICANCE, Baseline, HeldOut, ImagePairs
-from camdegrade.diagnose.memo import GapsByContent
 from camdegrade.diagnose.strength import refine_strength
 from camdegrade.effects import Effect
 from camdegrade.effects.base import evenly_spaced
@@ -69,11 +69,12 @@ class Search:
         """Every change on top of ``current`` (which ``before`` built), best first; ``allowed`` restricts them to
         those ``(kind, name)`` (None: all)."""
         round_ = Round(self, current, stats, gap_now, before, say)
-        results = [
-            round_.evaluate(plan)
+        plans = [
+            plan
             for plan in self.plans(current, adds)
             if plan.kind.kind in self.kinds and (allowed is None or (plan.kind.kind, plan.name) in allowed)
         ]
+        results = evaluated(round_, plans)
         return prefer_simpler(sorted(results, key=lambda change: change.gap_after))
 
     def plans(self, current: CameraProfile, adds: Sequence[str]) -> list[Plan]:
