@@ -51,6 +51,7 @@ def main_parser(prog: str | None = None) -> argparse.ArgumentParser:
 def main(cli_args: Sequence[str] | None = None, prog: str | None = None) -> int:
     """Run the CLI with ``cli_args`` (default: ``sys.argv[1:]``); return the exit status."""
     _tolerant_output()
+    _sleeping_openmp_threads()
     parser = main_parser(prog)
     args = parser.parse_args(cli_args)
     try:
@@ -74,6 +75,15 @@ def main(cli_args: Sequence[str] | None = None, prog: str | None = None) -> int:
     except KeyboardInterrupt:  # Ctrl-C: what was written is whole (every write is atomic)
         print(f"{parser.prog}: interrupted", file=sys.stderr)
         return 130
+
+
+def _sleeping_openmp_threads() -> None:
+    """Torch's OpenMP threads sleep while they wait, unless ``OMP_WAIT_POLICY`` says otherwise. Threads that spin
+    wait for each other's time slices on a machine other processes share: there the diagnosis' held-out baseline
+    took 75 s with 2 spinning threads and 1.4 s with 2 sleeping ones (docs/performance.md, *The diagnosis*). OpenMP
+    reads the policy when torch loads, so it is set only before that."""
+    if "torch" not in sys.modules:
+        os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 
 def _stdout_closed() -> bool:

@@ -11,6 +11,7 @@ from typing import cast
 from torch import Tensor
 
 from camdegrade.diagnose.attribution.changes import KINDS, AddEffect, Change, Plan, add_effect
+from camdegrade.diagnose.attribution.evaluation import GapsByContent, evaluated
 from camdegrade.diagnose.attribution.round_view import Made
 from camdegrade.diagnose.attribution.signature import judge_cause
 from camdegrade.diagnose.attribution.strength import refine_strength
@@ -54,6 +55,7 @@ class Search:
         self.seed = seed
         self.check = HeldOut.build(evenly_spaced(calibration, REFINE_PAIRS), seed, "strength-check")
         self.check.calibrate(profile)
+        self.check_gaps = GapsByContent(self.check)  # after calibrate: the gaps are on its scale
         pixels = sum(clean.shape[-1] * clean.shape[-2] for clean in self.cleans) / len(self.cleans)
         self.noise_pairs = min(NOISE_PAIRS, max(MIN_NOISE_PAIRS, round(NOISE_PIXELS / pixels)))
 
@@ -70,11 +72,12 @@ class Search:
         """Every change on top of ``current`` (which ``before`` built), best first; ``allowed`` restricts them to
         those ``(kind, name)`` (None: all)."""
         round_ = Round(self, current, stats, gap_now, before, say)
-        results = [
-            round_.evaluate(plan)
+        plans = [
+            plan
             for plan in self.plans(current, adds)
             if plan.kind.kind in self.kinds and (allowed is None or (plan.kind.kind, plan.name) in allowed)
         ]
+        results = evaluated(round_, plans)
         return prefer_simpler(sorted(results, key=lambda change: (change.not_a_cause, change.gap_after)))
 
     def plans(self, current: CameraProfile, adds: Sequence[str]) -> list[Plan]:
@@ -117,9 +120,8 @@ class Round:
 
     def check_gap(self, profile: CameraProfile | None = None) -> float:
         """The calibration check set's gap of ``profile`` (default: the current one)."""
-        check = self.search.check
         if profile is not None:
-            return check.gap(check.statistics(profile)[0])
+            return self.search.check_gaps(profile)
         if self._check_gap is None:
             self._check_gap = self.check_gap(self.current)
         return self._check_gap

@@ -52,11 +52,22 @@ def hann2d(height: int, width: int, dtype: torch.dtype = torch.float32, device: 
 
 def box_mean(image: Tensor, size: int) -> Tensor:
     """Local mean over a ``size × size`` window (``[..., H, W]``, odd ``size``), edges averaged over the valid part."""
-    flat = image.reshape(-1, 1, *image.shape[-2:])
-    half = size // 2  # separable: the mean over the valid rectangle is the mean of the row means
-    out = F.avg_pool2d(flat, (1, size), stride=1, padding=(0, half), count_include_pad=False)
-    out = F.avg_pool2d(out, (size, 1), stride=1, padding=(half, 0), count_include_pad=False)
-    return out.reshape(image.shape)
+    # separable: the mean over the valid rectangle is the mean of the row means
+    return _window_mean(_window_mean(image, size, -1), size, -2)
+
+
+def _window_mean(image: Tensor, size: int, dim: int) -> Tensor:
+    """The mean over ``size`` neighbours along ``dim`` (the valid ones at the edges): the window's values added in
+    order and divided by their count, the same bytes as ``avg_pool2d(..., count_include_pad=False)`` and a few times
+    faster on the CPU for small windows (its kernel walks the window per output pixel)."""
+    half, length = size // 2, image.shape[dim]
+    padding = (half, half) if dim == -1 else (0, 0, half, half)
+    padded = F.pad(image.reshape(-1, *image.shape[-2:]), padding)
+    total = padded.narrow(dim, 0, length).clone()
+    for offset in range(1, size):
+        total += padded.narrow(dim, offset, length)
+    count = F.pad(image.new_ones(length), (half, half)).unfold(0, size, 1).sum(1)
+    return (total / (count if dim == -1 else count[:, None])).reshape(image.shape)
 
 
 def high_pass(image: Tensor, size: int = 9) -> Tensor:

@@ -20,6 +20,7 @@ References:
 
 from __future__ import annotations
 
+import threading
 import time
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
@@ -56,6 +57,8 @@ BOOTSTRAP_ROUNDS = 1000
 #: Group edges of the "where it decides" breakdown.
 RADIUS_EDGES = (1 / 3, 2 / 3)
 INTENSITY_EDGES = (1 / 3, 2 / 3)
+#: Held while a critic's initial weights are drawn from torch's global generator, seeded for it.
+_GLOBAL_RNG = threading.Lock()
 
 
 class CriticNet(nn.Module):
@@ -123,7 +126,7 @@ class CriticResult:
 
 def train_critic(patches: Patches, seed: int, steps: int = STEPS) -> CriticNet:
     """The critic fitted to ``patches`` with Adam, minibatches drawn from a seeded generator."""
-    with torch.random.fork_rng(devices=[]):
+    with _GLOBAL_RNG, torch.random.fork_rng(devices=[]):  # critics may be trained side by side
         torch.manual_seed(derive_seed(seed, "critic-init"))
         net = CriticNet(planes=patches.inputs.shape[1])
     net.standardise(patches.inputs)

@@ -22,11 +22,13 @@ import math
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from functools import partial
 
 import torch
 from PIL import Image, ImageDraw
 from torch import Tensor
 
+from camdegrade._runtime.threads import side_by_side
 from camdegrade._support.pixels import unit_to_bytes
 from camdegrade.measures.critic import (
     IMAGE_ONLY_PLANES,
@@ -248,21 +250,32 @@ def crossfit_critic_test(
             f"{len(trains)}"
         )
     started = time.perf_counter()
-    scored, folds, fold_logits = [], [], []
-    for side in (True, False):
-        train = tuple([item for item, t in zip(column, trains, strict=True) if bool(t) is side] for column in pairs)
-        held = tuple([item for item, t in zip(column, trains, strict=True) if bool(t) is not side] for column in pairs)
-        net = train_critic(Patches.sample(*train, seed, "critic-calibration", image_only), seed, steps)
-        patches = Patches.sample(*held, seed, "critic-held-out", image_only)
-        towards_real = logits(net, patches)
-        folds.append(float(((towards_real > 0).float() == patches.labels).float().mean()))
-        scored.append(patches)
-        fold_logits.append(towards_real)
-    patches, towards_real = Patches.concat(scored), torch.cat(fold_logits)
+    scored = side_by_side([partial(_fold, pairs, trains, side, seed, steps, image_only) for side in (True, False)])
+    folds = [float(((towards_real > 0).float() == patches.labels).float().mean()) for patches, towards_real in scored]
+    patches, towards_real = (
+        Patches.concat([p for p, _ in scored]),
+        torch.cat([fold_logits for _, fold_logits in scored]),
+    )
     result = score_logits(towards_real, patches, seed, time.perf_counter() - started)
     groups, edges = groups_from_logits(towards_real, patches)
     explanation = CriticExplanation(surest_from_logits(towards_real, patches, k, per_pair), groups, edges)
     return result, explanation, (folds[0], folds[1])
+
+
+def _fold(
+    pairs: tuple[Sequence[Tensor], Sequence[Tensor], Sequence[Tensor]],
+    trains: Sequence[bool],
+    side: bool,
+    seed: int,
+    steps: int,
+    image_only: bool,
+) -> tuple[Patches, Tensor]:
+    """One fold: a critic trained on the pairs ``trains`` marks ``side``, and its logits on the others' patches."""
+    train = tuple([item for item, t in zip(column, trains, strict=True) if bool(t) is side] for column in pairs)
+    held = tuple([item for item, t in zip(column, trains, strict=True) if bool(t) is not side] for column in pairs)
+    net = train_critic(Patches.sample(*train, seed, "critic-calibration", image_only), seed, steps)
+    patches = Patches.sample(*held, seed, "critic-held-out", image_only)
+    return patches, logits(net, patches)
 
 
 def render_surest(
