@@ -20,7 +20,7 @@ from camdegrade.fitting.unpaired import fit_unpaired
 from camdegrade.fitting.unpaired.color_tone import channel_quantiles, color_tone_estimate, pixel_sample
 from camdegrade.fitting.unpaired.judges import self_check_warnings
 from camdegrade.fitting.unpaired.noise import RAISE_LIMIT, fit_noise_unpaired, flat_sums, smooth_levels
-from camdegrade.profile import check_profile_values
+from camdegrade.profile import CameraProfile, check_profile_values
 from camdegrade.synthetic import dead_leaves_images
 
 
@@ -146,10 +146,8 @@ def _camera_folder(folder: Path, kind: str, count: int = 10, size: int = 128) ->
     return folder
 
 
-@pytest.mark.slow
-@pytest.mark.parametrize("kind", ["dark", "jpeg30", "rgba", "webp"])
-def test_every_unpaired_fit_of_a_generated_camera_saves_and_loads(kind: str, tmp_path: Path) -> None:
-    captured = _camera_folder(tmp_path / "captured", kind)
+def _fitted_and_saved(captured: Path, tmp_path: Path) -> CameraProfile:
+    """The unpaired fit of ``captured`` against ten dead-leaves clean images, checked to save and load."""
     clean = tmp_path / "clean"
     clean.mkdir()
     for index, scene in enumerate(dead_leaves_images(10, 128, seed=8)):
@@ -157,8 +155,38 @@ def test_every_unpaired_fit_of_a_generated_camera_saves_and_loads(kind: str, tmp
     profile = fit_unpaired(captured, clean)
     check_profile_values(profile)
     profile.save(tmp_path / "p.safetensors")
-    loaded = load_profile(tmp_path / "p.safetensors")
-    assert loaded.effect_names == profile.effect_names
+    assert load_profile(tmp_path / "p.safetensors").effect_names == profile.effect_names
+    return profile
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("kind", ["dark", "jpeg30", "rgba", "webp"])
+def test_every_unpaired_fit_of_a_generated_camera_saves_and_loads(kind: str, tmp_path: Path) -> None:
+    _fitted_and_saved(_camera_folder(tmp_path / "captured", kind), tmp_path)
+
+
+def _squared_dark_camera(folder: Path, count: int = 10, size: int = 128) -> Path:
+    """Issue 44's dark camera (case "effect 2 (tone): gamma must be from 0 (exclusive) to 16"), darker than
+    ``_camera_folder``'s: the scenes' values squared (a dark tone curve) at 1 % of their level, plus 2 levels of
+    noise. At commit ``e826a1a`` (the tone curve fitted as levels and gamma alone) the fit took gamma 20.83 with
+    black −7.39 and exposure 0, and the profile could not be saved (the ``dark`` camera above, at 1 % without the
+    squared curve, took gamma 15.1, just inside the stage's 16, and saved)."""
+    folder.mkdir()
+    generator = np.random.default_rng(5)
+    for index, scene in enumerate(dead_leaves_images(count, size, seed=7)):
+        pixels = scene.permute(1, 2, 0).numpy().astype(np.float64)
+        pixels[16:56, 16:56] = 60 + 15 * index  # a grey card
+        dark = 255 * (pixels / 255) ** 2 * 0.01 + generator.normal(0, 2.0, pixels.shape)
+        Image.fromarray(np.clip(np.round(dark), 0, 255).astype(np.uint8)).save(folder / f"{index:02d}.png")
+    return folder
+
+
+@pytest.mark.slow
+def test_a_camera_with_a_dark_tone_curve_is_an_exposure_and_its_profile_saves(tmp_path: Path) -> None:
+    """The exposure is fitted first: about −9.5 stops and a gamma near 1."""
+    profile = _fitted_and_saved(_squared_dark_camera(tmp_path / "captured"), tmp_path)
+    tone = {effect.name: effect for effect in profile.effects}["tone"]
+    assert float(tone.gamma) <= 4.0 and float(tone.exposure) < -6.0, tone
 
 
 def test_a_monochrome_camera_is_a_grey_colour_matrix_not_a_colour_cast(tmp_path: Path) -> None:
