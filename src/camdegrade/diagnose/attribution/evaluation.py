@@ -13,27 +13,21 @@
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable
 from typing import Protocol
 
 from camdegrade._runtime.outputs import ProfileKeys
 from camdegrade._runtime.threads import side_by_side
 from camdegrade.diagnose.attribution.changes import Change, Plan
+from camdegrade.diagnose.attribution.round_view import Round
 from camdegrade.diagnose.heldout import HeldOut
 from camdegrade.profile import CameraProfile
 
 __all__ = ["Evaluating", "GapsByContent", "evaluated"]
 
 
-class Evaluating(Protocol):
+class Evaluating(Round, Protocol):
     """What :func:`evaluated` needs of a search round (:class:`~camdegrade.diagnose.attribution.search.Round`, a
-    dataclass whose ``say`` a copy replaces): its shared values and how one plan is made and measured."""
-
-    say: Callable[[str], None]
-
-    def sources(self) -> list: ...
-
-    def check_gap(self) -> float: ...
+    dataclass whose ``say`` a copy replaces): what a change reads of it, and how one plan is made and measured."""
 
     def evaluate(self, plan: Plan) -> Change: ...
 
