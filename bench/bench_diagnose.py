@@ -36,6 +36,7 @@ from typing import Any
 
 import torch
 import torch.nn.functional as F
+from markdown_tables import markdown_table
 from torch import Tensor
 
 from camdegrade import DomainShiftNet, load_profile
@@ -345,21 +346,11 @@ def _correct(found: dict[str, Any], expected: str | None, misfit: str | None) ->
 
 
 def summary_table(rows: list[dict[str, Any]]) -> str:
-    lines = [
-        "| scenario | expected | misfit reported | missing, first | accepted | gap before | gap after | floor | closed "
-        "| critic before → after | param error | s |",
-        "|---|---|---|---|---|---:|---:|---:|---:|---|---:|---:|",
-    ]
-    for row in rows:
-        error = row["parameter_error"]
-        critic = f"{row['critic_before']:.2f} → {row['critic_after']:.2f}" if row["critic_before"] is not None else "–"
-        lines.append(
-            f"| {row['scenario']} | {row['expected'] or '–'} | {', '.join(row['misfit']) or 'none'} "
-            f"| {row['missing_first'] or '–'} | {', '.join(row['accepted']) or 'none'} "
-            f"| {row['gap_before']:.2f} | {row['gap_after']:.2f} "
-            f"| {row['noise_floor']:.2f} | {row['fraction_closed']:.0%} | {critic} "
-            f"| {'–' if error is None else f'{error:.2f}'} | {row['seconds']:.0f} |"
-        )
+    columns = (
+        "scenario", "expected", "misfit reported", "missing, first", "accepted", "gap before", "gap after", "floor",
+        "closed", "critic before → after", "param error", "s",
+    )  # fmt: skip
+    lines = markdown_table(columns, map(_summary_cells, rows), numeric=(*columns[5:9], *columns[10:]))
     scenarios = [row for row in rows if row["expected"]]
     correct = [row for row in scenarios if row["correct"]]
     control = [row for row in rows if not row["expected"]]
@@ -375,6 +366,17 @@ def summary_table(rows: list[dict[str, Any]]) -> str:
         f"{len(critic_rows)} scenarios where it starts above 0.6"
     )
     return "\n".join(lines)
+
+
+def _summary_cells(row: dict[str, Any]) -> list[str]:
+    error = row["parameter_error"]
+    critic = f"{row['critic_before']:.2f} → {row['critic_after']:.2f}" if row["critic_before"] is not None else "–"
+    return [
+        row["scenario"], row["expected"] or "–", ", ".join(row["misfit"]) or "none", row["missing_first"] or "–",
+        ", ".join(row["accepted"]) or "none", f"{row['gap_before']:.2f}", f"{row['gap_after']:.2f}",
+        f"{row['noise_floor']:.2f}", f"{row['fraction_closed']:.0%}", critic, "–" if error is None else f"{error:.2f}",
+        f"{row['seconds']:.0f}",
+    ]  # fmt: skip
 
 
 def timing(pairs: int = 100, size: int = 256) -> dict[str, Any]:
