@@ -19,19 +19,7 @@ import torch
 import torch.nn.functional as F
 from PIL import Image, ImageDraw
 
-from camdegrade.effects import (
-    JPEG,
-    Blur,
-    ChromaticAberration,
-    Color,
-    Distortion,
-    Effect,
-    Misalignment,
-    Noise,
-    Sharpen,
-    Tone,
-    Vignetting,
-)
+from camdegrade import effects as fx
 from camdegrade.io import atomic_path
 from camdegrade.sim import VirtualCamera
 
@@ -46,19 +34,19 @@ def source_photo(tile: int) -> torch.Tensor:
     return F.interpolate(crop[None], size=(tile, tile), mode="bilinear", antialias=True)[0]
 
 
-def panels() -> list[tuple[str, Effect | VirtualCamera | None]]:
+def panels() -> list[tuple[str, fx.Effect | VirtualCamera | None]]:
     return [
         ("clean", None),
-        ("blur sigma=1.2, motion 3px", Blur(1.2, motion_length=3.0, motion_angle=30.0)),
-        ("noise a=0.01 b=1e-4 +rows", Noise(0.01, 1e-4, 0.01)),
-        ("vignetting k1=-0.6", Vignetting(-0.6)),
-        ("jpeg quality 12", JPEG(12)),
-        ("chrom. aberration ±2%", ChromaticAberration(0.02, -0.02)),
-        ("misalignment 4px, 3°", Misalignment(4.0, -2.0, 3.0)),
-        ("color (warm cast)", Color(torch.tensor([[1.25, 0.05, 0.0], [0.0, 1.0, 0.0], [0.0, 0.05, 0.7]]))),
-        ("tone (low dyn. range)", Tone(1.2, -0.12, 0.8)),
-        ("sharpen sigma=1.5 amount=2", Sharpen(1.5, 2.0, 0.01)),
-        ("distortion k1=0.25", Distortion(0.25)),
+        ("blur sigma=1.2, motion 3px", fx.Blur(1.2, motion_length=3.0, motion_angle=30.0)),
+        ("noise a=0.01 b=1e-4 +rows", fx.Noise(0.01, 1e-4, 0.01)),
+        ("vignetting k1=-0.6", fx.Vignetting(-0.6)),
+        ("jpeg quality 12", fx.JPEG(12)),
+        ("chrom. aberration ±2%", fx.ChromaticAberration(0.02, -0.02)),
+        ("misalignment 4px, 3°", fx.Misalignment(4.0, -2.0, 3.0)),
+        ("color (warm cast)", fx.Color(torch.tensor([[1.25, 0.05, 0.0], [0.0, 1.0, 0.0], [0.0, 0.05, 0.7]]))),
+        ("tone (low dyn. range)", fx.Tone(1.2, -0.12, 0.8)),
+        ("sharpen sigma=1.5 amount=2", fx.Sharpen(1.5, 2.0, 0.01)),
+        ("distortion k1=0.25", fx.Distortion(0.25)),
         ("preset lowcost-robot", VirtualCamera.from_preset("lowcost-robot")),
         ("preset phone-indoor", VirtualCamera.from_preset("phone-indoor")),
     ]
