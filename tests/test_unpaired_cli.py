@@ -70,6 +70,8 @@ PASSED: dict[str, tuple[str, Any]] = {
     "--description": ("description", "a camera"),
     "--quiet": ("progress", False),
     "--device": ("device", "cpu"),  # the only device it runs on: accepted, nothing to pass
+    "--checkpoint": ("checkpoint", Path("other.ckpt.safetensors")),
+    "--resume": ("resume", True),  # of the default checkpoint, which the test writes first
 }
 #: Options that are the command's own arguments, not options to pass or refuse.
 ARGUMENTS = ("-h", "--help", "-o", "--output", "--unpaired", "--clean")
@@ -124,8 +126,12 @@ def test_every_option_of_fit_is_either_used_or_refused_by_the_unpaired_fit() -> 
 def test_an_option_the_unpaired_fit_uses_reaches_it(
     option: str, tmp_path: Path, recorded: list[dict[str, Any]], capsys: pytest.CaptureFixture
 ) -> None:
+    default_checkpoint = tmp_path / "p.ckpt.safetensors"
+    if option == "--resume":
+        default_checkpoint.write_bytes(b"an earlier fit's")
     code, _, err = run_cli(_command(tmp_path, option, *SAMPLES[option]), capsys)
     assert code == 0, err
+    assert not default_checkpoint.exists()  # removed once the profile is written
     ((keyword, value),) = [PASSED[option]]
     if keyword != "device":
         assert recorded[0][keyword] == value, recorded
@@ -142,6 +148,7 @@ def test_left_out_the_options_keep_the_unpaired_defaults(
     call = recorded[0]
     assert call["effects"] == UNPAIRED_EFFECTS and call["seed"] == 0 and call["sensor_scale"] == "auto"
     assert call["max_images"] is None and call["strict"] is False and call["name"] == "p"
+    assert call["checkpoint"] == tmp_path / "p.ckpt.safetensors" and call["resume"] is False
 
 
 @pytest.mark.parametrize("option", [option for option in _options() if option not in PASSED])

@@ -5,6 +5,7 @@ from __future__ import annotations
 __all__ = [
     "BatchError",
     "CamdegradeError",
+    "CheckpointError",
     "FitInterrupted",
     "ImageError",
     "PairsError",
@@ -23,6 +24,11 @@ class CamdegradeError(Exception):
 class FitInterrupted(CamdegradeError):
     """A fit was interrupted (Ctrl-C); the checkpoint of its last finished epoch (or step) is kept for ``resume``.
     Here rather than with the network's training: the learned texture stage's trainer raises it too."""
+
+
+class CheckpointError(CamdegradeError, ValueError):
+    """A checkpoint cannot be resumed from: not a checkpoint of this fit, damaged, or written for other images or
+    options."""
 
 
 class ProfileError(CamdegradeError, ValueError):

@@ -31,7 +31,8 @@ __all__ = ["add_parser", "run"]
 #: What ``fit --unpaired`` does with each of ``fit``'s options (by ``dest``; ``tests/test_unpaired_cli.py`` builds the
 #: parser and holds every option to one of the two): passed on to :func:`~camdegrade.fitting.unpaired.fit_unpaired`
 #: (``--max-pairs`` as ``max_images``, ``--threads`` by the command line for every command; ``--device``: the
-#: unpaired fit runs on the CPU, another device is refused) ...
+#: unpaired fit runs on the CPU, another device is refused; ``--checkpoint``: written after each step, default
+#: OUTPUT with ``.ckpt.safetensors``, removed once the profile is written) ...
 UNPAIRED_USES: tuple[str, ...] = (
     "unpaired",
     "clean",
@@ -47,6 +48,8 @@ UNPAIRED_USES: tuple[str, ...] = (
     "name",
     "description",
     "quiet",
+    "checkpoint",
+    "resume",
 )
 _NO_NETWORK = "an unpaired profile has no network to train"
 #: ... or refused by name when given, with the reason.
@@ -62,8 +65,6 @@ UNPAIRED_REFUSES: dict[str, str] = {
     "align": "there are no pairs to register",
     "size_mismatch": "there are no pairs to match: images of any sizes are read as they are",
     "init_from": _NO_NETWORK,
-    "checkpoint": "the unpaired fit writes no checkpoint",
-    "resume": "the unpaired fit writes no checkpoint",
 }
 #: Option values that mean "not given" besides ``None`` (the parser's defaults).
 _NOT_GIVEN: dict[str, object] = {"recipe": "fast", "size_mismatch": "skip", "align": False, "resume": False}
@@ -169,26 +170,36 @@ def _unpaired_effects(effects: Sequence[str], learned: str | None) -> Sequence[s
 
 
 def _run_unpaired(args: argparse.Namespace) -> int:
-    """``fit --unpaired CAPTURED [--clean CLEAN]``: :func:`~camdegrade.fitting.unpaired.fit_unpaired`, written."""
+    """``fit --unpaired CAPTURED [--clean CLEAN]``: :func:`~camdegrade.fitting.unpaired.fit_unpaired`, written; the
+    checkpoint it writes after each step removed once the profile is."""
+    from camdegrade.errors import FitInterrupted
     from camdegrade.fitting.unpaired import UNPAIRED_EFFECTS, fit_unpaired
 
     refuse_unpaired_options(args)
-    check_suffix("--output", args.output)
-    check_outputs({"--output": args.output}, [])
-    profile = fit_unpaired(
-        args.unpaired,
-        args.clean,
-        effects=_unpaired_effects(UNPAIRED_EFFECTS if args.effects is None else args.effects, args.learned_texture),
-        seed=args.seed if args.seed is not None else 0,
-        sensor_scale=args.sensor_scale if args.sensor_scale is not None else "auto",
-        max_images=args.max_pairs,
-        strict=args.strict,
-        progress=not args.quiet,
-        name=args.name or args.output.stem,
-        description=args.description,
-        log=say,
-    )
+    checkpoint = _checkpoint(args)
+    check_suffix("--checkpoint", checkpoint)
+    check_outputs({"--output": args.output, "--checkpoint": checkpoint}, [])
+    try:
+        profile = fit_unpaired(
+            args.unpaired,
+            args.clean,
+            effects=_unpaired_effects(UNPAIRED_EFFECTS if args.effects is None else args.effects, args.learned_texture),
+            seed=args.seed if args.seed is not None else 0,
+            sensor_scale=args.sensor_scale if args.sensor_scale is not None else "auto",
+            max_images=args.max_pairs,
+            strict=args.strict,
+            progress=not args.quiet,
+            name=args.name or args.output.stem,
+            description=args.description,
+            log=say,
+            checkpoint=checkpoint,
+            resume=args.resume,
+        )
+    except FitInterrupted as interrupted:
+        print(f"camdegrade fit: {interrupted}; run again with --resume", file=sys.stderr)
+        return 130
     profile.save(args.output)
+    checkpoint.unlink(missing_ok=True)
     say(profile.describe())
     print(f"wrote {printable(args.output)}")
     for warning in profile.fitted.get("warnings", []):

@@ -29,6 +29,7 @@ ratio, band log2 power differences of the set means).
 from __future__ import annotations
 
 import math
+import os
 import time
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, replace
@@ -38,6 +39,7 @@ import torch
 from tqdm.auto import tqdm
 
 from camdegrade._support.checks import check_seed
+from camdegrade._support.files import check_writable
 from camdegrade.effects import (
     JPEG,
     Blur,
@@ -56,12 +58,13 @@ from camdegrade.effects import (
 )
 from camdegrade.effects._fitting import downscale
 from camdegrade.effects.base import evenly_spaced
-from camdegrade.errors import CamdegradeError
+from camdegrade.errors import CamdegradeError, FitInterrupted
 from camdegrade.fitting.record import machine_record
 from camdegrade.fitting.steps.base import Verdict, run_steps
 from camdegrade.fitting.steps.resolution import sensor_trace, sensor_verdict
 from camdegrade.fitting.two_sample.gate import LearnedTextureMatch
 from camdegrade.fitting.unpaired.bench import Measured, UnpairedFit, UnpairedStep
+from camdegrade.fitting.unpaired.checkpoint import StepCheckpoint, check_checkpoint, fit_fingerprint
 from camdegrade.fitting.unpaired.color_tone import ColorToneMatch
 from camdegrade.fitting.unpaired.images import MIN_IMAGES, ImageSet, Source, check_count, load_images, load_sides
 from camdegrade.fitting.unpaired.jpeg import JpegQuality
@@ -186,6 +189,8 @@ def fit_unpaired(
     name: str = "",
     description: str = "",
     log: Log | None = None,
+    checkpoint: str | os.PathLike[str] | None = None,
+    resume: bool = False,
 ) -> CameraProfile:
     """Fit an effects-only camera profile from the camera's photos ``captured`` and an optional ``clean`` set of
     other scenes of similar content (each a folder, or a list of ``(3, H, W)`` tensors, ``(H, W, 3)`` numpy arrays
@@ -200,12 +205,21 @@ def fit_unpaired(
         max_images: read at most this many images of each side.
         strict: refuse instead of warning: an unreadable file (before any fitting), or a result with a warning.
         progress: a progress bar over the steps.
+        checkpoint: a ``.safetensors`` file the fit writes after each step (atomically: the file is always a whole
+            checkpoint, :mod:`camdegrade.fitting.unpaired.checkpoint`). It is left in place after the fit: remove it
+            once the profile is saved (``camdegrade fit`` does).
+        resume: continue the fit ``checkpoint`` holds at the step after its last finished one. The result is the
+            profile an uninterrupted fit gives (same bytes, but for ``fit_minutes``).
 
     Raises:
         PairsError: fewer than :data:`MIN_IMAGES` usable images on a side (unreadable files and images under 16 px
             a side are skipped), not a folder, a side without contrast, the same images on both sides; with
             ``strict``, a skipped file.
         CamdegradeError: with ``strict``, a result with a warning.
+        CheckpointError: with ``resume``, a ``checkpoint`` that is not an unpaired fit's checkpoint, or one written for
+            other images or options.
+        FitInterrupted: Ctrl-C during a step, with a ``checkpoint`` (which holds the steps before it).
+        FileNotFoundError: with ``resume``, no file at ``checkpoint``.
         TypeError, ValueError: an image of a list that is not an RGB image in [0, 1] or uint8 (named by its
             index), a seed that is not an int.
         ValueError: an effect that needs correspondence (:data:`NOT_IDENTIFIABLE`), or captures with too few flat
@@ -218,13 +232,22 @@ def fit_unpaired(
         if not isinstance(text, str):
             raise TypeError(f"{label} must be a str, got {label}={text!r} ({type(text).__name__})")
     check_seed(seed)
+    path = check_checkpoint(checkpoint, resume)
+    if path is not None:
+        check_writable(path)
     started = time.perf_counter()
     captures, cleans, warnings = load_sides(captured, clean, max_images, strict)
     say(f"unpaired fit: {len(captures.images)} captures, {len(cleans.images) if cleans else 'no'} clean images")
+    options = {"wanted": wanted, "seed": seed, "sensor_scale": sensor_scale, "max_images": max_images}
+    fingerprint = fit_fingerprint(captures, cleans, steps, **options) if path else {}  # hashes every pixel
+    saved = StepCheckpoint(path, fingerprint, [label for label, _ in steps])
+    if resume:
+        saved.read()
     fit = UnpairedFit(captures, cleans, measure(captures, cleans), wanted, seed, say)
     fit.warnings += warnings
-    with tqdm(total=len(steps), desc="unpaired fit", unit="step", disable=not progress) as bar:
-        run_steps(_shown(steps, bar), fit)
+    if resume:
+        started -= saved.restore(fit)
+    _run(steps, fit, saved, started, progress)
     profile = CameraProfile(None, fit.chain(), name=name, description=description)
     profile.quality = {"unpaired_fidelity": set_fidelity(fit)}
     fit.warnings += self_check_warnings(profile.quality["unpaired_fidelity"], wanted, with_clean=cleans is not None)
@@ -234,6 +257,25 @@ def fit_unpaired(
     if strict and fit.warnings:
         raise CamdegradeError(f"{fit.warnings[0]}; strict: no profile (fix the input, or run without strict)")
     return profile
+
+
+def _run(
+    steps: Sequence[tuple[str, UnpairedStep]], fit: UnpairedFit, saved: StepCheckpoint, started: float, progress: bool
+) -> None:
+    """The steps ``saved`` has not done, each written to its file once done (:meth:`StepCheckpoint.save`); an
+    interruption (Ctrl-C) during a step ends the fit with :class:`~camdegrade.errors.FitInterrupted` naming the file
+    that holds the steps before it (re-raised as it is without a file)."""
+
+    def done(count: int) -> None:
+        saved.save(fit, count, time.perf_counter() - started)
+
+    try:
+        with tqdm(total=len(steps), initial=saved.done, desc="unpaired fit", unit="step", disable=not progress) as bar:
+            run_steps(_shown(steps, saved.done, bar, done), fit)
+    except (KeyboardInterrupt, FitInterrupted):
+        if saved.path is None:
+            raise
+        raise FitInterrupted(saved.interrupted()) from None
 
 
 def check_sensor_scale(value: Any) -> float | None:
@@ -341,9 +383,13 @@ def _record(fit: UnpairedFit, seconds: float) -> dict[str, Any]:
     return out
 
 
-def _shown(steps: Sequence[tuple[str, UnpairedStep]], bar: tqdm) -> Iterator[UnpairedStep]:
-    """``steps`` one after the other, each shown on ``bar`` while it runs."""
-    for label, step in steps:
+def _shown(
+    steps: Sequence[tuple[str, UnpairedStep]], start: int, bar: tqdm, done: Callable[[int], None]
+) -> Iterator[UnpairedStep]:
+    """``steps`` from index ``start`` on, one after the other, each shown on ``bar`` while it runs; ``done(count)``
+    once the first ``count`` steps are done."""
+    for count, (label, step) in enumerate(steps[start:], start + 1):
         bar.set_postfix_str(label)
         yield step
         bar.update(1)
+        done(count)

@@ -68,6 +68,9 @@ class ImageSet:
     digests: list[str] = field(default_factory=list)
 
     def add(self, image: Tensor) -> None:
+        # One memory layout: the fit's sums run in layout order, so a channels-last list gave other bytes than the
+        # same pixels read from files (and than a checkpoint's fingerprint, which hashes the pixels, can tell).
+        image = image.contiguous()
         self.images.append(image)
         self.digests.append(_digest(image))
 
