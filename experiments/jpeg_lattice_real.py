@@ -18,7 +18,7 @@ import numpy as np
 import torch
 from PIL import Image
 
-from camdegrade.fitting.unpaired.jpeg import quality_from_tables
+from camdegrade.fitting.unpaired.steps.jpeg import quality_from_tables
 from camdegrade.measures.traces.quantisation import read_lattice
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "real-pairs"

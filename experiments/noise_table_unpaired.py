@@ -15,7 +15,7 @@ reproducing the fitting images' noise exactly would score). Printed: per subset,
 ``--measurement`` prints instead what limits the captures-only column (first the three captures of each subset
 whose own-flat reading is furthest above their clean-referenced noise, then the table): on the checking half
 itself, the noise read from each capture's own flat pixels (binned by its own local mean,
-:func:`~camdegrade.fitting.unpaired.noise.flat_sums`, what the unpaired fit matches) against the real noise there
+:func:`~camdegrade.fitting.unpaired.steps.noise.flat_sums`, what the unpaired fit matches) against the real noise there
 (clean-referenced), with no fit between:
 how much of the error is the single-image measurement (content texture, the capture's own mask and bins).
 ``--splits N`` repeats the table over N halvings (the first as above, the others with each camera and ISO group
@@ -44,7 +44,7 @@ from noise_table import SUBSETS, _load, _residual_sums, _simulate, default_real_
 from camdegrade.effects import Noise
 from camdegrade.fitting.unpaired import MIN_IMAGES, fit_unpaired
 from camdegrade.fitting.unpaired.fit import STAND_IN_SIGMA
-from camdegrade.fitting.unpaired.noise import flat_sums, judge_noise, propose_noise
+from camdegrade.fitting.unpaired.steps.noise import flat_sums, judge_noise, propose_noise
 from camdegrade.functional.optics.blur import blur_image
 
 

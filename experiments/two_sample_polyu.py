@@ -30,7 +30,7 @@ from camdegrade.fitting import Pair, discover_pairs, filter_pairs, load_pair
 from camdegrade.fitting.two_sample.gate import StageTraining, fit_learned_stage, set_statistics
 from camdegrade.fitting.two_sample.train import TwoSampleOptions, fit_two_sample
 from camdegrade.fitting.unpaired import fit_unpaired
-from camdegrade.fitting.unpaired.noise import flat_sums
+from camdegrade.fitting.unpaired.steps.noise import flat_sums
 
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_DATA = ROOT.parent / "shared" / "data" / "real-pairs"

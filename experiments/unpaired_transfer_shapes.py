@@ -1,7 +1,7 @@
 """Which transfer-function shape the iPhone X of City100 has, seen by the unpaired fit's spectrum statistic (issue 27).
 
 The unpaired fit matches the mean log power spectrum of the captures (8 radial bands from 0.058 to 0.5
-cycles/pixel, each image's contrast taken out: :func:`camdegrade.fitting.unpaired.spectrum.mean_spectrum`) by
+cycles/pixel, each image's contrast taken out: :func:`camdegrade.fitting.unpaired.steps.spectrum.mean_spectrum`) by
 simulating a clean set of other scenes. Here, on its split (clean 001–035, captures 036–055), each family of
 shapes is searched on a grid and its best mismatch (mean squared log2 power difference) printed: a Gaussian PSF with
 an unsharp mask of radius 0.5–4 px (the fit's family has radius 1), a PSF whose MTF is ``exp(−(f/f₀)^p)`` (p 1, 1.5:
@@ -33,7 +33,7 @@ from camdegrade import CameraProfile
 from camdegrade._support.pixels import as_unit
 from camdegrade.effects import JPEG, Blur, Effect, FrequencyResponse, Resolution, Sharpen
 from camdegrade.effects.base import evenly_spaced
-from camdegrade.fitting.unpaired.spectrum import SPECTRUM_SIDE, band_centres, centre_crop, mean_spectrum
+from camdegrade.fitting.unpaired.steps.spectrum import SPECTRUM_SIDE, band_centres, centre_crop, mean_spectrum
 
 BLURS = (1.0, 1.125, 1.25, 1.375, 1.5)
 AMOUNTS = (0.0, 0.25, 0.5, 0.75, 1.0)

@@ -304,10 +304,7 @@ MAX_FILE_LINES = 400
 MAX_FOLDER_MODULES = 10
 #: Modules (path in the package) allowed more than MAX_FILE_LINES lines and folders ("path/", "./" the package
 #: itself) allowed more than MAX_FOLDER_MODULES modules, each with the reason: what is left for a later split.
-TOO_BIG: dict[str, str] = {
-    "fitting/unpaired/": "11 modules: the fit's loop, state, images, judges and checkpoint beside its five stage "
-    "fitters (color_tone, jpeg, noise, spectrum, vignetting), which a later split moves to a stages/ folder",
-}
+TOO_BIG: dict[str, str] = {}
 
 
 def _function_lengths(source: str, module: str) -> dict[str, int]:

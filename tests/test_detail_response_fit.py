@@ -1,4 +1,4 @@
-"""The unpaired fit's detail-response rule (:func:`camdegrade.fitting.unpaired.spectrum.fit_detail_response`) on
+"""The unpaired fit's detail-response rule (:func:`camdegrade.fitting.unpaired.steps.spectrum.fit_detail_response`) on
 its own: a simulation whose mean spectrum moves by twice the log2 gain per band (power is amplitude squared), so
 what the rule keeps and what it refuses is known exactly."""
 
@@ -7,7 +7,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from camdegrade.fitting.unpaired.spectrum import (
+from camdegrade.fitting.unpaired.steps.spectrum import (
     RESPONSE_FLOOR,
     RESPONSE_LIMIT,
     fit_band_gains,

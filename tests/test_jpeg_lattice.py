@@ -13,7 +13,7 @@ import skimage.data
 import torch
 from PIL import Image
 
-from camdegrade.fitting.unpaired.jpeg import quality_from_steps, standard_tables
+from camdegrade.fitting.unpaired.steps.jpeg import quality_from_steps, standard_tables
 from camdegrade.measures.traces.quantisation import FREQUENCIES, MIN_FREQUENCIES, read_lattice
 
 torch.set_num_threads(1)

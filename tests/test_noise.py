@@ -12,7 +12,7 @@ from torch import Tensor
 from camdegrade import CameraProfile, load_profile
 from camdegrade.effects import Noise
 from camdegrade.effects.sensor._noise_fit import LINE_KEPT, _autocorrelation, _set_banding, _symmetric_taps
-from camdegrade.fitting.unpaired.noise import flat_sums
+from camdegrade.fitting.unpaired.steps.noise import flat_sums
 from camdegrade.functional import poisson_gaussian_noise_image
 from camdegrade.functional.analysis.images import box_mean, flat_mask, flattest_window, noisy_flat_mask
 from camdegrade.functional.analysis.noise import NoiseSums, measure_set

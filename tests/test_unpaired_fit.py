@@ -19,7 +19,7 @@ from camdegrade.diagnose.unpaired import diagnose_unpaired
 from camdegrade.effects import JPEG, Blur, Color, FrequencyResponse, Noise, Sharpen, Tone, Vignetting
 from camdegrade.errors import PairsError
 from camdegrade.fitting.unpaired import MIN_IMAGES, NOT_IDENTIFIABLE, UNPAIRED_EFFECTS, fit_unpaired
-from camdegrade.fitting.unpaired.spectrum import RESPONSE_FLOOR
+from camdegrade.fitting.unpaired.steps.spectrum import RESPONSE_FLOOR
 from camdegrade.functional.isp.tone import tone_curve
 from camdegrade.functional.sensor.resolution import resolution_image
 from camdegrade.synthetic import dead_leaves_images
@@ -314,3 +314,13 @@ def test_the_unpaired_diagnosis_reads_the_statistics_the_fit_matched(
     assert statistics["agrees"] is True and "statistics agree" in report["verdict"], statistics
     untouched = diagnose_unpaired(CameraProfile(None, []), clean_folder, captured).to_dict()
     assert untouched["fit_statistics"]["agrees"] is False and "do not agree" in untouched["verdict"]
+
+
+def test_the_unpaired_vocabulary_names_registered_effects():
+    """The unpaired fit's stage lists are names (as recipes' are): each must be an effect of the registry."""
+    from camdegrade.effects import EFFECTS
+    from camdegrade.fitting.unpaired.fit import UNPAIRED_OPTIONAL
+
+    names = [*UNPAIRED_EFFECTS, *UNPAIRED_OPTIONAL, *NOT_IDENTIFIABLE]
+    assert [name for name in names if name not in EFFECTS] == []
+    assert not set(UNPAIRED_EFFECTS) & set(NOT_IDENTIFIABLE)

@@ -20,9 +20,9 @@ from camdegrade.effects import Blur, Noise, Tone, Vignetting
 from camdegrade.errors import CheckpointError, FitInterrupted
 from camdegrade.fitting.unpaired import fit_unpaired
 from camdegrade.fitting.unpaired.checkpoint import CHECKPOINT_KEY
-from camdegrade.fitting.unpaired.noise import NoiseMatch
-from camdegrade.fitting.unpaired.spectrum import TransferMatch
-from camdegrade.fitting.unpaired.vignetting import VignettingMatch
+from camdegrade.fitting.unpaired.steps.noise import NoiseMatch
+from camdegrade.fitting.unpaired.steps.spectrum import TransferMatch
+from camdegrade.fitting.unpaired.steps.vignetting import VignettingMatch
 from camdegrade.io import write_image
 from camdegrade.profile import load_profile
 from camdegrade.synthetic import dead_leaves_images

@@ -17,9 +17,9 @@ from camdegrade import load_profile
 from camdegrade.effects import JPEG, Noise, Tone
 from camdegrade.errors import CamdegradeError
 from camdegrade.fitting.unpaired import fit_unpaired
-from camdegrade.fitting.unpaired.color_tone import channel_quantiles, color_tone_estimate, pixel_sample
 from camdegrade.fitting.unpaired.judges import self_check_warnings
-from camdegrade.fitting.unpaired.noise import RAISE_LIMIT, fit_noise_unpaired, flat_sums, smooth_levels
+from camdegrade.fitting.unpaired.steps.color_tone import channel_quantiles, color_tone_estimate, pixel_sample
+from camdegrade.fitting.unpaired.steps.noise import RAISE_LIMIT, fit_noise_unpaired, flat_sums, smooth_levels
 from camdegrade.profile import CameraProfile, check_profile_values
 from camdegrade.synthetic import dead_leaves_images
 
@@ -76,7 +76,7 @@ def test_a_stage_out_of_its_range_is_not_kept_and_the_fit_says_so(monkeypatch: p
     def out_of_range(*args, **options):
         return None, Tone(gamma=17.26), {"gains": [1, 1, 1], "tone_change": [0.0]}
 
-    monkeypatch.setattr("camdegrade.fitting.unpaired.color_tone.judge_color_tone", out_of_range)
+    monkeypatch.setattr("camdegrade.fitting.unpaired.steps.color_tone.judge_color_tone", out_of_range)
     captures = [(image * 255).round().to(torch.uint8) for image in _scenes(3, 8, 32)]
     cleans = [(image * 255).round().to(torch.uint8) for image in _scenes(4, 8, 32)]
     profile = fit_unpaired(captures, cleans, effects=("tone",))

@@ -156,7 +156,7 @@ def calibrate(
         rounds: correction rounds of the level table and the correlations.
         banding: then fit row and column banding against the simulated null (none where the data show none).
         levels_rule: applied to the level table ``(3, K)`` after each correction (the unpaired fit's: smooth in
-            the signal level and bounded, :mod:`camdegrade.fitting.unpaired.noise`). Every table stays within
+            the signal level and bounded, :mod:`camdegrade.fitting.unpaired.steps.noise`). Every table stays within
             the stage's range (:attr:`Noise.MAX_LEVEL`) whatever the rule.
     """
     if rounds < 0:

@@ -37,8 +37,8 @@ from camdegrade.effects.base import evenly_spaced
 from camdegrade.fitting.two_sample.train import TwoSampleOptions, fit_two_sample
 from camdegrade.fitting.unpaired.bench import UnpairedFit, UnpairedStep
 from camdegrade.fitting.unpaired.judges import SIGNIFICANCE, split_half_error
-from camdegrade.fitting.unpaired.noise import flat_sums
-from camdegrade.fitting.unpaired.spectrum import SPECTRUM_SIDE, centre_crop
+from camdegrade.fitting.unpaired.steps.noise import flat_sums
+from camdegrade.fitting.unpaired.steps.spectrum import SPECTRUM_SIDE, centre_crop
 from camdegrade.measures.critic import PATCH, repeated_critic_test
 from camdegrade.measures.fidelity import band_power
 from camdegrade.profile import CameraProfile
@@ -118,7 +118,7 @@ class Judgement:
 def set_statistics(images: Sequence[Tensor], captures: Sequence[Tensor]) -> dict[str, Any]:
     """``images`` against ``captures`` (other scenes allowed): the set means' log2 band power differences on centre
     crops of :data:`SPECTRUM_SIDE`, and the flat-noise ratio, each set's own flat pixels
-    (:func:`~camdegrade.fitting.unpaired.noise.flat_sums`)."""
+    (:func:`~camdegrade.fitting.unpaired.steps.noise.flat_sums`)."""
 
     def bands(side: Sequence[Tensor]) -> Tensor:
         powers = [band_power(centre_crop(image, SPECTRUM_SIDE))[0] for image in side]

@@ -6,7 +6,7 @@ Every stage is fitted by matching a distribution of the captures (an effects-onl
 - ``jpeg``: each capture's quality, read from its quantisation tables when it is a JPEG file, else from the
   quantisation lattice its pixels still hold (a JPEG saved again losslessly, with a warning); a mixture of the
   qualities found when they differ; kept only when the captures are compressed more than the clean images
-  (:mod:`camdegrade.fitting.unpaired.jpeg`);
+  (:mod:`camdegrade.fitting.unpaired.steps.jpeg`);
 - ``color``, ``tone``: white-balance gains and a tone curve by quantile matching of the two sets;
 - ``vignetting``: the captures' mean radial luma profile over the clean set's (over a flat field without one);
 - ``blur``, ``sharpen``: the PSF and the unsharp mask whose simulation of the clean set has the captures' radial
@@ -15,7 +15,7 @@ Every stage is fitted by matching a distribution of the captures (an effects-onl
   has no Gaussian-plus-unsharp shape), as a gain per radial band, kept where that is more than a floor and a
   response fitted on each half of the sets also brings the other half's spectrum closer;
 - ``noise``: level per channel and intensity, spatial and chroma correlation, banding, from the captures' flat
-  regions (:mod:`camdegrade.fitting.unpaired.noise`), calibrated through the whole chain.
+  regions (:mod:`camdegrade.fitting.unpaired.steps.noise`), calibrated through the whole chain.
 
 The fit runs the paired fit's loop of steps (:func:`~camdegrade.fitting.steps.base.run_steps`) over
 :data:`UNPAIRED_STEPS`, each step judged by random halves of the two sets (:mod:`camdegrade.fitting.unpaired.judges`)
@@ -40,22 +40,7 @@ from tqdm.auto import tqdm
 
 from camdegrade._support.checks import check_seed
 from camdegrade._support.files import check_writable
-from camdegrade.effects import (
-    JPEG,
-    Blur,
-    ChromaticAberration,
-    Color,
-    Distortion,
-    Effect,
-    FrequencyResponse,
-    LearnedTexture,
-    Misalignment,
-    Noise,
-    Resolution,
-    Sharpen,
-    Tone,
-    Vignetting,
-)
+from camdegrade.effects import Effect, LearnedTexture, Resolution
 from camdegrade.effects._fitting import downscale
 from camdegrade.effects.base import evenly_spaced
 from camdegrade.errors import CamdegradeError, FitInterrupted
@@ -65,12 +50,12 @@ from camdegrade.fitting.steps.resolution import sensor_trace, sensor_verdict
 from camdegrade.fitting.two_sample.gate import LearnedTextureMatch
 from camdegrade.fitting.unpaired.bench import Measured, UnpairedFit, UnpairedStep
 from camdegrade.fitting.unpaired.checkpoint import StepCheckpoint, check_checkpoint, fit_fingerprint
-from camdegrade.fitting.unpaired.color_tone import ColorToneMatch
 from camdegrade.fitting.unpaired.images import MIN_IMAGES, ImageSet, Source, check_count, load_images, load_sides
-from camdegrade.fitting.unpaired.jpeg import JpegQuality
 from camdegrade.fitting.unpaired.judges import self_check_warnings
-from camdegrade.fitting.unpaired.noise import NoiseMatch, flat_sums
-from camdegrade.fitting.unpaired.spectrum import (
+from camdegrade.fitting.unpaired.steps.color_tone import ColorToneMatch
+from camdegrade.fitting.unpaired.steps.jpeg import JpegQuality
+from camdegrade.fitting.unpaired.steps.noise import NoiseMatch, flat_sums
+from camdegrade.fitting.unpaired.steps.spectrum import (
     SPECTRUM_SIDE,
     DetailResponseMatch,
     TransferMatch,
@@ -78,7 +63,7 @@ from camdegrade.fitting.unpaired.spectrum import (
     log_spectrum,
     mean_spectrum,
 )
-from camdegrade.fitting.unpaired.vignetting import RINGS, VignettingMatch, ring_profiles
+from camdegrade.fitting.unpaired.steps.vignetting import RINGS, VignettingMatch, ring_profiles
 from camdegrade.functional.optics.blur import blur_image
 from camdegrade.measures.fidelity import BAND_EDGES, band_power
 from camdegrade.measures.traces.resampling import ResamplingTrace
@@ -96,17 +81,17 @@ __all__ = [
 ]
 
 #: The stages :func:`fit_unpaired` fits by default, in the order they are fitted.
-UNPAIRED_EFFECTS: tuple[str, ...] = tuple(
-    kind.name for kind in (Resolution, JPEG, Color, Tone, Vignetting, Noise, Blur, Sharpen, FrequencyResponse)
-)
+UNPAIRED_EFFECTS: tuple[str, ...] = (
+    "resolution", "jpeg", "color", "tone", "vignetting", "noise", "blur", "sharpen", "frequency_response",
+)  # fmt: skip
 #: Stages :func:`fit_unpaired` fits only when asked for (``effects``): the learned texture stage
 #: (:mod:`camdegrade.fitting.two_sample.gate`), three trainings of a network and their critics.
 UNPAIRED_OPTIONAL: tuple[str, ...] = (LearnedTexture.name,)
 #: Stages that need to know where each clean pixel landed in the capture: an unpaired set cannot show them.
 NOT_IDENTIFIABLE: dict[str, str] = {
-    Misalignment.name: "a shift between clean image and capture is invisible without the same scene on both sides",
-    Distortion.name: "the lens's radial warp needs straight scene lines or a correspondence to be seen",
-    ChromaticAberration.name: "a channel's scale is seen against the same scene's other channels at edges only "
+    "misalignment": "a shift between clean image and capture is invisible without the same scene on both sides",
+    "distortion": "the lens's radial warp needs straight scene lines or a correspondence to be seen",
+    "chromatic_aberration": "a channel's scale is seen against the same scene's other channels at edges only "
     "with a reference; set statistics do not show it",
 }
 #: The noise is calibrated on at most ``NOISE_IMAGES`` clean images, whole (their flat pixels are selected as the
