@@ -5,6 +5,7 @@ from __future__ import annotations
 import importlib.util
 import os
 import sys
+from collections.abc import Iterator
 from pathlib import Path
 from types import ModuleType
 
@@ -30,6 +31,28 @@ def pytest_configure(config: pytest.Config) -> None:
         import torch
 
         torch.set_num_threads(max(1, (os.cpu_count() or 1) // workers))
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _no_unpaired_critic() -> Iterator[int]:
+    """The unpaired fit's self-check critic (two critics trained: seconds a fit) is measured only by the tests that
+    ask for it (the :func:`unpaired_critic` fixture); every other unpaired fit of the suite records it as not
+    measured, so that a hundred small fits do not spend minutes on a number their tests do not read. Yields the
+    package's own minimum."""
+    from camdegrade.fitting.unpaired import judges
+
+    with pytest.MonkeyPatch.context() as patch:
+        default = judges.MIN_CRITIC_IMAGES
+        patch.setattr(judges, "MIN_CRITIC_IMAGES", sys.maxsize)
+        yield default
+
+
+@pytest.fixture
+def unpaired_critic(_no_unpaired_critic: int, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The unpaired fits of this test measure the self-check critic, as a user's fit does."""
+    from camdegrade.fitting.unpaired import judges
+
+    monkeypatch.setattr(judges, "MIN_CRITIC_IMAGES", _no_unpaired_critic)
 
 
 @pytest.fixture(scope="session")

@@ -75,7 +75,9 @@ def quality_lines(quality: Mapping[str, Any]) -> list[str]:
     if isinstance(unpaired, Mapping):
         text = (
             f"bands log2 {_bands(unpaired.get('bands'))}, flat noise {_number(unpaired.get('noise_ratio'))}, "
-            f"spectrum mismatch {_number(unpaired.get('spectrum_mismatch'), 3)} (the clean set simulated vs captures)"
+            f"spectrum mismatch {_number(unpaired.get('spectrum_mismatch'), 3)}, image-only critic "
+            f"{_number(_mapping(unpaired.get('critic_image_only')).get('accuracy'))} (the clean set simulated vs "
+            "captures)"
         )
         lines += _labelled("unpaired", text)
     return lines

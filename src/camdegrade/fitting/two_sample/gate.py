@@ -36,10 +36,10 @@ from camdegrade.effects import Effect, LearnedTexture
 from camdegrade.effects.base import evenly_spaced
 from camdegrade.fitting.two_sample.train import TwoSampleOptions, fit_two_sample
 from camdegrade.fitting.unpaired.bench import UnpairedFit, UnpairedStep
-from camdegrade.fitting.unpaired.judges import SIGNIFICANCE, split_half_error
+from camdegrade.fitting.unpaired.judges import SIGNIFICANCE, common_crops, split_half_error
 from camdegrade.fitting.unpaired.steps.noise import flat_sums
 from camdegrade.fitting.unpaired.steps.spectrum import SPECTRUM_SIDE, centre_crop
-from camdegrade.measures.critic import PATCH, repeated_critic_test
+from camdegrade.measures.critic import repeated_critic_test
 from camdegrade.measures.fidelity import band_power
 from camdegrade.profile import CameraProfile
 
@@ -140,20 +140,6 @@ def statistics_distance(statistics: dict[str, Any]) -> float:
     return math.sqrt(sum(value * value for value in parts) / len(parts))
 
 
-def _triples(cleans: Sequence[Tensor], captures: Sequence[Tensor]) -> tuple[list[Tensor], list[Tensor]]:
-    """Each clean image with a capture (in turn), both cropped to their common size: the critic's patches are cut at
-    the same places of the capture and of the clean image's simulation (the scenes differ: unpaired)."""
-    kept_cleans, kept_captures = [], []
-    for index, clean in enumerate(cleans):
-        capture = captures[index % len(captures)]
-        height = min(clean.shape[-2], capture.shape[-2])
-        width = min(clean.shape[-1], capture.shape[-1])
-        if min(height, width) >= PATCH:
-            kept_cleans.append(clean[:, :height, :width])
-            kept_captures.append(capture[:, :height, :width])
-    return kept_cleans, kept_captures
-
-
 def _change_error(without: list[Tensor], with_stage: list[Tensor], captures: list[Tensor], seed: int) -> float:
     """The split-half standard error of the statistics' change (with the stage less without) over the judging
     images: how much their content alone moves it."""
@@ -180,7 +166,7 @@ def judge_learned_stage(
 ) -> Judgement:
     """Judge ``stage`` after ``named`` on held-out ``cleans`` and ``captures`` (at most :data:`JUDGE_IMAGES` of
     each; :class:`Judgement`)."""
-    cleans, captures = _triples(evenly_spaced(cleans, JUDGE_IMAGES), evenly_spaced(captures, JUDGE_IMAGES))
+    cleans, captures = common_crops(evenly_spaced(cleans, JUDGE_IMAGES), evenly_spaced(captures, JUDGE_IMAGES))
     scenes = [f"{index:04d}" for index in range(len(cleans))]
     rows, sims = {}, {}
     for label, profile in (("without", named), ("with", named.with_effects(stage))):

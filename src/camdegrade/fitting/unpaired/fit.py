@@ -51,7 +51,7 @@ from camdegrade.fitting.two_sample.gate import LearnedTextureMatch
 from camdegrade.fitting.unpaired.bench import Measured, UnpairedFit, UnpairedStep
 from camdegrade.fitting.unpaired.checkpoint import StepCheckpoint, check_checkpoint, fit_fingerprint
 from camdegrade.fitting.unpaired.images import MIN_IMAGES, ImageSet, Source, check_count, load_images, load_sides
-from camdegrade.fitting.unpaired.judges import self_check_warnings
+from camdegrade.fitting.unpaired.judges import self_check_critic, self_check_warnings
 from camdegrade.fitting.unpaired.steps.color_tone import ColorToneMatch
 from camdegrade.fitting.unpaired.steps.jpeg import JpegQuality
 from camdegrade.fitting.unpaired.steps.noise import NoiseMatch, flat_sums
@@ -309,7 +309,8 @@ def unpaired_fidelity(
 def set_fidelity(fit: UnpairedFit, profile: CameraProfile | None = None) -> dict[str, Any]:
     """The simulated clean set (through ``profile``, or the fitted chain) against the captures: flat-noise ratio
     (pooled std), the set means' log2 band power differences
-    (:data:`~camdegrade.measures.fidelity.BAND_EDGES`) and the spectrum mismatch."""
+    (:data:`~camdegrade.measures.fidelity.BAND_EDGES`), the spectrum mismatch and, with a clean set, a fresh
+    image-only critic (:func:`~camdegrade.fitting.unpaired.judges.self_check_critic`)."""
     chain = fit.chain() if profile is None else profile
     noisy = flat_sums(fit.simulate(chain, fit.sets.noise_crops, "unpaired-check"))
     real_std = fit.sets.real_noise.pooled_std()
@@ -324,6 +325,12 @@ def set_fidelity(fit: UnpairedFit, profile: CameraProfile | None = None) -> dict
         "bands": [round(float(value), 3) for value in sim_bands - real_bands],
         "band_edges": list(BAND_EDGES),
         "spectrum_mismatch": round(mismatch, 4),
+        # without a clean set the simulation runs on the captures smoothed, whose lost detail a critic would read
+        "critic_image_only": self_check_critic(
+            lambda images: fit.simulate(chain, images, "unpaired-critic"), fit.cleans.images, fit.captures.images
+        )
+        if fit.cleans
+        else None,
     }
 
 

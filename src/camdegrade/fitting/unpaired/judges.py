@@ -9,7 +9,11 @@ such a result. The check reads the same images the stages were fitted on (an unp
 each stage was already kept only where random halves of the sets agreed), so it cannot say that a profile is right,
 only that it is wrong: a noise ratio far from 1 or a band far off is a result that does not even reproduce what it
 was fitted to (the real PolyU captures of issue 43, before the smooth noise curve: noise ratio 1.79 with 16–20-level
-speckle on flat greys)."""
+speckle on flat greys). A fresh image-only critic (:func:`self_check_critic`: never a critic any stage was trained
+against) says what a model trained on the simulation would see; above
+:data:`~camdegrade.fitting.critic_warning.CRITIC_WARNING_ACCURACY` the fit warns. Where the clean set's scenes differ
+in kind from the captures' (indoor against outdoor, say), the critic may read that content as well: the warning says
+so."""
 
 from __future__ import annotations
 
@@ -20,8 +24,21 @@ import torch
 from torch import Tensor
 
 from camdegrade._support.seeds import derived_generator
+from camdegrade.effects.base import evenly_spaced
+from camdegrade.fitting.critic_warning import CRITIC_WARNING_ACCURACY
+from camdegrade.measures.critic import PATCH, repeated_critic_test
 
-__all__ = ["SIGNIFICANCE", "SPLITS", "self_check_warnings", "significant", "split_half_error"]
+__all__ = [
+    "CRITIC_IMAGES",
+    "MIN_CRITIC_IMAGES",
+    "SIGNIFICANCE",
+    "SPLITS",
+    "common_crops",
+    "self_check_critic",
+    "self_check_warnings",
+    "significant",
+    "split_half_error",
+]
 
 #: Random half-splits behind a standard error, and how many of them a kept change must exceed.
 SPLITS = 8
@@ -62,6 +79,42 @@ NOISE_STAGES = ("noise",)
 DETAIL_STAGES = ("blur", "sharpen", "frequency_response")
 
 
+#: The self-check's critic: at most this many clean images and as many captures (evenly spaced), one critic trained
+#: on each half of them and scored on the other (the paired fit's critic at its end, with one seed); none with fewer
+#: than :data:`MIN_CRITIC_IMAGES` images of at least a critic's patch a side (half of them train it).
+CRITIC_IMAGES = 16
+MIN_CRITIC_IMAGES = 4
+CRITIC_SEEDS = 1
+
+
+def common_crops(cleans: Sequence[Tensor], captures: Sequence[Tensor]) -> tuple[list[Tensor], list[Tensor]]:
+    """Each clean image with a capture (in turn), both cropped to their common size, where that is at least a
+    critic's patch a side: a critic's patches are cut at the same places of the capture and of the clean image's
+    simulation (the scenes differ: unpaired)."""
+    kept_cleans, kept_captures = [], []
+    for index, clean in enumerate(cleans):
+        capture = captures[index % len(captures)]
+        height = min(clean.shape[-2], capture.shape[-2])
+        width = min(clean.shape[-1], capture.shape[-1])
+        if min(height, width) >= PATCH:
+            kept_cleans.append(clean[:, :height, :width])
+            kept_captures.append(capture[:, :height, :width])
+    return kept_cleans, kept_captures
+
+
+def self_check_critic(
+    simulate: Callable[[list[Tensor]], list[Tensor]], cleans: Sequence[Tensor], captures: Sequence[Tensor]
+) -> dict[str, Any] | None:
+    """A fresh image-only critic's accuracy at telling ``simulate(cleans)`` (stored as the captures are) from the
+    ``captures``, scored on images it did not train on (:func:`~camdegrade.measures.critic.repeated_critic_test`,
+    :data:`CRITIC_SEEDS` seed); ``None`` where fewer than :data:`MIN_CRITIC_IMAGES` images can be used."""
+    cleans, captures = common_crops(evenly_spaced(cleans, CRITIC_IMAGES), evenly_spaced(captures, CRITIC_IMAGES))
+    if len(cleans) < MIN_CRITIC_IMAGES:
+        return None
+    scenes = [f"{index:04d}" for index in range(len(cleans))]
+    return repeated_critic_test((cleans, captures, simulate(cleans)), scenes, CRITIC_SEEDS, image_only=True).to_dict()
+
+
 def self_check_warnings(fidelity: Mapping[str, Any], wanted: Sequence[str], *, with_clean: bool) -> list[str]:
     """The warnings the fit's own check gives (none where it passes), each with its numbers; ``wanted``: the stages
     the fit was asked for."""
@@ -83,5 +136,13 @@ def self_check_warnings(fidelity: Mapping[str, Any], wanted: Sequence[str], *, w
         out.append(
             f"the fit's own check: band power of the simulated clean set against the captures beyond "
             f"±{BAND_GATE_LOG2:g} log2 ({', '.join(off)}); the captures' detail is not reproduced"
+        )
+    critic = fidelity.get("critic_image_only")
+    if critic and critic["accuracy"] > CRITIC_WARNING_ACCURACY:
+        out.append(
+            f"the fit's own check: a fresh image-only critic tells the simulated clean set from the captures at "
+            f"{critic['accuracy']:.2f} [{critic['low']:.2f}–{critic['high']:.2f}] on images it did not train on "
+            f"(0.5: cannot tell; above {CRITIC_WARNING_ACCURACY:g}: a model trained on the simulation can tell it "
+            "from the camera, unless the two sets' scenes differ in kind, which the critic reads too)"
         )
     return out
