@@ -6,10 +6,10 @@ blocks keep their DCT coefficients on multiples of the table's steps, which no r
 makes (0 of 20 resampled or upscaled photos, every JPEG of quality 30–95: docs/results.md, *JPEG from its
 quantisation lattice*). A camera without a codec, or clean images compressed as much as the captures, gives no
 stage, and the stage is not fitted at all (the default fit pays the lattice reading only: about 0.1 s an image).
-The quality is the one whose round trip of the profile's deterministic output is nearest the captures
-(:meth:`~camdegrade.effects.JPEG.fit`, on the training pairs). The stage is kept where it moves the block-edge
-gradient energy (:func:`block_edge_ratio`) of the sampled simulation toward the captures' on the validation pairs:
-it closes at least :data:`MIN_CLOSED` of that gap or leaves less than :data:`BLOCK_TOLERANCE` of it.
+What the codec does to the look is its blocks: the gradient energy across the 8×8 block edges
+(:func:`block_edge_ratio`). The quality is fitted on the training pairs by that statistic (:func:`fit_quality`),
+and the stage is kept where it moves the sampled simulation's toward the captures' on the validation pairs: it
+closes at least :data:`MIN_CLOSED` of that gap or leaves less than :data:`BLOCK_TOLERANCE` of it.
 
 Where it sits: at the codec's place, last. A codec at the sensor's resolution before the ISP's upscale (its blocks
 come out 16 px for a 2× zoom, and the lattice is gone) cannot be placed in the profile: ``resolution`` is one stage
@@ -46,6 +46,7 @@ __all__ = [
     "JpegProposal",
     "JpegStage",
     "block_edge_ratio",
+    "fit_quality",
     "judge_jpeg",
     "lattice_counts",
     "noise_through_codec",
@@ -62,6 +63,8 @@ MAX_READ = 16
 MIN_CLOSED = 0.5
 #: ... or leaves it below this (relative gradient energy; a camera's own captures scatter by about 0.02).
 BLOCK_TOLERANCE = 0.03
+#: The qualities the fit tries besides the squared error's.
+QUALITIES = tuple(range(10, 100, 5))
 #: A JPEG block is this many pixels on a side at the resolution it was compressed at.
 BLOCK = 8
 
@@ -143,10 +146,27 @@ def propose_jpeg(fit: PairedFit) -> JpegProposal | Verdict:
         note |= {"kept": False, "reason": reason, "evidence": label, **sensor_grid_note(fit, pairs)}
         fit.say(f"effect jpeg: not fitted: {reason} [evidence: {label}]")
         return Verdict(note)
-    cleans = [clean for clean, _ in fit.train_pairs]
-    sources = fit.profile.simulate(cleans, 0, deterministic=True)
-    stage = JPEG.fit_within_budget(sources, [captured for _, captured in fit.train_pairs])
+    stage, note["mse_quality"] = fit_quality(fit)
     return JpegProposal(stage, note)
+
+
+def fit_quality(fit: PairedFit) -> tuple[JPEG, int]:
+    """The quality, fitted on (at most :data:`MAX_READ` of) the training pairs: of :data:`QUALITIES` and the one
+    nearest in squared error (:meth:`~camdegrade.effects.JPEG.fit`, on the profile's deterministic output), the one
+    whose sampled simulation's :func:`block_edge_ratio` is nearest the captures'; and the squared error's quality.
+    The squared error alone chooses too high a quality: the profile's output is smoother than the camera's before
+    its codec (a network trained on the captures has learned part of the codec's loss), and noiseless."""
+    pairs = evenly_spaced(fit.train_pairs, MAX_READ)
+    cleans, captures = (list(side) for side in zip(*pairs, strict=True))
+    nearest = JPEG.fit(fit.profile.simulate(cleans, 0, deterministic=True), captures)
+    real = block_edge_ratio(captures)
+
+    def distance(quality: int) -> float:
+        images = fit.profile.with_effects(JPEG(quality)).simulate(cleans, 0, stream="jpeg-quality", eight_bit=True)
+        return abs(block_edge_ratio(images) - real)
+
+    best = min(sorted({*QUALITIES, int(nearest.quality)}), key=distance)
+    return JPEG(best), int(nearest.quality)
 
 
 def sensor_grid_note(fit: PairedFit, pairs: Sequence[tuple[Tensor, Tensor]]) -> dict[str, Any]:
