@@ -4,6 +4,10 @@ through it), and proposes none for a camera without a codec, even one whose upsc
 
 from __future__ import annotations
 
+import csv
+from pathlib import Path
+
+import pytest
 import torch
 import torch.nn.functional as F
 
@@ -14,6 +18,7 @@ from camdegrade.fitting import DEFAULT_EFFECTS
 from camdegrade.fitting.jpeg_evidence import BLOCK_TOLERANCE, block_edge_ratio
 from camdegrade.fitting.steps.effects import EffectStages
 from camdegrade.functional import jpeg_image
+from camdegrade.io import read_image
 from camdegrade.sim import VirtualCamera
 from camdegrade.synthetic import dead_leaves_images
 from steps_for_tests import run_step
@@ -90,3 +95,34 @@ def test_clean_images_as_compressed_as_the_captures_get_no_second_codec() -> Non
     profile, record = run_step(EffectStages(names=("jpeg",)), CameraProfile(None, []), pairs[:5], pairs[5:])
     assert profile.effect_names == [] and record["jpeg"]["kept"] is False
     assert "as often" in record["jpeg"]["reason"], record["jpeg"]
+
+
+def _real_pairs(folder: Path, subset: str, count: int, side: int = 256) -> list[tuple[torch.Tensor, torch.Tensor]]:
+    """The first ``count`` pairs of ``subset`` in the real pairs' ``pairs.csv``, centre crops of ``side``² on the
+    8×8 grid (a JPEG's blocks stay aligned), in [0, 1]."""
+    with (folder / "pairs.csv").open() as handle:
+        rows = [row for row in csv.DictReader(handle) if row["subset"] == subset][:count]
+    out = []
+    for row in rows:
+        clean, captured = (read_image(folder / row[key]) for key in ("clean", "captured"))
+        top = (min(clean.shape[1], captured.shape[1]) - side) // 16 * 8
+        left = (min(clean.shape[2], captured.shape[2]) - side) // 16 * 8
+        window = (slice(None), slice(top, top + side), slice(left, left + side))
+        out.append((bytes_to_unit(clean[window]), bytes_to_unit(captured[window])))
+    return out
+
+
+@pytest.mark.realdata
+@pytest.mark.slow
+@pytest.mark.parametrize(
+    ("subset", "reason"), [("city100_iPhoneX", "0 of"), ("polyu_real_noise", "the clean images hold the lattice")]
+)
+def test_real_cameras_without_a_codec_of_their_own_get_no_jpeg_stage(
+    real_pairs_dir: Path, subset: str, reason: str
+) -> None:
+    """City100's registered PNG captures hold no lattice; PolyU's captures are camera JPEGs (quality 75), but so are
+    its clean (mean) images: a codec stage would compress them again."""
+    pairs = _real_pairs(real_pairs_dir, subset, 10)
+    profile, record = run_step(EffectStages(names=("jpeg",)), CameraProfile(None, []), pairs[:6], pairs[6:])
+    assert profile.effect_names == [] and record["jpeg"]["kept"] is False, record["jpeg"]
+    assert record["jpeg"]["reason"].startswith(reason), record["jpeg"]
