@@ -59,7 +59,8 @@ __all__ = [
 MIN_COMPRESSED_SHARE = 0.5
 #: At most this many captures are read (evenly spaced); reading costs 40–180 ms an image.
 MAX_READ = 16
-#: Kept where the stage closes at least this share of the validation block-edge gap ...
+#: Kept where the stage closes at least this share of the validation block-edge gap (what is left counts, on either
+#: side of the captures: a quality 5 off overshoots) ...
 MIN_CLOSED = 0.5
 #: ... or leaves it below this (relative gradient energy; a camera's own captures scatter by about 0.02).
 BLOCK_TOLERANCE = 0.03
@@ -196,7 +197,7 @@ def judge_jpeg(fit: PairedFit, stage: JPEG) -> tuple[Effect | None, dict[str, An
     with_stage = fit.profile.with_effects(stage)
     within = block_edge_ratio(with_stage.simulate(cleans, 0, stream="jpeg-evidence", eight_bit=True))
     gap, left = real - without, real - within
-    kept = abs(left) < BLOCK_TOLERANCE or (gap * left >= 0 and abs(left) <= (1 - MIN_CLOSED) * abs(gap))
+    kept = abs(left) < BLOCK_TOLERANCE or abs(left) <= (1 - MIN_CLOSED) * abs(gap)
     note: dict[str, Any] = {"kept": kept, "quality": int(stage.quality), "block_edges_real": round(real, 3)}
     note |= {"block_edges_without": round(without, 3), "block_edges_with": round(within, 3), "evidence": label}
     note["relative_mse_gain"] = round(relative_gain(fit.profile, stage, cleans, captures), 4)
