@@ -62,7 +62,7 @@ MAX_READ = 16
 #: Kept where the stage closes at least this share of the validation block-edge gap (what is left counts, on either
 #: side of the captures: a quality 5 off overshoots) ...
 MIN_CLOSED = 0.5
-#: ... or leaves it below this (relative gradient energy; a camera's own captures scatter by about 0.02).
+#: ... or leaves it below this (relative gradient energy).
 BLOCK_TOLERANCE = 0.03
 #: The qualities the fit tries besides the squared error's.
 QUALITIES = tuple(range(10, 100, 5))
@@ -201,6 +201,8 @@ def judge_jpeg(fit: PairedFit, stage: JPEG) -> tuple[Effect | None, dict[str, An
     note: dict[str, Any] = {"kept": kept, "quality": int(stage.quality), "block_edges_real": round(real, 3)}
     note |= {"block_edges_without": round(without, 3), "block_edges_with": round(within, 3), "evidence": label}
     note["relative_mse_gain"] = round(relative_gain(fit.profile, stage, cleans, captures), 4)
+    if not kept:
+        note["reason"] = f"it leaves {abs(left):.3f} of the block-edge gap of {abs(gap):.3f}"
     line = (
         f"quality {int(stage.quality)}: 8×8 block edges {real:.3f}× the mean in the captures, {without:.3f}× "
         f"simulated without, {within:.3f}× with; relative MSE gain {note['relative_mse_gain']:.2%} on {len(pairs)} "
