@@ -15,6 +15,7 @@ from camdegrade import CameraProfile
 from camdegrade._support.pixels import bytes_to_unit, unit_to_bytes
 from camdegrade.effects import JPEG, Blur, Noise, Resolution
 from camdegrade.fitting import DEFAULT_EFFECTS
+from camdegrade.fitting.codec_warning import codec_warnings
 from camdegrade.fitting.jpeg_evidence import BLOCK_TOLERANCE, block_edge_ratio
 from camdegrade.fitting.steps.effects import EffectStages
 from camdegrade.functional import jpeg_image
@@ -87,6 +88,17 @@ def test_a_camera_without_a_codec_gets_no_jpeg_stage_though_its_upscale_lifts_th
     assert note["captures_on_lattice"] == 0 and note["captures_telling"] >= 4 and "quality" not in note
     assert note["sensor_period"] == 16 and abs(note["sensor_grid_real"] - note["sensor_grid_sim"]) < 0.05, note
     assert any(line.startswith("effect jpeg: not fitted: 0 of") for line in lines), lines
+    assert codec_warnings({"effects": record}) == []
+
+
+def test_jpeg_at_the_sensors_resolution_before_an_upscale_gets_no_stage_and_a_warning() -> None:
+    camera = VirtualCamera([Blur(0.7), NOISE, JPEG(40)], scale=0.5)  # compressed at half size, then enlarged
+    profile, record, _ = _fit_effects(camera, CameraProfile(None, [Blur(0.7), Resolution(0.5)]))
+    note = record["jpeg"]
+    assert "jpeg" not in profile.effect_names and note["captures_on_lattice"] == 0, note
+    assert note["sensor_period"] == 16 and note["sensor_grid_real"] > note["sensor_grid_sim"] + 0.1, note
+    (warning,) = codec_warnings({"effects": record})
+    assert "16 px period" in warning and "before the camera's upscale" in warning
 
 
 def test_clean_images_as_compressed_as_the_captures_get_no_second_codec() -> None:

@@ -14,7 +14,8 @@ closes at least :data:`MIN_CLOSED` of that gap or leaves less than :data:`BLOCK_
 Where it sits: at the codec's place, last. A codec at the sensor's resolution before the ISP's upscale (its blocks
 come out 16 px for a 2× zoom, and the lattice is gone) cannot be placed in the profile: ``resolution`` is one stage
 that reduces and enlarges, so a JPEG put before it compresses the full frame and its grid stays 8 px. Such captures
-get no stage; the record names the block edges at the sensor's period (:func:`sensor_grid_note`).
+get no stage; the record names the block edges at the sensor's period (:func:`sensor_grid_note`), and the fit warns
+where they stand out (:func:`camdegrade.fitting.codec_warning.codec_warnings`).
 
 References:
     Z. Fan, R. L. de Queiroz, "Identification of bitmap compression history: JPEG detection and quantizer
