@@ -14,7 +14,7 @@ import torch.nn.functional as F
 from camdegrade import CameraProfile
 from camdegrade._support.pixels import bytes_to_unit, unit_to_bytes
 from camdegrade.effects import JPEG, Blur, Noise, Resolution
-from camdegrade.fitting import DEFAULT_EFFECTS
+from camdegrade.fitting import DEFAULT_EFFECTS, FitConfig, fit_profile
 from camdegrade.fitting.codec_warning import codec_warnings
 from camdegrade.fitting.jpeg_evidence import BLOCK_TOLERANCE, block_edge_ratio
 from camdegrade.fitting.steps.effects import EffectStages
@@ -138,3 +138,13 @@ def test_real_cameras_without_a_codec_of_their_own_get_no_jpeg_stage(
     profile, record = run_step(EffectStages(names=("jpeg",)), CameraProfile(None, []), pairs[:6], pairs[6:])
     assert profile.effect_names == [] and record["jpeg"]["kept"] is False, record["jpeg"]
     assert record["jpeg"]["reason"].startswith(reason), record["jpeg"]
+
+
+@pytest.mark.slow
+def test_a_default_fit_of_a_camera_that_compresses_before_its_upscale_warns() -> None:
+    camera = VirtualCamera([Blur(0.7), NOISE, JPEG(40)], scale=0.5)
+    config = FitConfig.recipe("fast").replace(epochs=1, crop=32, crops_per_pair=2, sensor_scale=0.5, texture="none")
+    lines: list[str] = []
+    profile = fit_profile(_pairs(camera, 12, 1), config.replace(val_fraction=0.34), log=lines.append)
+    assert "jpeg" not in profile.effect_names and "resolution" in profile.effect_names, lines
+    assert any("before the camera's upscale" in warning for warning in profile.fitted["warnings"]), lines
