@@ -294,6 +294,20 @@ def noisy_upscale() -> Camera:
     )
 
 
+def webcam_jpeg25() -> Camera:
+    """Issue 42's second hidden camera: the webcam (:func:`webcam`) plus stronger vignetting, white noise at the
+    output resolution and JPEG quality 25 at the end (a video call's stream).
+
+    sRGB → linear → polynomial vignetting 1 − 0.3 r² → the webcam's chain (lens, cos⁴ vignetting, a sensor of half
+    the pixels, noise, colour, S-curve table, PIL bicubic 2× upscale of the 8-bit buffer) → white noise of 1.5 % of
+    full scale on the upscaled frame → 8 bits → JPEG quality 25, 4:2:0."""
+    base = webcam()
+    stages = list(base.stages)
+    stages.insert(1, PolynomialVignetting(-0.3, 0.0))
+    stages += [WhiteNoise(0.015), Quantize(8), Jpeg(25, "4:2:0")]
+    return Camera("webcam-jpeg25", tuple(stages))
+
+
 #: Every foreign camera by name (the factory's docstring is its chain).
 CAMERAS: dict[str, Callable[[], Camera]] = {
     "webcam": webcam,
@@ -304,6 +318,7 @@ CAMERAS: dict[str, Callable[[], Camera]] = {
     "gamma-blur": gamma_blur,
     "shaky-defocus": shaky_defocus,
     "noisy-upscale": noisy_upscale,
+    "webcam-jpeg25": webcam_jpeg25,
 }
 
 

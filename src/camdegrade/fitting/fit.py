@@ -24,6 +24,7 @@ import torch.distributed as dist
 from camdegrade._runtime.device import check_device
 from camdegrade._runtime.distributed import is_main_process
 from camdegrade._runtime.threads import torch_threads
+from camdegrade.fitting.codec_warning import codec_warnings
 from camdegrade.fitting.critic_warning import critic_warning
 from camdegrade.fitting.network.training import EpochResult, training_dtype
 from camdegrade.fitting.quality import fit_warnings, validation_quality
@@ -142,7 +143,7 @@ def _recorded(fit: PairedFit, pair_set: PairSet, config: FitConfig, run: Network
     scores = trained.scores
     quality = validation_quality(profile, scores, fit.val, fit.eight_bit, fit.say) if scores is not None else {}
     warnings = fit_warnings(quality, trained.history, config, trained.kept)
-    warnings += critic_warning(quality.get("fidelity"), _pairs_path(pair_set))
+    warnings += codec_warnings(fit.records) + critic_warning(quality.get("fidelity"), _pairs_path(pair_set))
     record_quality(profile, quality, warnings, fit.say)
     return profile
 

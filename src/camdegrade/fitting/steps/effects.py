@@ -9,9 +9,10 @@ from dataclasses import dataclass
 from typing import Any, ClassVar
 
 from camdegrade._support.recipes import DEFAULT_EFFECTS
-from camdegrade.effects import EFFECTS, STAGES, Color, Effect, Resolution, check_effect_names
+from camdegrade.effects import EFFECTS, JPEG, STAGES, Color, Effect, Resolution, check_effect_names
 from camdegrade.fitting.colour_shift import colour_shift
 from camdegrade.fitting.in_chain import CALIBRATION_PAIRS, fit_stage_in_chain
+from camdegrade.fitting.jpeg_evidence import JpegStage
 from camdegrade.fitting.steps.base import FitStep, PairedFit, Verdict
 from camdegrade.fitting.steps.noise_evidence import noise_evidence, relative_gain
 
@@ -42,7 +43,12 @@ class EffectStages(FitStep):
         records = {}
         if fit.network is not None and not fit.network.kept and Color.name not in self.names:
             records[Color.name] = self._colour_shift(fit)
-        return {**records, **{name: EffectStage(EFFECTS[name]).run(fit) for name in ordered}}
+        return {**records, **{name: self._stage(name).run(fit) for name in ordered}}
+
+    @staticmethod
+    def _stage(name: str) -> FitStep:
+        """The stage's step; JPEG's is judged by its fingerprint (:mod:`~camdegrade.fitting.jpeg_evidence`)."""
+        return JpegStage() if name == JPEG.name else EffectStage(EFFECTS[name])
 
     @staticmethod
     def _colour_shift(fit: PairedFit) -> dict[str, Any]:
