@@ -12,6 +12,12 @@ Run from the repo root::
     .venv/bin/python bench/bench_diagnose_time.py             # 100 pairs of 256²: PASS when ≤ 120 s
     .venv/bin/python bench/bench_diagnose_time.py --small    # 24 pairs of 128² (minutes; for iteration)
     .venv/bin/python bench/bench_diagnose_time.py --build-only   # write the profile and the pairs, time nothing
+    .venv/bin/python bench/bench_diagnose_time.py --schedstat    # also: the time spent waiting for a CPU (Linux)
+
+``--schedstat`` runs the same diagnosis through ``bench/diagnose_schedstat.py``, which reads each thread's scheduler
+statistics: the seconds on a CPU, waiting for one (held by other processes), blocked (the GIL, a lock), and an
+estimate of the wall time on an idle machine. On a shared machine the verdict is on the wall time measured, and the
+estimate says whether the load or the work stands between it and the target.
 
 Prints the seconds, the CPU and its load (``bench/machine.py``), and PASS/FAIL against the target; the report is kept
 as ``OUT/CASE/report.json`` (compare two runs' reports with ``--compare A B``: everything but timings).
@@ -57,15 +63,20 @@ def build(out: Path, pairs: int, size: int, fit_pairs: int) -> tuple[Path, Path]
     return profile_path, folder
 
 
-def time_diagnose(profile: Path, pairs: Path, report: Path, threads: int) -> dict[str, Any]:
-    """Wall time of the CLI's diagnosis (one process, as a user runs it)."""
-    command = [sys.executable, "-m", "camdegrade", "diagnose", str(profile), str(pairs)]
-    command += ["--threads", str(threads), "--json", str(report), "--quiet"]
+def time_diagnose(profile: Path, pairs: Path, report: Path, threads: int, schedstat: bool = False) -> dict[str, Any]:
+    """Wall time of the CLI's diagnosis (one process, as a user runs it); with ``schedstat``, through
+    ``diagnose_schedstat.py``, whose summary is added as ``"schedstat"``."""
+    if schedstat:
+        command = [sys.executable, str(Path(__file__).with_name("diagnose_schedstat.py")), str(profile), str(pairs)]
+        command += [str(report), "--threads", str(threads)]
+    else:
+        command = [sys.executable, "-m", "camdegrade", "diagnose", str(profile), str(pairs)]
+        command += ["--threads", str(threads), "--json", str(report), "--quiet"]
     load = load_text()
     started = time.perf_counter()
     result = subprocess.run(command, capture_output=True, text=True, check=False)
     seconds = time.perf_counter() - started
-    return {
+    out = {
         "command": " ".join(command),
         "seconds": round(seconds, 1),
         "returncode": result.returncode,
@@ -73,6 +84,9 @@ def time_diagnose(profile: Path, pairs: Path, report: Path, threads: int) -> dic
         "load_after": load_text(),
         "stderr": result.stderr[-400:],
     }
+    if schedstat and result.returncode == 0:
+        out["schedstat"] = json.loads(result.stdout.strip().splitlines()[-1])
+    return out
 
 
 def _without_timings(value: Any) -> Any:
@@ -95,6 +109,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--fit-pairs", type=int, default=64, help="training pairs (128²) of the base's default fit")
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--build-only", action="store_true")
+    parser.add_argument("--schedstat", action="store_true", help="also the seconds waiting for a CPU (Linux)")
     parser.add_argument("--compare", nargs=2, type=Path, default=None, help="two report.json files")
     parser.add_argument("--out", type=Path, default=Path("/tmp/diagnose-time"))
     args = parser.parse_args(argv)
@@ -109,7 +124,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"profile {profile}\npairs {folder}")
         return 0
     report = folder.parent / "report.json"
-    result = time_diagnose(profile, folder, report, args.threads)
+    result = time_diagnose(profile, folder, report, args.threads, args.schedstat)
     verdict = "PASS" if result["returncode"] == 0 and result["seconds"] <= TARGET_SECONDS else "FAIL"
     target = f"≤ {TARGET_SECONDS:.0f} s" if not args.small else "(small case: no target)"
     print(json.dumps(result, indent=2))
@@ -117,6 +132,13 @@ def main(argv: list[str] | None = None) -> int:
         f"diagnose {pairs}×{size}² {target}: {result['seconds']:.1f} s "
         f"{verdict if not args.small else ''} on {cpu_description()}; {result['load_before']}"
     )
+    if "schedstat" in result:
+        times = result["schedstat"]
+        print(
+            f"its threads waited {times['waiting_for_cpu']:.1f} s in all for a CPU other processes held; "
+            f"{times['cpu']:.1f} CPU s, {times['tasks_blocked']:.1f} s blocked in side-by-side tasks; "
+            f"estimated wall on an idle machine {times['idle_machine_estimate']:.1f} s"
+        )
     return 0 if result["returncode"] == 0 and (args.small or verdict == "PASS") else 1
 
 

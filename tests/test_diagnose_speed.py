@@ -1,12 +1,14 @@
 """What makes the diagnosis faster gives the same bytes as the slower way (issue 42: ``diagnose`` on 100 pairs of 256²
 within 120 s, bench/bench_diagnose_time.py): the box mean, the strength-check gaps kept per profile, the fine-tune's
-frozen encoder features, the critic's folds side by side, and the CLI's sleeping OpenMP threads."""
+frozen encoder features, the critic's folds side by side, and the CLI's sleeping OpenMP threads; and the bench's
+split of the wall time by thread (bench/diagnose_schedstat.py)."""
 
 from __future__ import annotations
 
 import os
 import subprocess
 import sys
+import time
 
 import pytest
 import torch
@@ -21,6 +23,7 @@ from camdegrade.functional.analysis.images import box_mean
 from camdegrade.measures.critic.explain import crossfit_critic_test
 from camdegrade.network import LocalAffineNet
 from camdegrade.profile import CameraProfile
+from conftest import load_script
 
 
 def _pooled_box_mean(image: torch.Tensor, size: int) -> torch.Tensor:
@@ -117,3 +120,36 @@ def test_the_command_line_lets_openmp_threads_sleep_unless_told(given: str | Non
     code = "import os; from camdegrade.cli import main; main(['list']); print(os.environ['OMP_WAIT_POLICY'])"
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=environment, check=True)
     assert done.stdout.strip().splitlines()[-1] == expected
+
+
+def test_the_idle_machine_estimate_schedules_tasks_as_the_pool_does() -> None:
+    """bench/diagnose_schedstat.py: each task goes, in order, to the first worker free (ThreadPoolExecutor.map)."""
+    schedstat = load_script("bench/diagnose_schedstat.py", "diagnose_schedstat")
+    assert schedstat.makespan([5.0, 1.0, 1.0, 1.0, 1.0, 1.0], 2) == 5.0
+    assert schedstat.makespan([1.0, 1.0, 5.0], 2) == 6.0
+    assert schedstat.makespan([2.0, 2.0], 1) == 4.0
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc/thread-self/schedstat")
+def test_the_schedstat_recorder_splits_a_task_into_cpu_and_blocked() -> None:
+    schedstat = load_script("bench/diagnose_schedstat.py", "diagnose_schedstat")
+    recorder = schedstat.Recorder(side_by_side)
+    with torch_threads(2):
+        assert recorder([lambda: time.sleep(0.2) or "slept", lambda: sum(range(10**6))]) == ["slept", sum(range(10**6))]
+    (call,) = recorder.calls
+    (slept_wall, slept_cpu, slept_waiting), (summed_wall, summed_cpu, summed_waiting) = call["tasks"]
+    assert call["workers"] == 2 and slept_wall >= 0.2 and slept_wall - slept_cpu - slept_waiting >= 0.19
+    assert summed_cpu > 0 and summed_cpu + summed_waiting <= summed_wall + 1e-3
+
+
+def test_the_schedstat_recorder_replaces_side_by_side_where_it_was_imported(monkeypatch: pytest.MonkeyPatch) -> None:
+    import camdegrade._runtime.threads as threads
+    import camdegrade.diagnose.attribution.evaluation as evaluation
+
+    schedstat = load_script("bench/diagnose_schedstat.py", "diagnose_schedstat")
+    original = threads.side_by_side
+    for module in (threads, evaluation, sys.modules[__name__]):  # this module imported it too
+        monkeypatch.setattr(module, "side_by_side", original)  # restored after the test
+    recorder = schedstat.install()
+    assert threads.side_by_side is recorder and evaluation.side_by_side is recorder
+    assert recorder.side_by_side is original
