@@ -36,7 +36,7 @@ import torch
 from foreign_bench import DEFAULT_OUT, DIAGNOSIS_SEED, OTHER_PHOTOS, fitted_profile, make_pairs, stages_of
 
 from camdegrade.diagnose import diagnose
-from foreign_cameras import BASES, SCENARIOS, Scenario
+from foreign_cameras import BASES, CHECK_BASES, SCENARIOS, Scenario
 
 CRITICS = ("before", "after", "before (image only)", "after (image only)")
 
@@ -165,14 +165,17 @@ def write_fit_row(base: str, args: argparse.Namespace) -> None:
 
 
 def _rows(folder: Path) -> list[dict[str, Any]]:
-    order = {(base, name): (i, j) for i, base in enumerate(BASES) for j, name in enumerate(SCENARIOS[base])}
+    bases = (*BASES, *CHECK_BASES)
+    order = {(base, name): (i, j) for i, base in enumerate(bases) for j, name in enumerate(SCENARIOS[base])}
     rows = [json.loads(path.read_text()) for path in folder.glob("*.json")]
     return sorted(rows, key=lambda row: order.get((row["base"], row["scenario"]), (99, 99)))
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--bases", nargs="*", default=list(BASES), choices=BASES)
+    parser.add_argument(
+        "--bases", nargs="*", default=list(BASES), choices=(*BASES, *CHECK_BASES), help="CHECK_BASES: not designed on"
+    )
     parser.add_argument("--scenarios", nargs="*", default=None, help="names of SCENARIOS[base] (default: all)")
     parser.add_argument("--pairs", type=int, default=40, help="pairs per scenario (the diagnosis splits them)")
     parser.add_argument("--size", type=int, default=128)
