@@ -35,6 +35,7 @@ from typing import TYPE_CHECKING
 import torch
 
 from camdegrade.diagnose.attribution.placement import mixes_pixels
+from camdegrade.diagnose.attribution.resampler import resampler_unsupported
 from camdegrade.diagnose.heldout import MIN_REDUCTION, SIGNIFICANCE, HeldOut
 from camdegrade.effects import EFFECTS, Effect
 from camdegrade.measures import FAMILIES, StatisticSet, family_gaps
@@ -84,10 +85,14 @@ class Agreement:
     needed: float
     #: The texture before and after the change, where it moves away from the camera's (else None).
     texture: tuple[TextureComparison, TextureComparison] | None = None
+    #: Where the texture moves away: the agreement of the change's geometric families alone (else None).
+    geometry: Agreement | None = None
 
     @property
     def agrees(self) -> bool:
-        if not (self.differing and math.isfinite(self.se)) or self.texture is not None:
+        if self.texture is not None:  # only where things are, which a texture cannot fake, can still name it
+            return self.geometry is not None and self.geometry.agrees
+        if not (self.differing and math.isfinite(self.se)):
             return False
         return self.reduction > max(SIGNIFICANCE * self.se, self.needed, MIN_REDUCTION)
 
@@ -120,7 +125,24 @@ def agreement(change: Change, round_: Round) -> Agreement:
     se = _own_spread(held, round_.stats, change.stats, families) if differing and change.stats is not None else math.nan
     transfer = any(FAMILIES[f].mixing for f in own_families(change.kind, change.name))
     texture = _texture_away(change, round_) if transfer else None
-    return Agreement(families, differing, reduction, se, change.reduction_needed, texture)
+    geometry = _geometry(change, round_, differing, before) if texture is not None else None
+    return Agreement(families, differing, reduction, se, change.reduction_needed, texture, geometry)
+
+
+def _geometry(change: Change, round_: Round, differing: tuple[str, ...], before: dict[str, float]) -> Agreement | None:
+    """The agreement of the change's geometric families alone (:attr:`~camdegrade.measures.Family.geometric`), or
+    None when it has none: a misalignment resampled by the simulator's interpolator moves the texture as a side
+    effect of the interpolator, not of the cause, while the displacement it fixes is one no texture explains."""
+    geometric = tuple(f for f in own_families(change.kind, change.name) if FAMILIES[f].geometric)
+    if not geometric:
+        return None
+    shown = tuple(f for f in geometric if f in differing)
+    moved = sum(before[f] - change.families[f] for f in geometric)
+    held = round_.search.held
+    spread = (
+        _own_spread(held, round_.stats, change.stats, geometric) if shown and change.stats is not None else math.nan
+    )
+    return Agreement(geometric, shown, moved, spread, change.reduction_needed)
 
 
 def _texture_away(change: Change, round_: Round) -> tuple[TextureComparison, TextureComparison] | None:
@@ -176,10 +198,15 @@ def judge_cause(change: Change, round_: Round) -> None:
     if not change.significant:
         return
     verdict = agreement(change, round_)
-    if verdict.agrees:
+    said = verdict.describe() or resampler_unsupported(change, round_)
+    if verdict.agrees and verdict.texture is not None:
+        said = f"named by where things are ({', '.join(verdict.geometry.families)}); " + verdict.texture[1].describe()
+        change.description = "; ".join(part for part in (change.description, said) if part)
+        return
+    if not said:
         return
     change.significant, change.not_a_cause = False, True
-    change.description = "; ".join(part for part in (change.description, verdict.describe()) if part)
+    change.description = "; ".join(part for part in (change.description, said) if part)
 
 
 def not_a_cause_clause(changes: list[Change]) -> str:
