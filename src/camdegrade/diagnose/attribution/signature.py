@@ -21,6 +21,13 @@ something else in the captures (noise, aliasing the profile lacks), and it is no
 removed from a phone's profile matches the transfer of the captures and leaves the texture too smooth
 (docs/results.md, *Which change is the cause*).
 
+Two statistics only one cause leaves outrank the rest. Where things are (a :attr:`~camdegrade.measures.Family.geometric`
+family, the displacement registered against the clean image): a misalignment that fixes it is named even where the
+simulator's interpolation takes the texture away from the camera's (a shift resampled by a smoother kernel than the
+camera's; the texture is said beside it). And a change to the ISP's resampler, whose transfer every smoothing stage
+shares, is a cause only where the resampling trace says the resampling differs
+(:mod:`camdegrade.diagnose.attribution.resampler`).
+
 A change that fails is kept in the ranking, marked (:attr:`Agreement.agrees` false, said in its description), and
 never accepted.
 """
@@ -193,16 +200,17 @@ def _resampled(held: HeldOut, stats: StatisticSet) -> list[dict[str, float]]:
 
 
 def judge_cause(change: Change, round_: Round) -> None:
-    """Mark a significant ``change`` whose own statistics do not agree (see the module) as not significant, and say
-    why in its description; it then ranks after the changes that name a cause (:attr:`Change.not_a_cause`)."""
+    """Mark a significant ``change`` whose own statistics do not agree, or, for the resampler, whose trace does not
+    (see the module), as not significant, and say why in its description; it then ranks after the changes that name
+    a cause (:attr:`Change.not_a_cause`). A misalignment named by where things are says the texture it leaves."""
     if not change.significant:
         return
     verdict = agreement(change, round_)
-    said = verdict.describe() or resampler_unsupported(change, round_)
-    if verdict.agrees and verdict.texture is not None:
-        said = f"named by where things are ({', '.join(verdict.geometry.families)}); " + verdict.texture[1].describe()
-        change.description = "; ".join(part for part in (change.description, said) if part)
+    if verdict.agrees and verdict.texture is not None and verdict.geometry is not None:
+        named = f"named by where things are ({', '.join(verdict.geometry.families)}); {verdict.texture[1].describe()}"
+        change.description = "; ".join(part for part in (change.description, named) if part)
         return
+    said = verdict.describe() or resampler_unsupported(change, round_)
     if not said:
         return
     change.significant, change.not_a_cause = False, True
