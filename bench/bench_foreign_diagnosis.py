@@ -21,6 +21,10 @@ runs can be split over processes and the table printed from the rows)::
     OMP_NUM_THREADS=1 .venv/bin/python bench/bench_foreign_diagnosis.py                 # 40 pairs of 128² each
     OMP_NUM_THREADS=1 .venv/bin/python bench/bench_foreign_diagnosis.py --quick         # 3 scenarios, 24 pairs
     OMP_NUM_THREADS=1 .venv/bin/python bench/bench_foreign_diagnosis.py --table-only    # the table of the rows
+    OMP_NUM_THREADS=1 .venv/bin/python bench/bench_foreign_diagnosis.py --bases noisy-upscale --fit-pairs 64 --pairs 24
+
+``--bases noisy-upscale`` (``foreign_cameras.CHECK_BASES``): a third base the diagnosis' rules were not designed on,
+to check them on (a sensor of two thirds of the pixels, noise before and after its bicubic upscale, a tone table).
 """
 
 from __future__ import annotations
