@@ -11,6 +11,7 @@ import torch
 from camdegrade.diagnose.attribution.changes import Change
 from camdegrade.diagnose.attribution.resampler import resampler_unsupported
 from camdegrade.diagnose.attribution.signature import agreement, judge_cause
+from camdegrade.diagnose.core import _missing_rows
 from camdegrade.diagnose.heldout import Baseline, HeldOut
 from camdegrade.effects import Blur, Misalignment, Resolution
 from camdegrade.measures import FAMILIES, family_gaps
@@ -100,3 +101,15 @@ def test_a_change_that_smooths_the_texture_without_moving_where_things_are_is_st
     judge_cause(change, round_)
     assert change.not_a_cause and "but the texture away from the camera's" in change.description
     assert [name for name, family in FAMILIES.items() if family.geometric] == ["alignment"]
+
+
+def test_an_effect_tried_at_two_places_is_marked_accepted_at_the_one_accepted() -> None:
+    """Noise tried before and after a resampler (two changes "add noise"), the one after accepted: the missing
+    ranking marks that one accepted and not the other (a report listed "add noise" accepted twice). An effect at one
+    place, accepted on top of another change (another object), stays marked."""
+    after = Change("add", "noise", None, None, 5.0, 6.0, 0.5, True, description="adds noise after resolution")
+    before = Change("add", "noise", None, None, 9.0, 2.0, 0.5, True)
+    blur, blur_on_top = (Change("add", "blur", None, None, gap, 1.0, 0.2, True) for gap in (10.0, 4.0))
+    result = SimpleNamespace(missing=[after, blur_on_top], missing_ranking=[after, before, blur])
+    rows = _missing_rows(result)
+    assert [(row["name"], row["accepted"]) for row in rows] == [("noise", True), ("noise", False), ("blur", True)]
