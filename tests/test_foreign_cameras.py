@@ -14,7 +14,7 @@ import pytest
 from PIL import Image
 from scipy import fft, ndimage
 
-from foreign_cameras import BASES, CAMERAS, SCENARIOS, camera, scenes
+from foreign_cameras import BASES, CAMERAS, CHECK_BASES, SCENARIOS, camera, scenes
 from foreign_cameras.codec import jpeg_bytes
 from foreign_cameras.demosaic import DEMOSAICERS
 from foreign_cameras.sensor import mosaic
@@ -182,7 +182,7 @@ def test_cos4_vignetting_darkens_the_corners_by_the_cos4_law() -> None:
     assert out[100, 100, 0] == pytest.approx(1.0, abs=1e-3)
 
 
-@pytest.mark.parametrize("base", BASES)
+@pytest.mark.parametrize("base", (*BASES, *CHECK_BASES))
 def test_each_scenario_is_its_base_with_one_stage_more(base: str, clean: list[np.ndarray]) -> None:
     rows = SCENARIOS[base]
     assert len(rows) == 11 and rows["control"].stage is None and rows["control"].camera() == camera(base)

@@ -21,7 +21,7 @@ Example::
 """
 
 from foreign_cameras.cameras import CAMERAS, Camera, camera
-from foreign_cameras.scenarios import BASES, SCENARIOS, Scenario
+from foreign_cameras.scenarios import BASES, CHECK_BASES, SCENARIOS, Scenario
 from foreign_cameras.scenes import scenes
 
-__all__ = ["BASES", "CAMERAS", "SCENARIOS", "Camera", "Scenario", "camera", "scenes"]
+__all__ = ["BASES", "CAMERAS", "CHECK_BASES", "SCENARIOS", "Camera", "Scenario", "camera", "scenes"]

@@ -30,6 +30,9 @@ from foreign_cameras.stages import (
 _WARM_CAST = ((1.18, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 0.8))
 #: The two bases: one with a resampling stage (a sensor of half the pixels, zoomed back), one with a Bayer CFA.
 BASES = ("webcam", "phone")
+#: Bases the diagnosis rules were NOT designed on, to check them on (issue 42): a third resampling camera with noise on
+#: both sides of its resize and a tone table after it (``noisy-upscale``).
+CHECK_BASES = ("noisy-upscale",)
 
 
 @dataclass(frozen=True)
@@ -83,4 +86,5 @@ def _withheld(base: str, end_of_resampling: str) -> dict[str, Scenario]:
 SCENARIOS: dict[str, dict[str, Scenario]] = {
     "webcam": _withheld("webcam", "Zoom"),
     "phone": _withheld("phone", "ToneLUT"),
+    "noisy-upscale": _withheld("noisy-upscale", "Zoom"),
 }

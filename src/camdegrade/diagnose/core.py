@@ -266,9 +266,21 @@ def _report(
 
 def _missing_rows(result: Attribution) -> list[dict]:
     """The effects the profile lacks, ranked once its misfit is fixed, each marked whether it was accepted."""
-    accepted = {change.key for change in result.missing}
     ranking = _errors_last(result.missing_ranking)
-    return [{**row, "accepted": change.key in accepted} for row, change in zip(_change_rows(ranking), ranking)]
+    return [
+        {**row, "accepted": _was_accepted(change, ranking, result.missing)}
+        for row, change in zip(_change_rows(ranking), ranking)
+    ]
+
+
+def _was_accepted(change: Change, ranking: list[Change], accepted: list[Change]) -> bool:
+    """Whether ``change`` of the missing ranking was accepted: that very change, or its effect where the ranking holds
+    it at one place only (accepted on top of another change, it is another object). An effect tried at two places
+    (noise before and after a resampler) is accepted at one of them, not at both."""
+    if any(change is chosen for chosen in accepted):
+        return True
+    places = sum(other.key == change.key for other in ranking)
+    return places == 1 and any(chosen.key == change.key for chosen in accepted)
 
 
 def _finite(value: float) -> float | None:

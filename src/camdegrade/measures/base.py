@@ -96,6 +96,10 @@ class Family:
     #: which a stage mixing neighbouring pixels changes: an effect with this signature looks different on either side
     #: of such a stage (the diagnosis tries it on both, :mod:`camdegrade.diagnose.attribution.placement`).
     pixel_pattern: ClassVar[bool] = False
+    #: Whether the statistic is where things are (a displacement registered against the clean image), which neither a
+    #: symmetric transfer function nor the tone nor independent noise moves: a change that moves it names a geometric
+    #: cause whatever its resampling does to the texture (:mod:`camdegrade.diagnose.attribution.signature`).
+    geometric: ClassVar[bool] = False
     paired: ClassVar[bool] = True
 
     def suspects(self) -> list[str]:

@@ -21,6 +21,13 @@ something else in the captures (noise, aliasing the profile lacks), and it is no
 removed from a phone's profile matches the transfer of the captures and leaves the texture too smooth
 (docs/results.md, *Which change is the cause*).
 
+Two statistics only one cause leaves outrank the rest. Where things are (a :attr:`~camdegrade.measures.Family.geometric`
+family, the displacement registered against the clean image): a misalignment that fixes it is named even where the
+simulator's interpolation takes the texture away from the camera's (a shift resampled by a smoother kernel than the
+camera's; the texture is said beside it). And a change to the ISP's resampler, whose transfer every smoothing stage
+shares, is a cause only where the resampling trace says the resampling differs
+(:mod:`camdegrade.diagnose.attribution.resampler`).
+
 A change that fails is kept in the ranking, marked (:attr:`Agreement.agrees` false, said in its description), and
 never accepted.
 """
@@ -35,6 +42,7 @@ from typing import TYPE_CHECKING
 import torch
 
 from camdegrade.diagnose.attribution.placement import mixes_pixels
+from camdegrade.diagnose.attribution.resampler import resampler_unsupported
 from camdegrade.diagnose.heldout import MIN_REDUCTION, SIGNIFICANCE, HeldOut
 from camdegrade.effects import EFFECTS, Effect
 from camdegrade.measures import FAMILIES, StatisticSet, family_gaps
@@ -84,10 +92,14 @@ class Agreement:
     needed: float
     #: The texture before and after the change, where it moves away from the camera's (else None).
     texture: tuple[TextureComparison, TextureComparison] | None = None
+    #: Where the texture moves away: the agreement of the change's geometric families alone (else None).
+    geometry: Agreement | None = None
 
     @property
     def agrees(self) -> bool:
-        if not (self.differing and math.isfinite(self.se)) or self.texture is not None:
+        if self.texture is not None:  # only where things are, which a texture cannot fake, can still name it
+            return self.geometry is not None and self.geometry.agrees
+        if not (self.differing and math.isfinite(self.se)):
             return False
         return self.reduction > max(SIGNIFICANCE * self.se, self.needed, MIN_REDUCTION)
 
@@ -120,7 +132,24 @@ def agreement(change: Change, round_: Round) -> Agreement:
     se = _own_spread(held, round_.stats, change.stats, families) if differing and change.stats is not None else math.nan
     transfer = any(FAMILIES[f].mixing for f in own_families(change.kind, change.name))
     texture = _texture_away(change, round_) if transfer else None
-    return Agreement(families, differing, reduction, se, change.reduction_needed, texture)
+    geometry = _geometry(change, round_, differing, before) if texture is not None else None
+    return Agreement(families, differing, reduction, se, change.reduction_needed, texture, geometry)
+
+
+def _geometry(change: Change, round_: Round, differing: tuple[str, ...], before: dict[str, float]) -> Agreement | None:
+    """The agreement of the change's geometric families alone (:attr:`~camdegrade.measures.Family.geometric`), or
+    None when it has none: a misalignment resampled by the simulator's interpolator moves the texture as a side
+    effect of the interpolator, not of the cause, while the displacement it fixes is one no texture explains."""
+    geometric = tuple(f for f in own_families(change.kind, change.name) if FAMILIES[f].geometric)
+    if not geometric:
+        return None
+    shown = tuple(f for f in geometric if f in differing)
+    moved = sum(before[f] - change.families[f] for f in geometric)
+    held = round_.search.held
+    spread = (
+        _own_spread(held, round_.stats, change.stats, geometric) if shown and change.stats is not None else math.nan
+    )
+    return Agreement(geometric, shown, moved, spread, change.reduction_needed)
 
 
 def _texture_away(change: Change, round_: Round) -> tuple[TextureComparison, TextureComparison] | None:
@@ -171,15 +200,21 @@ def _resampled(held: HeldOut, stats: StatisticSet) -> list[dict[str, float]]:
 
 
 def judge_cause(change: Change, round_: Round) -> None:
-    """Mark a significant ``change`` whose own statistics do not agree (see the module) as not significant, and say
-    why in its description; it then ranks after the changes that name a cause (:attr:`Change.not_a_cause`)."""
+    """Mark a significant ``change`` whose own statistics do not agree, or, for the resampler, whose trace does not
+    (see the module), as not significant, and say why in its description; it then ranks after the changes that name
+    a cause (:attr:`Change.not_a_cause`). A misalignment named by where things are says the texture it leaves."""
     if not change.significant:
         return
     verdict = agreement(change, round_)
-    if verdict.agrees:
+    if verdict.agrees and verdict.texture is not None and verdict.geometry is not None:
+        named = f"named by where things are ({', '.join(verdict.geometry.families)}); {verdict.texture[1].describe()}"
+        change.description = "; ".join(part for part in (change.description, named) if part)
+        return
+    said = verdict.describe() or resampler_unsupported(change, round_)
+    if not said:
         return
     change.significant, change.not_a_cause = False, True
-    change.description = "; ".join(part for part in (change.description, verdict.describe()) if part)
+    change.description = "; ".join(part for part in (change.description, said) if part)
 
 
 def not_a_cause_clause(changes: list[Change]) -> str:

@@ -31,6 +31,7 @@ class Alignment(PairedFamily):
     image, so independent noise averages out of it."""
 
     name = "alignment"
+    geometric = True
     tau = 0.05
     unit = "pixels"
     description = "per-tile (4×4), per-channel displacement of x against c (Lucas–Kanade, affine intensity out)"
