@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 from torch import Tensor
 
@@ -11,6 +12,7 @@ from camdegrade._support.seeds import derive_seed
 from camdegrade.functional.analysis.images import flat_mask
 from camdegrade.measures import StatisticSet, bootstrap_indices, family_gaps, gap, gap_spread
 from camdegrade.measures.gap import Scale, measurement_scale
+from camdegrade.measures.traces.resampling import resampling_trace
 from camdegrade.profile import CameraProfile
 
 __all__ = ["BOOTSTRAP_ROUNDS", "MIN_REDUCTION", "MIN_RELATIVE", "SIGNIFICANCE", "Baseline", "HeldOut", "ImagePairs"]
@@ -50,6 +52,12 @@ class HeldOut:
         real = StatisticSet.measure(reals, cleans, masks)
         indices = bootstrap_indices(len(cleans), BOOTSTRAP_ROUNDS, derive_seed(seed, stream, "bootstrap"))
         return cls(cleans, reals, masks, real, indices, seed, stream)
+
+    @cached_property
+    def real_period(self) -> int | None:
+        """The upscale period the resampling trace finds in the captures, the clean images as the reference (None:
+        none): a fact of the pairs, read once however many changes to the resampler are judged on them."""
+        return resampling_trace(self.reals, self.cleans).period
 
     def calibrate(self, profile: CameraProfile) -> tuple[StatisticSet, list[Tensor]]:
         """Fix the yardstick (:func:`measurement_scale`) against ``profile``; return its statistics and

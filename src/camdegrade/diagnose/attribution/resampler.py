@@ -46,7 +46,7 @@ def resampler_unsupported(change: Change, round_: Round) -> str:
     if change.name != RESAMPLER or change.kind not in ("add", "refit", "remove") or change.profile is None:
         return ""
     held = round_.search.held
-    real = resampling_trace(held.reals, held.cleans).period
+    real = held.real_period
     before = simulated_period(held, round_.current)
     after = simulated_period(held, change.profile)
     if before != real and after == real:
