@@ -97,10 +97,6 @@ def lattice_counts(images: Sequence[Tensor]) -> tuple[int, int]:
     return sum(reading.compressed for reading in readings), sum(reading.determined for reading in readings)
 
 
-def _judged_pairs(fit: PairedFit) -> tuple[list, str]:
-    return (fit.val_pairs, "validation") if fit.val_pairs else (fit.train_pairs, "training")
-
-
 @dataclass(frozen=True)
 class JpegProposal:
     """A fitted JPEG stage and what its proposal read (the lattice counts)."""
@@ -135,7 +131,7 @@ class JpegStage(FitStep):
 def propose_jpeg(fit: PairedFit) -> JpegProposal | Verdict:
     """The JPEG stage where the judged captures hold the lattice (:data:`MIN_COMPRESSED_SHARE`) more often than the
     clean images, its quality fitted on the training pairs; else the record of why there is none (not fitted)."""
-    pairs, label = _judged_pairs(fit)
+    pairs, label = fit.evidence_pairs
     on, telling = lattice_counts([captured for _, captured in pairs])
     clean_on, _ = lattice_counts([clean for clean, _ in pairs])
     note: dict[str, Any] = {"captures_on_lattice": on, "captures_telling": telling, "cleans_on_lattice": clean_on}
@@ -191,7 +187,7 @@ def judge_jpeg(fit: PairedFit, stage: JPEG) -> tuple[Effect | None, dict[str, An
     """``stage`` kept where it brings the sampled simulation's :func:`block_edge_ratio` toward the judged
     captures' (:data:`MIN_CLOSED`, :data:`BLOCK_TOLERANCE`); the record and log line say by how much, with the
     share of the deterministic output's squared error it removes."""
-    pairs, label = _judged_pairs(fit)
+    pairs, label = fit.evidence_pairs
     cleans, captures = (list(side) for side in zip(*pairs, strict=True))
     real = block_edge_ratio(captures)
     without = block_edge_ratio(fit.profile.simulate(cleans, 0, stream="jpeg-evidence", eight_bit=True))
@@ -224,7 +220,7 @@ def noise_through_codec(fit: PairedFit) -> str | None:
     captured = [target for _, target in fit.train_pairs]
     with torch.no_grad():
         refit = fit_noise_stage(fit.profile, cleans, captured, calibration_pairs=CALIBRATION_PAIRS)
-    pairs, label = _judged_pairs(fit)
+    pairs, label = fit.evidence_pairs
     judged = [list(side) for side in zip(*pairs, strict=True)]
     evidence = [noise_evidence(fit.profile, stage, *judged, eight_bit=fit.eight_bit)[1] for stage in (old, refit)]
     ratios = [found.noise_ratio_with for found in evidence]

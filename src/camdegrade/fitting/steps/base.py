@@ -150,9 +150,15 @@ class PairedFit:
         """The validation pairs as float32 in [0, 1]."""
         return self.val.unit_pairs()
 
+    @property
+    def evidence_pairs(self) -> tuple[list[ImagePair], str]:
+        """The pairs a step is judged on and their name in its record: the validation pairs, or the training pairs
+        without any."""
+        return (self.val_pairs, "validation") if self.val_pairs else (self.train_pairs, "training")
+
     def judge_pairs(self, count: int) -> list[ImagePair]:
-        """At most ``count`` pairs a step is judged on: the validation pairs, or the training pairs without any."""
-        return list(self.val_pairs or self.train_pairs)[:count]
+        """At most ``count`` of :attr:`evidence_pairs`."""
+        return list(self.evidence_pairs[0])[:count]
 
     def keep(self, kept: bool, *stages: Effect) -> None:
         """The profile with ``stages`` added where a judge ``kept`` them."""

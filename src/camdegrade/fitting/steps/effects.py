@@ -116,7 +116,7 @@ class EffectStage(FitStep):
 
     def _evidence(self, fit: PairedFit, effect: Effect) -> tuple[Effect | None, dict[str, Any], str]:
         held_out, fit_pairs = fit.val_pairs, fit.train_pairs
-        pairs, label = (held_out, "validation") if held_out else (fit_pairs, "training")
+        pairs, label = fit.evidence_pairs
         if type(effect).draws_only_noise():
             kept, evidence = noise_evidence(fit.profile, effect, *zip(*pairs, strict=True), eight_bit=fit.eight_bit)
             if evidence.capture_noise is None and held_out:
