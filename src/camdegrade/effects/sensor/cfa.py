@@ -2,16 +2,15 @@
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import ClassVar
 
-import torch
 from torch import Tensor
 
 from camdegrade.effects._common import scalar
 from camdegrade.effects._fitting import as_pairs
 from camdegrade.effects.base import Effect, Pairs, check_range, register_effect
-from camdegrade.functional.sensor.cfa import PATTERNS, bayer_masks, demosaic_image, phase_error
+from camdegrade.functional.sensor.cfa import PATTERNS, colour_phase_share, demosaic_image, phase_error
 
 __all__ = ["ColorFilterArray", "sampled_share"]
 
@@ -41,9 +40,9 @@ class ColorFilterArray(Effect):
     fit_budget = 16
     candidate = False
     MAX_AMOUNT: ClassVar[float] = 2.0
-    #: A fit keeps a layout only where the targets' error to the sources is at most this share, at the sites where
-    #: red and blue are sampled, of what it is at their other sites (:func:`sampled_share`; a Hamilton–Adams phone
-    #: 0.6–0.7, a camera without a mosaic 1.0 ± 0.02: a blur makes every phase alike).
+    #: A fit keeps a layout only where red's error to the sources at red's sites, against blue's there, and blue's at
+    #: blue's sites against red's, is at most this share (:func:`sampled_share`; a Hamilton–Adams phone 0.65, cameras
+    #: without a mosaic and real pairs 0.95–1.05: docs/results.md, *A colour filter array among the default stages*).
     MAX_SAMPLED_SHARE: ClassVar[float] = 0.85
     amount: Tensor
 
@@ -70,32 +69,36 @@ class ColorFilterArray(Effect):
 
     @classmethod
     def fit(cls, source: Pairs, target: Pairs) -> ColorFilterArray:
-        """The layout and amount nearest the targets in squared error: per layout the amount by least squares
-        (``Σ d·(t − s) / Σ d²``, ``d = D(s) − s``, clipped to its range). The neutral stage unless the targets show
-        the layout's 2×2 phase (:attr:`MAX_SAMPLED_SHARE`): without it, the amount only measures how much softer
-        the targets are (a camera without a mosaic scores 0.7). On a foreign camera's bilinear demosaic of a clean
-        scene (no noise) it finds the layout and an amount of 1 (``tests/test_cfa.py``)."""
+        """The layout and amount nearest the targets in squared error (:meth:`least_squares_amount` per layout).
+        The neutral stage unless the targets' error to the sources shows the layout's 2×2 phase
+        (:attr:`MAX_SAMPLED_SHARE`): without it, the amount only measures how much softer the targets are (a camera
+        without a mosaic scores 0.7). On a foreign camera's bilinear demosaic of a clean scene (no noise) it finds
+        the layout and an amount of 1 (``tests/test_cfa.py``)."""
         pairs = as_pairs(source, target)
-
-        def fitted(pattern: str) -> tuple[float, str, float]:
-            changes = [demosaic_image(s[None], pattern)[0] - s for s, _ in pairs]
-            along = sum(float((d * (t - s)).sum()) for d, (s, t) in zip(changes, pairs, strict=True))
-            energy = sum(float(d.pow(2).sum()) for d in changes)
-            amount = min(max(along / energy, 0.0), cls.MAX_AMOUNT) if energy > 0 else 0.0
-            error = sum(float((s + amount * d - t).pow(2).sum()) for d, (s, t) in zip(changes, pairs, strict=True))
-            return error, pattern, amount
-
-        _, pattern, amount = min(fitted(pattern) for pattern in PATTERNS)
+        fits = {pattern: cls.least_squares_amount(pairs, pattern) for pattern in PATTERNS}
+        pattern = min(PATTERNS, key=lambda layout: fits[layout][1])
+        amount = fits[pattern][0]
         phases = sum(phase_error(t, s) for s, t in pairs) / len(pairs)
         if sampled_share(phases, pattern) > cls.MAX_SAMPLED_SHARE:
             return cls(pattern)
         return cls(pattern, amount)
 
+    @classmethod
+    def least_squares_amount(cls, pairs: Sequence[tuple[Tensor, Tensor]], pattern: str) -> tuple[float, float]:
+        """``(amount, squared error)``: the amount of ``pattern``'s demosaic that brings the sources of ``pairs``
+        (``(source, target)``, ``(3, H, W)`` each) nearest their targets, ``Σ d·(t − s) / Σ d²`` with
+        ``d = D(s) − s``, clipped to its range; and the summed squared error it leaves."""
+        changes = [demosaic_image(s[None], pattern)[0] - s for s, _ in pairs]
+        along = sum(float((d * (t - s)).sum()) for d, (s, t) in zip(changes, pairs, strict=True))
+        energy = sum(float(d.pow(2).sum()) for d in changes)
+        amount = min(max(along / energy, 0.0), cls.MAX_AMOUNT) if energy > 0 else 0.0
+        error = sum(float((s + amount * d - t).pow(2).sum()) for d, (s, t) in zip(changes, pairs, strict=True))
+        return amount, error
+
 
 def sampled_share(phases: Tensor, pattern: str) -> float:
-    """The mean of a :func:`~camdegrade.functional.sensor.cfa.phase_error` ``(3, 2, 2)`` at the phases where ``pattern``
-    samples red and blue, over its mean at their other phases (0: an exact mosaic; 1: no phase at all)."""
-    masks = bayer_masks(2, 2, pattern).bool()
-    sampled = torch.stack([phases[c][masks[c]].mean() for c in (0, 2)]).mean()
-    other = torch.stack([phases[c][~masks[c]].mean() for c in (0, 2)]).mean()
-    return float(sampled / other.clamp_min(1e-12))
+    """How much less of a :func:`~camdegrade.functional.sensor.cfa.phase_error` ``(3, 2, 2)`` red and blue hold where
+    ``pattern`` samples them than each other there (:func:`~camdegrade.functional.sensor.cfa.colour_phase_share`):
+    0 for an exact mosaic, 1 without one, and 1 too for a phase pattern common to every channel (a resampler's, a
+    JPEG grid's), which a share of red and blue alone read as a mosaic (CC15's real captures: 0.91)."""
+    return colour_phase_share(phases, pattern)

@@ -5,7 +5,10 @@ ISP interpolates the two missing colours at every site. Bilinear demosaicing tak
 that colour: green from the 4 edge neighbours at a red or blue site, red and blue from the 2 neighbours at a green
 site and from the 4 diagonal ones at the other colour's site. What it leaves: colour fringes at edges, a softer image
 and, in the error to the scene, a 2×2 phase pattern (nothing at the sites a colour is sampled at:
-:func:`phase_error`).
+:func:`phase_error`); in the image alone, colours interpolated from their neighbours are smooth where they were not
+sampled (:func:`interpolation_phases`). Both are read against red and blue (:func:`colour_phase_share`): a mosaic
+samples them at different phases, where a resampler, a JPEG grid or a sensor's readout leaves one phase pattern in
+every channel.
 
 References:
     B. E. Bayer, "Color imaging array", US patent 3,971,065, 1976; B. K. Gunturk et al., "Demosaicking: color
@@ -21,7 +24,7 @@ from torch import Tensor
 from camdegrade.functional._utils import apply_float, check_image
 from camdegrade.functional.isp.color import linear_to_srgb, srgb_to_linear
 
-__all__ = ["PATTERNS", "bayer_masks", "demosaic_image", "phase_error"]
+__all__ = ["PATTERNS", "bayer_masks", "colour_phase_share", "demosaic_image", "interpolation_phases", "phase_error"]
 
 #: Bayer layouts: the colour (0 red, 1 green, 2 blue) of the sites (0, 0), (0, 1), (1, 0), (1, 1).
 PATTERNS: dict[str, tuple[int, int, int, int]] = {
@@ -78,3 +81,32 @@ def phase_error(image: Tensor, reference: Tensor) -> Tensor:
     squared = squared[:, : height // 2 * 2, : width // 2 * 2]
     phases = squared.reshape(3, height // 2, 2, width // 2, 2).mean((1, 3))
     return phases / phases.mean((1, 2), keepdim=True).clamp_min(1e-20)
+
+
+def interpolation_phases(image: Tensor) -> Tensor:
+    """``(3, 2, 2)``: for red less green, green, and blue less green of ``image`` (``(3, H, W)``), the energy of its
+    difference to the mean of its 4 edge neighbours at each phase of the 2×2 grid, over its mean. A demosaic
+    interpolates each missing colour (an edge-directed one, the colour differences) from the sites where it was
+    sampled, so there it holds the energy and elsewhere it is nearly the mean of its neighbours (bilinear: exactly, in
+    linear light); noise drawn per site before the demosaic does the same. An image without a mosaic has every phase
+    alike (1). Needs no reference: it reads clean images and captures alike. A mosaic of a layout reads above 1 in
+    :func:`colour_phase_share` for it (where :func:`phase_error` reads below)."""
+    if image.ndim != 3 or image.shape[0] != 3 or min(image.shape[-2:]) < 4:
+        raise ValueError(f"image must be (3, H, W) with H, W >= 4, got shape {tuple(image.shape)}")
+    x = image.double()
+    x = torch.stack([x[0] - x[1], x[1], x[2] - x[1]])
+    padded = F.pad(x[None], (1, 1, 1, 1), mode="reflect")[0]
+    around = (padded[:, :-2, 1:-1] + padded[:, 2:, 1:-1] + padded[:, 1:-1, :-2] + padded[:, 1:-1, 2:]) / 4
+    return phase_error(x, around)
+
+
+def colour_phase_share(phases: Tensor, pattern: str) -> float:
+    """How much less of ``phases`` (a ``(3, 2, 2)`` of :func:`phase_error` or :func:`interpolation_phases`) red holds
+    where ``pattern`` samples it than blue holds there, and blue where it samples blue than red there (the geometric
+    mean of the two ratios): 0 for an exact mosaic of ``pattern`` in a :func:`phase_error`, 1 where red and blue share
+    one phase pattern (no mosaic, or a grid common to all channels, as a resampler or JPEG leaves), the reciprocal for
+    the layout with red and blue swapped. Green is not read: every layout samples it on one of the two diagonals."""
+    masks = bayer_masks(2, 2, pattern).bool()
+    red_site, blue_site = masks[0], masks[2]
+    red, blue = phases[0].double().clamp_min(1e-12), phases[2].double().clamp_min(1e-12)
+    return float(((red[red_site] / blue[red_site]) * (blue[blue_site] / red[blue_site])).sqrt())
