@@ -40,7 +40,10 @@ class EffectStages(FitStep):
             )
 
     def run(self, fit: PairedFit) -> dict[str, Any]:
-        ordered = sorted(self.names, key=lambda name: STAGES.index(EFFECTS[name].stage))
+        # In the order light meets them; but the colour filter array last: its trace is judged through the codec.
+        ordered = sorted(
+            self.names, key=lambda name: (name == ColorFilterArray.name, STAGES.index(EFFECTS[name].stage))
+        )
         records = {}
         if fit.network is not None and not fit.network.kept and Color.name not in self.names:
             records[Color.name] = self._colour_shift(fit)

@@ -24,7 +24,15 @@ from torch import Tensor
 from camdegrade.functional._utils import apply_float, check_image
 from camdegrade.functional.isp.color import linear_to_srgb, srgb_to_linear
 
-__all__ = ["PATTERNS", "bayer_masks", "colour_phase_share", "demosaic_image", "interpolation_phases", "phase_error"]
+__all__ = [
+    "PATTERNS",
+    "bayer_masks",
+    "colour_phase_share",
+    "demosaic_image",
+    "interpolation_phases",
+    "luma_phases",
+    "phase_error",
+]
 
 #: Bayer layouts: the colour (0 red, 1 green, 2 blue) of the sites (0, 0), (0, 1), (1, 0), (1, 1).
 PATTERNS: dict[str, tuple[int, int, int, int]] = {
@@ -91,13 +99,34 @@ def interpolation_phases(image: Tensor) -> Tensor:
     linear light); noise drawn per site before the demosaic does the same. An image without a mosaic has every phase
     alike (1). Needs no reference: it reads clean images and captures alike. A mosaic of a layout reads above 1 in
     :func:`colour_phase_share` for it (where :func:`phase_error` reads below)."""
+    x = _checked(image)
+    return _neighbour_phases(torch.stack([x[0] - x[1], x[1], x[2] - x[1]]))
+
+
+def luma_phases(image: Tensor) -> Tensor:
+    """``(2, 2)``: :func:`interpolation_phases` of the luma of ``image`` (``(3, H, W)``; JPEG's weights 0.299, 0.587,
+    0.114). What a JPEG with 4:2:0 chroma keeps of a mosaic (it averages red and blue less luma over each 2×2 tile):
+    at the site where the sensor sampled blue, luma holds 0.114 of a sampled colour, at red's 0.299, at green's
+    0.587, so a mosaic orders the phases green > red > blue."""
+    x = _checked(image)
+    return _neighbour_phases((0.299 * x[0] + 0.587 * x[1] + 0.114 * x[2])[None])[0]
+
+
+def _checked(image: Tensor) -> Tensor:
     if image.ndim != 3 or image.shape[0] != 3 or min(image.shape[-2:]) < 4:
         raise ValueError(f"image must be (3, H, W) with H, W >= 4, got shape {tuple(image.shape)}")
-    x = image.double()
-    x = torch.stack([x[0] - x[1], x[1], x[2] - x[1]])
-    padded = F.pad(x[None], (1, 1, 1, 1), mode="reflect")[0]
+    return image.double()
+
+
+def _neighbour_phases(planes: Tensor) -> Tensor:
+    """``(C, 2, 2)``: per plane of ``planes`` ``(C, H, W)``, the energy of its difference to the mean of its 4 edge
+    neighbours at each phase of the 2×2 grid, over its mean."""
+    padded = F.pad(planes[None], (1, 1, 1, 1), mode="reflect")[0]
     around = (padded[:, :-2, 1:-1] + padded[:, 2:, 1:-1] + padded[:, 1:-1, :-2] + padded[:, 1:-1, 2:]) / 4
-    return phase_error(x, around)
+    squared = (planes - around).pow(2)
+    height, width = planes.shape[-2] // 2 * 2, planes.shape[-1] // 2 * 2
+    phases = squared[:, :height, :width].reshape(len(planes), height // 2, 2, width // 2, 2).mean((1, 3))
+    return phases / phases.mean((1, 2), keepdim=True).clamp_min(1e-20)
 
 
 def colour_phase_share(phases: Tensor, pattern: str) -> float:
