@@ -1,4 +1,4 @@
-"""Sensor stage: a Bayer colour filter array, demosaiced bilinearly by the ISP."""
+"""Sensor stage: a Bayer colour filter array, demosaiced by the ISP (bilinearly or edge-directed)."""
 
 from __future__ import annotations
 
@@ -10,22 +10,25 @@ from torch import Tensor
 from camdegrade.effects._common import scalar
 from camdegrade.effects._fitting import as_pairs
 from camdegrade.effects.base import Effect, Pairs, check_range, register_effect
-from camdegrade.functional.sensor.cfa import PATTERNS, colour_phase_share, demosaic_image, phase_error
+from camdegrade.functional.sensor.cfa import DEMOSAICS, PATTERNS, colour_phase_share, demosaic_image, phase_error
 
 __all__ = ["ColorFilterArray", "sampled_share"]
 
 
 @register_effect
 class ColorFilterArray(Effect):
-    """A Bayer sensor of ``pattern`` and bilinear demosaicing: ``y = x + amount · (D(x) − x)``, ``D`` the mosaic of
-    ``x`` in linear light demosaiced bilinearly (kernel :func:`~camdegrade.functional.sensor.cfa.demosaic_image`). It
+    """A Bayer sensor of ``pattern`` and its demosaicing: ``y = x + amount · (D(x) − x)``, ``D`` the mosaic of ``x``
+    in linear light demosaiced by ``demosaic`` (kernel :func:`~camdegrade.functional.sensor.cfa.demosaic_image`). It
     sits with the sensor, after its noise: the noise of each site is interpolated into its neighbours, as a camera's is.
 
     Args:
         pattern: the layout of the 2×2 tile, one of :data:`~camdegrade.functional.sensor.cfa.PATTERNS` (``RGGB``).
         amount: 0 (the default: none) to :attr:`MAX_AMOUNT`; 1 is the full demosaic.
+        demosaic: ``bilinear`` (the default) or ``edge`` (edge-directed green, bilinear colour differences; of
+            :data:`~camdegrade.functional.sensor.cfa.DEMOSAICS`).
 
-    Valid values (:meth:`check_values`): ``amount`` from 0 to :attr:`MAX_AMOUNT`; ``pattern`` a layout.
+    Valid values (:meth:`check_values`): ``amount`` from 0 to :attr:`MAX_AMOUNT`; ``pattern`` a layout; ``demosaic`` a
+    method.
 
     Not a diagnosis candidate (:attr:`Effect.candidate`): no statistic family reads its 2×2 phase yet
     (:func:`~camdegrade.functional.sensor.cfa.phase_error` does, on pairs; docs/results.md).
@@ -46,12 +49,15 @@ class ColorFilterArray(Effect):
     MAX_SAMPLED_SHARE: ClassVar[float] = 0.85
     amount: Tensor
 
-    def __init__(self, pattern: str = "RGGB", amount: float = 0.0) -> None:
+    def __init__(self, pattern: str = "RGGB", amount: float = 0.0, demosaic: str = "bilinear") -> None:
         super().__init__()
         if not isinstance(pattern, str) or pattern not in PATTERNS:
             raise ValueError(f"pattern must be one of {tuple(PATTERNS)}, got pattern={pattern!r}")
+        if not isinstance(demosaic, str) or demosaic not in DEMOSAICS:
+            raise ValueError(f"demosaic must be one of {DEMOSAICS}, got demosaic={demosaic!r}")
         check_range("amount", float(amount), 0.0, self.MAX_AMOUNT)
         self.pattern = pattern
+        self.demosaic = demosaic
         self.register_buffer("amount", scalar(amount))
 
     def check_values(self) -> None:
@@ -59,13 +65,13 @@ class ColorFilterArray(Effect):
         check_range("amount", self.amount, 0.0, self.MAX_AMOUNT)
 
     def config(self) -> dict[str, str]:
-        return {"pattern": self.pattern}
+        return {"pattern": self.pattern, "demosaic": self.demosaic}
 
     def forward(self, image: Tensor, params: Mapping[str, Tensor] | None = None) -> Tensor:
         if float(self.amount) == 0.0:
             return image.clone()
         amount = self.amount.to(image.device, image.dtype)
-        return (image + amount * (demosaic_image(image, self.pattern) - image)).clamp(0.0, 1.0)
+        return (image + amount * (demosaic_image(image, self.pattern, self.demosaic) - image)).clamp(0.0, 1.0)
 
     @classmethod
     def fit(cls, source: Pairs, target: Pairs) -> ColorFilterArray:
@@ -84,11 +90,13 @@ class ColorFilterArray(Effect):
         return cls(pattern, amount)
 
     @classmethod
-    def least_squares_amount(cls, pairs: Sequence[tuple[Tensor, Tensor]], pattern: str) -> tuple[float, float]:
+    def least_squares_amount(
+        cls, pairs: Sequence[tuple[Tensor, Tensor]], pattern: str, demosaic: str = "bilinear"
+    ) -> tuple[float, float]:
         """``(amount, squared error)``: the amount of ``pattern``'s demosaic that brings the sources of ``pairs``
         (``(source, target)``, ``(3, H, W)`` each) nearest their targets, ``Σ d·(t − s) / Σ d²`` with
         ``d = D(s) − s``, clipped to its range; and the summed squared error it leaves."""
-        changes = [demosaic_image(s[None], pattern)[0] - s for s, _ in pairs]
+        changes = [demosaic_image(s[None], pattern, demosaic)[0] - s for s, _ in pairs]
         along = sum(float((d * (t - s)).sum()) for d, (s, t) in zip(changes, pairs, strict=True))
         energy = sum(float(d.pow(2).sum()) for d in changes)
         amount = min(max(along / energy, 0.0), cls.MAX_AMOUNT) if energy > 0 else 0.0

@@ -3,18 +3,19 @@ the clean images do not, kept only where it brings the simulation's trace to the
 
 The trace is read in each image alone (:mod:`camdegrade.measures.traces.mosaic`): red and blue less green are smooth
 where a layout interpolates them (the colour route), or, behind a JPEG with 4:2:0 chroma, luma is smoothest where the
-layout samples blue and next where it samples red (the luma route). The captures' error to the profile's output (the
+layout samples blue (the luma route). The captures' error to the profile's output (the
 pairs' phase statistic :func:`~camdegrade.functional.sensor.cfa.phase_error`) mixes two opposite traces: the
 interpolation lowers the error at the sampled sites, the per-site noise raises it, and on a fitted phone they cancel
 (0.95).
 
 The layout is the one the validation captures show; the amount is fitted on the training pairs by the route's trace
 (of :data:`AMOUNTS` and the squared error's amount, the one whose sampled simulation's trace is nearest the
-captures'); the stage is kept where it closes at least :data:`MIN_CLOSED` of the validation trace's gap, or leaves
-less than :data:`TRACE_TOLERANCE`. It sits last of the sensor's stages, after the noise: each site's noise is
-interpolated into its neighbours, as a camera's is; a noise stage fitted before it is refitted before it, through it,
-where the flat-noise ratio comes closer to 1. It is judged after the codec's stage (the effects step runs it last), so
-the luma route reads the simulation through the profile's JPEG as the captures were written.
+captures'), for a bilinear and an edge-directed demosaic, and the one of the two that leaves the smaller squared error
+is chosen (:func:`fit_stage`); the stage is kept where it closes at least :data:`MIN_CLOSED` of the validation
+trace's gap, or leaves less than :data:`TRACE_TOLERANCE`. It sits last of the sensor's stages, after the noise: each
+site's noise is interpolated into its neighbours, as a camera's is; a noise stage fitted before it is refitted before
+it, through it, where the flat-noise ratio comes closer to 1. It is judged after the codec's stage (the effects step
+runs it last), so the luma route reads the simulation through the profile's JPEG as the captures were written.
 """
 
 from __future__ import annotations
@@ -35,6 +36,7 @@ from camdegrade.fitting.steps.base import FitStep, PairedFit, Verdict
 from camdegrade.fitting.steps.noise_evidence import as_stored, relative_gain
 from camdegrade.functional.analysis.images import flat_mask
 from camdegrade.functional.analysis.noise import measure_set
+from camdegrade.functional.sensor.cfa import DEMOSAICS
 from camdegrade.measures.fidelity import noise_ratios
 from camdegrade.measures.traces.mosaic import MAX_TRACE, ROUTES, read_mosaic
 from camdegrade.profile import CameraProfile
@@ -87,7 +89,7 @@ class CfaStage(FitStep):
 def propose_cfa(fit: PairedFit) -> CfaProposal | Verdict:
     """The stage where the judged captures show a mosaic and their clean images none
     (:meth:`~camdegrade.measures.traces.mosaic.MosaicReading.proposed`), its amount fitted on the training pairs
-    (:func:`fit_amount`); else the record of why there is none."""
+    (:func:`fit_stage`); else the record of why there is none."""
     pairs, label = fit.evidence_pairs
     cleans, captures = (list(side) for side in zip(*pairs, strict=True))
     reading = read_mosaic(cleans, captures, derived_generator(fit.seed, "cfa-luma-bootstrap"))
@@ -96,7 +98,8 @@ def propose_cfa(fit: PairedFit) -> CfaProposal | Verdict:
         reason = _unproposed(reading.to_dict(), label)
         fit.say(f"effect cfa: not fitted: {reason} [evidence: {label}]")
         return Verdict({**note, "kept": False, "reason": reason})
-    stage, note["mse_amount"] = fit_amount(fit, reading.pattern, reading.route)
+    stage, fitted = fit_stage(fit, reading.pattern, reading.route)
+    note |= fitted
     return CfaProposal(stage, reading.route, note)
 
 
@@ -115,25 +118,48 @@ def _unproposed(note: dict[str, Any], label: str) -> str:
     )
 
 
-def fit_amount(fit: PairedFit, pattern: str, route: str) -> tuple[ColorFilterArray, float]:
-    """The amount of ``pattern``'s demosaic, fitted on (at most :data:`MAX_READ` of) the training pairs: of
-    :data:`AMOUNTS` and the squared error's (:meth:`ColorFilterArray.least_squares_amount` on the profile's
-    deterministic output), the one whose sampled simulation's trace (by ``route``) is nearest the captures'; and the
-    squared error's amount."""
+def fit_stage(fit: PairedFit, pattern: str, route: str) -> tuple[ColorFilterArray, dict[str, Any]]:
+    """The stage of ``pattern``, fitted on (at most :data:`MAX_READ` of) the training pairs: for each demosaic of
+    :data:`~camdegrade.functional.sensor.cfa.DEMOSAICS`, the amount whose sampled simulation's trace (by ``route``)
+    is nearest the captures' (:func:`fit_amount`); of those, the demosaic whose stage leaves the smaller squared
+    error on the profile's deterministic output (both match the trace: the error tells which interpolates as the
+    camera did). The note gives each demosaic's amount, its squared error's amount and relative error gain."""
     cleans, captures = (list(side) for side in zip(*evenly_spaced(fit.train_pairs, MAX_READ), strict=True))
     references = fit.profile.simulate(cleans, 0, deterministic=True)
-    trace = ROUTES[route]
+    pairs = list(zip(references, captures, strict=True))
+    before = sum(float((r - c).pow(2).sum()) for r, c in pairs)
+    stages, note = {}, {}
+    for demosaic in DEMOSAICS:
+        nearest, _ = ColorFilterArray.least_squares_amount(pairs, pattern, demosaic)
+        stage = fit_amount(fit, cleans, captures, ColorFilterArray(pattern, min(nearest, 1.0), demosaic), route)
+        with torch.no_grad():
+            after = sum(float((stage(r[None])[0] - c).pow(2).sum()) for r, c in pairs)
+        stages[demosaic] = (after, stage)
+        gain = 1 - after / before if before > 0 else 0.0
+        note[demosaic] = {
+            "amount": float(stage.amount),
+            "mse_amount": round(nearest, 3),
+            "relative_mse_gain": round(gain, 4),
+        }
+    chosen = min(DEMOSAICS, key=lambda demosaic: stages[demosaic][0])
+    return stages[chosen][1], {"demosaics": note}
+
+
+def fit_amount(
+    fit: PairedFit, cleans: list[Tensor], captures: list[Tensor], nearest: ColorFilterArray, route: str
+) -> ColorFilterArray:
+    """Of :data:`AMOUNTS` and ``nearest``'s (the squared error's), the amount of ``nearest``'s layout and demosaic
+    whose sampled simulation's trace (by ``route``) is nearest the captures'."""
+    trace, pattern = ROUTES[route], nearest.pattern
     real = trace(captures, pattern)
-    nearest, _ = ColorFilterArray.least_squares_amount(list(zip(references, captures, strict=True)), pattern)
 
     def distance(amount: float) -> float:
-        simulated = fit.profile.with_effects(ColorFilterArray(pattern, amount)).simulate(
-            cleans, 0, stream="cfa-amount", eight_bit=fit.eight_bit
-        )
+        stage = ColorFilterArray(pattern, amount, nearest.demosaic)
+        simulated = fit.profile.with_effects(stage).simulate(cleans, 0, stream="cfa-amount", eight_bit=fit.eight_bit)
         return abs(trace(simulated, pattern) - real)
 
-    best = min(sorted({*AMOUNTS, round(nearest, 3)}), key=distance)
-    return ColorFilterArray(pattern, best), round(nearest, 3)
+    best = min(sorted({*AMOUNTS, round(float(nearest.amount), 3)}), key=distance)
+    return ColorFilterArray(pattern, best, nearest.demosaic)
 
 
 def judge_cfa(fit: PairedFit, stage: ColorFilterArray, route: str) -> tuple[Effect | None, dict[str, Any], str]:
@@ -151,15 +177,16 @@ def judge_cfa(fit: PairedFit, stage: ColorFilterArray, route: str) -> tuple[Effe
     without, within = (trace(images, stage.pattern) for images in simulated)
     gap, left = real - without, real - within
     kept = abs(left) < TRACE_TOLERANCE or abs(left) <= (1 - MIN_CLOSED) * abs(gap)
-    note: dict[str, Any] = {"kept": kept, "amount": round(float(stage.amount), 3), "trace_real": round(real, 3)}
+    note: dict[str, Any] = {"kept": kept, "demosaic": stage.demosaic, "amount": round(float(stage.amount), 3)}
+    note["trace_real"] = round(real, 3)
     note |= {"trace_without": round(without, 3), "trace_with": round(within, 3), "evidence": label}
     note["relative_mse_gain"] = round(relative_gain(fit.profile, stage, cleans, captures), 4)
     if not kept:
         note["reason"] = f"it leaves {abs(left):.3f} of the mosaic trace's gap of {abs(gap):.3f}"
     line = (
-        f"{stage.pattern} at {float(stage.amount):.3f}: {route} trace {real:.3f} in the captures, {without:.3f} "
-        f"simulated without, {within:.3f} with; relative MSE gain {note['relative_mse_gain']:.2%} on {len(pairs)} "
-        f"{label} pair(s) -> {'kept' if kept else 'dropped'}"
+        f"{stage.pattern} {stage.demosaic} at {float(stage.amount):.3f}: {route} trace {real:.3f} in the captures, "
+        f"{without:.3f} simulated without, {within:.3f} with; relative MSE gain {note['relative_mse_gain']:.2%} on "
+        f"{len(pairs)} {label} pair(s) -> {'kept' if kept else 'dropped'}"
     )
     return (stage if kept else None), note, line
 

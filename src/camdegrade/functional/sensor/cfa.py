@@ -1,4 +1,4 @@
-"""Colour filter array kernel: a Bayer mosaic of the image in linear light, demosaiced bilinearly.
+"""Colour filter array kernel: a Bayer mosaic of the image in linear light, demosaiced bilinearly or edge-directed.
 
 A Bayer sensor records one colour per site (a 2×2 tile of red, two greens and blue, in one of four layouts); the
 ISP interpolates the two missing colours at every site. Bilinear demosaicing takes the mean of the nearest sites of
@@ -23,6 +23,7 @@ from torch import Tensor
 
 from camdegrade.functional._utils import apply_float, check_image
 from camdegrade.functional.isp.color import linear_to_srgb, srgb_to_linear
+from camdegrade.functional.sensor.edge_demosaic import edge_directed_demosaic
 
 __all__ = [
     "PATTERNS",
@@ -41,6 +42,9 @@ PATTERNS: dict[str, tuple[int, int, int, int]] = {
     "GBRG": (1, 2, 0, 1),
     "BGGR": (2, 1, 1, 0),
 }
+#: Demosaicing methods: bilinear (each missing colour the mean of its nearest sites of that colour) and edge
+#: (edge-directed green, bilinear colour differences: :mod:`camdegrade.functional.sensor.edge_demosaic`).
+DEMOSAICS: tuple[str, ...] = ("bilinear", "edge")
 #: Neighbour weights: green (4 edge neighbours), red and blue (edge and diagonal), the site itself 1.
 _GREEN = torch.tensor([[0.0, 0.25, 0.0], [0.25, 1.0, 0.25], [0.0, 0.25, 0.0]])
 _RED_BLUE = torch.tensor([[0.25, 0.5, 0.25], [0.5, 1.0, 0.5], [0.25, 0.5, 0.25]])
@@ -55,26 +59,35 @@ def bayer_masks(height: int, width: int, pattern: str) -> Tensor:
     return (colours[None] == torch.arange(3)[:, None, None]).float()
 
 
-def demosaic_image(image: Tensor, pattern: str = "RGGB") -> Tensor:
-    """``image`` (``[..., 3, H, W]`` sRGB, uint8 or float in [0, 1], H and W at least 2) sampled by a Bayer sensor
-    of ``pattern`` in linear light and demosaiced bilinearly (the borders mirrored, which keeps the layout's
-    phase); the sampled value of each site is kept exactly."""
+def demosaic_image(image: Tensor, pattern: str = "RGGB", method: str = "bilinear") -> Tensor:
+    """``image`` (``[..., 3, H, W]`` sRGB, uint8 or float in [0, 1], H and W at least 2; 3 for ``edge``) sampled by
+    a Bayer sensor of ``pattern`` in linear light and demosaiced by ``method`` (one of :data:`DEMOSAICS`:
+    ``bilinear``, or ``edge``: :func:`~camdegrade.functional.sensor.edge_demosaic.edge_directed_demosaic`), the
+    borders mirrored, which keeps the layout's phase; the sampled value of each site is kept exactly."""
     check_image(image)
+    if method not in DEMOSAICS:
+        raise ValueError(f"method must be one of {DEMOSAICS}, got method={method!r}")
     height, width = image.shape[-2:]
     masks = bayer_masks(height, width, pattern)
-    if min(height, width) < 2:
-        raise ValueError(f"image must be at least 2x2 pixels, got {height}x{width}")
+    smallest = 2 if method == "bilinear" else 3
+    if min(height, width) < smallest:
+        raise ValueError(f"image must be at least {smallest}x{smallest} pixels, got {height}x{width}")
 
     def kernel(x: Tensor) -> Tensor:
         flat = srgb_to_linear(x.reshape(-1, 3, height, width))
-        known = masks.to(flat)
-        weights = torch.stack([_RED_BLUE, _GREEN, _RED_BLUE])[:, None].to(flat)
-        summed = F.conv2d(F.pad(flat * known, (1, 1, 1, 1), mode="reflect"), weights, groups=3)
-        count = F.conv2d(F.pad(known[None], (1, 1, 1, 1), mode="reflect"), weights, groups=3)
-        out = torch.where(known > 0, flat, summed / count)
+        out = _bilinear(flat, masks) if method == "bilinear" else edge_directed_demosaic(flat, masks)
         return linear_to_srgb(out.clamp(0.0, 1.0)).reshape(x.shape)
 
     return apply_float(image, kernel)
+
+
+def _bilinear(flat: Tensor, masks: Tensor) -> Tensor:
+    """``flat`` (``(N, 3, H, W)``, linear) sampled by ``masks`` and demosaiced bilinearly."""
+    known = masks.to(flat)
+    weights = torch.stack([_RED_BLUE, _GREEN, _RED_BLUE])[:, None].to(flat)
+    summed = F.conv2d(F.pad(flat * known, (1, 1, 1, 1), mode="reflect"), weights, groups=3)
+    count = F.conv2d(F.pad(known[None], (1, 1, 1, 1), mode="reflect"), weights, groups=3)
+    return torch.where(known > 0, flat, summed / count)
 
 
 def phase_error(image: Tensor, reference: Tensor) -> Tensor:
