@@ -121,9 +121,10 @@ def _unproposed(note: dict[str, Any], label: str) -> str:
 def fit_stage(fit: PairedFit, pattern: str, route: str) -> tuple[ColorFilterArray, dict[str, Any]]:
     """The stage of ``pattern``, fitted on (at most :data:`MAX_READ` of) the training pairs: for each demosaic of
     :data:`~camdegrade.functional.sensor.cfa.DEMOSAICS`, the amount whose sampled simulation's trace (by ``route``)
-    is nearest the captures' (:func:`fit_amount`); of those, the demosaic whose stage leaves the smaller squared
-    error on the profile's deterministic output (both match the trace: the error tells which interpolates as the
-    camera did). The note gives each demosaic's amount, its squared error's amount and relative error gain."""
+    is nearest the captures' (:func:`fit_amount`); of the demosaics whose trace closes at least :data:`MIN_CLOSED`
+    of the training trace's gap, the one whose stage leaves the smaller squared error on the profile's deterministic
+    output (the error tells which interpolates as the camera did); the one nearest in trace where none does. The note
+    gives each demosaic's amount, the trace's distance left, the squared error's amount and relative error gain."""
     cleans, captures = (list(side) for side in zip(*evenly_spaced(fit.train_pairs, MAX_READ), strict=True))
     references = fit.profile.simulate(cleans, 0, deterministic=True)
     pairs = list(zip(references, captures, strict=True))
@@ -131,25 +132,24 @@ def fit_stage(fit: PairedFit, pattern: str, route: str) -> tuple[ColorFilterArra
     stages, note = {}, {}
     for demosaic in DEMOSAICS:
         nearest, _ = ColorFilterArray.least_squares_amount(pairs, pattern, demosaic)
-        stage = fit_amount(fit, cleans, captures, ColorFilterArray(pattern, min(nearest, 1.0), demosaic), route)
+        start = ColorFilterArray(pattern, min(nearest, 1.0), demosaic)
+        stage, left, gap = fit_amount(fit, cleans, captures, start, route)
         with torch.no_grad():
             after = sum(float((stage(r[None])[0] - c).pow(2).sum()) for r, c in pairs)
-        stages[demosaic] = (after, stage)
-        gain = 1 - after / before if before > 0 else 0.0
-        note[demosaic] = {
-            "amount": float(stage.amount),
-            "mse_amount": round(nearest, 3),
-            "relative_mse_gain": round(gain, 4),
-        }
-    chosen = min(DEMOSAICS, key=lambda demosaic: stages[demosaic][0])
-    return stages[chosen][1], {"demosaics": note}
+        matched = left < TRACE_TOLERANCE or left <= (1 - MIN_CLOSED) * gap
+        stages[demosaic] = (not matched, after if matched else left, stage)
+        note[demosaic] = {"amount": round(float(stage.amount), 3), "trace_left": round(left, 3)}
+        note[demosaic] |= {"mse_amount": round(nearest, 3), "relative_mse_gain": round(1 - after / before, 4)}
+    chosen = min(DEMOSAICS, key=lambda demosaic: stages[demosaic][:2])
+    return stages[chosen][2], {"demosaics": note}
 
 
 def fit_amount(
     fit: PairedFit, cleans: list[Tensor], captures: list[Tensor], nearest: ColorFilterArray, route: str
-) -> ColorFilterArray:
+) -> tuple[ColorFilterArray, float, float]:
     """Of :data:`AMOUNTS` and ``nearest``'s (the squared error's), the amount of ``nearest``'s layout and demosaic
-    whose sampled simulation's trace (by ``route``) is nearest the captures'."""
+    whose sampled simulation's trace (by ``route``) is nearest the captures'; the distance it leaves, and the
+    distance without the stage."""
     trace, pattern = ROUTES[route], nearest.pattern
     real = trace(captures, pattern)
 
@@ -158,8 +158,9 @@ def fit_amount(
         simulated = fit.profile.with_effects(stage).simulate(cleans, 0, stream="cfa-amount", eight_bit=fit.eight_bit)
         return abs(trace(simulated, pattern) - real)
 
-    best = min(sorted({*AMOUNTS, round(float(nearest.amount), 3)}), key=distance)
-    return ColorFilterArray(pattern, best, nearest.demosaic)
+    distances = {amount: distance(amount) for amount in sorted({0.0, *AMOUNTS, round(float(nearest.amount), 3)})}
+    best = min((amount for amount in distances if amount > 0), key=distances.__getitem__)
+    return ColorFilterArray(pattern, best, nearest.demosaic), distances[best], distances[0.0]
 
 
 def judge_cfa(fit: PairedFit, stage: ColorFilterArray, route: str) -> tuple[Effect | None, dict[str, Any], str]:
