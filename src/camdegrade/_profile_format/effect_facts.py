@@ -254,7 +254,10 @@ BUILT_IN: dict[str, EffectFacts] = {
     ),
     "cfa": EffectFacts(
         "sensor",
-        {"pattern": Setting(str, "RGGB", choices=("RGGB", "GRBG", "GBRG", "BGGR"))},  # functional.cfa.PATTERNS
+        {
+            "pattern": Setting(str, "RGGB", choices=("RGGB", "GRBG", "GBRG", "BGGR")),  # functional.cfa.PATTERNS
+            "demosaic": Setting(str, "bilinear", choices=("bilinear", "edge")),  # functional.cfa.DEMOSAICS
+        },
         {"amount": Buffer(bound=Bound(0.0, 2.0))},  # ColorFilterArray.MAX_AMOUNT
     ),
     "chromatic_aberration": EffectFacts("optics", {}, _scalars(Bound(-0.1, 0.1), "red", "blue")),

@@ -39,7 +39,7 @@ FAST: dict[str, Any] = {
     "val_fraction": 0.15,
     "steps": (
         ("resolution", {"scale": "auto"}),
-        ("effects", {"names": ("noise", "vignetting", "jpeg")}),
+        ("effects", {"names": ("noise", "vignetting", "cfa", "jpeg")}),
         ("texture", {}),
         ("denoise", {}),
         ("response", {}),

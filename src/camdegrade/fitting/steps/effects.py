@@ -9,8 +9,9 @@ from dataclasses import dataclass
 from typing import Any, ClassVar
 
 from camdegrade._support.recipes import DEFAULT_EFFECTS
-from camdegrade.effects import EFFECTS, JPEG, STAGES, Color, Effect, Resolution, check_effect_names
+from camdegrade.effects import EFFECTS, JPEG, STAGES, Color, ColorFilterArray, Effect, Resolution, check_effect_names
 from camdegrade.fitting.colour_shift import colour_shift
+from camdegrade.fitting.evidence import CfaStage
 from camdegrade.fitting.in_chain import CALIBRATION_PAIRS, fit_stage_in_chain
 from camdegrade.fitting.jpeg_evidence import JpegStage
 from camdegrade.fitting.steps.base import FitStep, PairedFit, Verdict
@@ -39,7 +40,10 @@ class EffectStages(FitStep):
             )
 
     def run(self, fit: PairedFit) -> dict[str, Any]:
-        ordered = sorted(self.names, key=lambda name: STAGES.index(EFFECTS[name].stage))
+        # In the order light meets them; but the colour filter array last: its trace is judged through the codec.
+        ordered = sorted(
+            self.names, key=lambda name: (name == ColorFilterArray.name, STAGES.index(EFFECTS[name].stage))
+        )
         records = {}
         if fit.network is not None and not fit.network.kept and Color.name not in self.names:
             records[Color.name] = self._colour_shift(fit)
@@ -47,8 +51,10 @@ class EffectStages(FitStep):
 
     @staticmethod
     def _stage(name: str) -> FitStep:
-        """The stage's step; JPEG's is judged by its fingerprint (:mod:`~camdegrade.fitting.jpeg_evidence`)."""
-        return JpegStage() if name == JPEG.name else EffectStage(EFFECTS[name])
+        """The stage's step; JPEG's and the colour filter array's are judged by their traces
+        (:mod:`~camdegrade.fitting.jpeg_evidence`, :mod:`~camdegrade.fitting.evidence.cfa`)."""
+        traced = {JPEG.name: JpegStage, ColorFilterArray.name: CfaStage}
+        return traced[name]() if name in traced else EffectStage(EFFECTS[name])
 
     @staticmethod
     def _colour_shift(fit: PairedFit) -> dict[str, Any]:
