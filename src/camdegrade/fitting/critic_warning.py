@@ -17,9 +17,12 @@ from camdegrade._support.text import not_an_option
 
 __all__ = ["CRITIC_WARNING_ACCURACY", "critic_tells", "critic_warning", "diagnose_command", "differing_statistics"]
 
-#: Image-only critic accuracy above which a fit warns. 0.5 is a critic that cannot tell; the City100 built-in reads
-#: 0.64, its eight single critics 0.55–0.83 (docs/results.md): three quarters is beyond a single critic's noise.
-CRITIC_WARNING_ACCURACY = 0.75
+#: Image-only critic accuracy above which a fit warns: the bar a fit's held-out critic is held to (issue 42). 0.5 is a
+#: critic that cannot tell; the City100 built-in reads 0.64 (eight single critics 0.55–0.83, docs/results.md). The
+#: fit's own critic, on its few validation scenes, estimates the held-out one to a few hundredths (the foreign
+#: cameras: 0.72 on validation against 0.75 held out, 0.65 against 0.74), so a warning above 0.75 left fits whose
+#: held-out critic was over the bar silent.
+CRITIC_WARNING_ACCURACY = 0.70
 #: A statistic is named when it is off by at least this much (log2: 0.25 is 19 % of the power or the noise).
 NAMED_LOG2 = 0.25
 #: At most this many statistics are named, the largest first.
