@@ -120,11 +120,15 @@ def test_only_a_network_with_an_output_curve_has_one_to_refit() -> None:
     assert chain_tone.has_output_curve(LocalAffineNet(width=8, curves=True))
 
 
-def test_nothing_is_refitted_where_only_the_sensor_follows_the_network() -> None:
-    network = LocalAffineNet(width=8, curves=True)
-    for effects, reason in (
-        ([Resolution(0.5)], "nothing after the network but the sensor it was trained through"),
-        ([Vignetting(k1=-0.3)], "the network has no output curve"),
-    ):
-        net = network if effects[0].name == "resolution" else LocalAffineNet(width=8)
-        assert retoned(None, CameraProfile(net, effects)) == (None, reason)  # decided before any pair is read
+def test_without_an_output_curve_nothing_is_refitted() -> None:
+    profile = CameraProfile(LocalAffineNet(width=8), [Vignetting(k1=-0.3)])
+    assert retoned(None, profile) == (None, "the network has no output curve")  # decided before any pair is read
+
+
+@pytest.mark.slow
+def test_a_camera_without_vignetting_gets_no_vignetting_stage() -> None:
+    """The stage is judged against the profile with the curve refitted without it: the refit's own gain is not the
+    stage's."""
+    profile = fit_profile(_vignetted_pairs(corner_degrees=0.0), RECIPE)
+    assert list(profile.effects) == []
+    assert profile.fitted["effects"]["vignetting"]["kept"] is False

@@ -140,13 +140,15 @@ def _position_dependent(
     fit: PairedFit, effect: Effect, pairs: list, label: str
 ) -> tuple[Effect | CameraProfile | None, dict[str, Any], str]:
     """A position-dependent stage judged with the network's output curve refitted through it where the network has
-    one (:func:`retoned`: its fit drops the exposure it solves for, which the network's tone must then carry), kept
-    where that lowers the validation error by :data:`MIN_RELATIVE_GAIN`."""
+    one (:func:`retoned`: its fit drops the exposure it solves for, which the network's tone must then carry),
+    against the profile with that curve refitted without it (so that the stage is not credited with what the refit
+    alone gains), kept where it lowers the validation error by :data:`MIN_RELATIVE_GAIN`."""
     candidate, _ = retoned(fit, fit.profile.with_effects(effect))
     if candidate is None:
         gain = relative_gain(fit.profile, effect, *zip(*pairs, strict=True))
     else:
-        gain = profile_gain(fit.profile, candidate, pairs)
+        reference, _ = retoned(fit, fit.profile)
+        gain = profile_gain(reference, candidate, pairs)
     kept = gain >= MIN_RELATIVE_GAIN
     note = {"kept": kept, "relative_mse_gain": round(gain, 4), "evidence": label, "chain_tone": candidate is not None}
     line = f"relative MSE gain {gain:.2%} on {len(pairs)} {label} pair(s) -> {'kept' if kept else 'dropped'}"
@@ -157,13 +159,11 @@ def _position_dependent(
 def retoned(fit: PairedFit, profile: CameraProfile) -> tuple[CameraProfile | None, str]:
     """``profile`` with its network's output curve refitted through its deterministic stages on whole frames of the
     training pairs (every ⌊N / 32⌋-th; :mod:`camdegrade.fitting.network.chain_tone`), or ``None`` and why not: no
-    output curve, nothing after the network but the sensor it was trained through, no gradient through a stage."""
+    output curve, or no gradient through a stage."""
     network = profile.network
     if not chain_tone.has_output_curve(network):
         return None, "the network has no output curve"
     stages = list(profile.without_randomness().effects)
-    if all(isinstance(stage, Resolution) for stage in stages):
-        return None, "nothing after the network but the sensor it was trained through"
     inputs = chain_tone.curve_inputs(network, evenly_spaced(fit.train_pairs, CALIBRATION_PAIRS))
     try:
         knots = chain_tone.refit_output_curve(network.curve[1], inputs, stages)
