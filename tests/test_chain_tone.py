@@ -132,3 +132,10 @@ def test_a_camera_without_vignetting_gets_no_vignetting_stage() -> None:
     profile = fit_profile(_vignetted_pairs(corner_degrees=0.0), RECIPE)
     assert list(profile.effects) == []
     assert profile.fitted["effects"]["vignetting"]["kept"] is False
+
+
+def test_the_refit_reads_at_most_a_mpixel_of_whole_frames() -> None:
+    small = [(torch.zeros(3, 128, 128), torch.zeros(3, 128, 128))] * 64
+    large = [(torch.zeros(3, 1024, 2048), torch.zeros(3, 1024, 2048))] * 5
+    assert len(chain_tone.refit_pairs(small, 32)) == 32
+    assert len(chain_tone.refit_pairs(large, 32)) == 1

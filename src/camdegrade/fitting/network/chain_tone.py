@@ -23,16 +23,29 @@ from torch import Tensor
 
 from camdegrade._support.seeds import derived_generator
 from camdegrade.effects import Effect
+from camdegrade.effects.base import evenly_spaced
 from camdegrade.effects.chain import apply_stages
 from camdegrade.network import ShiftNetwork
 from camdegrade.network.inference import run_network
 from camdegrade.network.nets import piecewise_linear
 from camdegrade.pairs.pairset import ImagePair
 
-__all__ = ["CurveInputs", "chain_error", "curve_inputs", "has_output_curve", "refit_output_curve", "with_output_curve"]
+__all__ = [
+    "CurveInputs",
+    "chain_error",
+    "curve_inputs",
+    "has_output_curve",
+    "refit_output_curve",
+    "refit_pairs",
+    "with_output_curve",
+]
 
 #: L-BFGS iterations of the refit: the error is smooth in the curve's 3 × 17 knots and settles within about 20.
 ITERATIONS = 40
+
+#: The refit reads whole frames of at most this many pixels in all (evenly spaced pairs, at least one): 32 frames of
+#: 128² took 10 CPU-s on one core (the webcam), and a frame of a 12-Mpixel phone must not take minutes.
+PIXEL_BUDGET = 1 << 20
 
 #: What the output curve reads for each pair (float32 ``(1, 3, H, W)`` in [0, 1]), and the pair's capture.
 CurveInputs = list[tuple[Tensor, Tensor]]
@@ -49,6 +62,13 @@ def with_output_curve(network: ShiftNetwork, knots: Tensor) -> ShiftNetwork:
     with torch.no_grad():
         copied.curve[1].copy_(knots)
     return copied
+
+
+def refit_pairs(pairs: Sequence[ImagePair], most: int) -> list[ImagePair]:
+    """At most ``most`` of ``pairs``, evenly spaced, and no more than :data:`PIXEL_BUDGET` pixels of captures in all
+    (at least one pair)."""
+    pixels = max(1, max((captured[0].numel() for _, captured in pairs), default=1))
+    return evenly_spaced(list(pairs), max(1, min(most, PIXEL_BUDGET // pixels)))
 
 
 def curve_inputs(network: ShiftNetwork, pairs: Sequence[ImagePair]) -> CurveInputs:

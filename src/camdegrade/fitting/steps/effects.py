@@ -11,7 +11,6 @@ from typing import Any, ClassVar
 
 from camdegrade._support.recipes import DEFAULT_EFFECTS
 from camdegrade.effects import EFFECTS, JPEG, STAGES, Color, Effect, Resolution, check_effect_names
-from camdegrade.effects.base import evenly_spaced
 from camdegrade.fitting.colour_shift import colour_shift
 from camdegrade.fitting.in_chain import CALIBRATION_PAIRS, fit_stage_in_chain
 from camdegrade.fitting.jpeg_evidence import JpegStage
@@ -158,13 +157,13 @@ def _position_dependent(
 
 def retoned(fit: PairedFit, profile: CameraProfile) -> tuple[CameraProfile | None, str]:
     """``profile`` with its network's output curve refitted through its deterministic stages on whole frames of the
-    training pairs (every ⌊N / 32⌋-th; :mod:`camdegrade.fitting.network.chain_tone`), or ``None`` and why not: no
-    output curve, or no gradient through a stage."""
+    training pairs (every ⌊N / 32⌋-th, a Mpixel at most: :func:`~camdegrade.fitting.network.chain_tone.refit_pairs`),
+    or ``None`` and why not: no output curve, or no gradient through a stage."""
     network = profile.network
     if not chain_tone.has_output_curve(network):
         return None, "the network has no output curve"
     stages = list(profile.without_randomness().effects)
-    inputs = chain_tone.curve_inputs(network, evenly_spaced(fit.train_pairs, CALIBRATION_PAIRS))
+    inputs = chain_tone.curve_inputs(network, chain_tone.refit_pairs(fit.train_pairs, CALIBRATION_PAIRS))
     try:
         knots = chain_tone.refit_output_curve(network.curve[1], inputs, stages)
     except ValueError as error:
