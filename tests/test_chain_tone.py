@@ -134,8 +134,10 @@ def test_a_camera_without_vignetting_gets_no_vignetting_stage() -> None:
     assert profile.fitted["effects"]["vignetting"]["kept"] is False
 
 
-def test_the_refit_reads_at_most_a_mpixel_of_whole_frames() -> None:
+def test_the_refit_reads_at_most_four_mpixels_of_whole_frames() -> None:
     small = [(torch.zeros(3, 128, 128), torch.zeros(3, 128, 128))] * 64
     large = [(torch.zeros(3, 1024, 2048), torch.zeros(3, 1024, 2048))] * 5
+    huge = [(torch.zeros(3, 3000, 4000), torch.zeros(3, 3000, 4000))] * 3
     assert len(chain_tone.refit_pairs(small, 32)) == 32
-    assert len(chain_tone.refit_pairs(large, 32)) == 1
+    assert len(chain_tone.refit_pairs(large, 32)) == 2
+    assert len(chain_tone.refit_pairs(huge, 32)) == 1

@@ -157,7 +157,7 @@ def _position_dependent(
 
 def retoned(fit: PairedFit, profile: CameraProfile) -> tuple[CameraProfile | None, str]:
     """``profile`` with its network's output curve refitted through its deterministic stages on whole frames of the
-    training pairs (every ⌊N / 32⌋-th, a Mpixel at most: :func:`~camdegrade.fitting.network.chain_tone.refit_pairs`),
+    training pairs (every ⌊N / 32⌋-th, 4 Mpixels at most: :func:`~camdegrade.fitting.network.chain_tone.refit_pairs`),
     or ``None`` and why not: no output curve, or no gradient through a stage."""
     network = profile.network
     if not chain_tone.has_output_curve(network):
