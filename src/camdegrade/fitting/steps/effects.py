@@ -1,7 +1,8 @@
 """The effect stages after a fit's network: each fitted on the training pairs at its place in the chain, kept only
 where the validation pairs show that the camera has it (:mod:`camdegrade.fitting.steps.noise_evidence`), and
 recorded with that evidence (``fitted['effects'][name]``). Where the network was dropped, a colour shift between the
-channels that the pairs show comes first (:mod:`camdegrade.fitting.colour_shift`): the network held it."""
+channels that the pairs show comes first (:mod:`camdegrade.fitting.colour_shift`): the network held it. A
+position-dependent stage is judged with the network's output curve refitted through it (:func:`retoned`)."""
 
 from __future__ import annotations
 
@@ -14,10 +15,12 @@ from camdegrade.fitting.colour_shift import colour_shift
 from camdegrade.fitting.evidence import CfaStage
 from camdegrade.fitting.in_chain import CALIBRATION_PAIRS, fit_stage_in_chain
 from camdegrade.fitting.jpeg_evidence import JpegStage
+from camdegrade.fitting.network import chain_tone
 from camdegrade.fitting.steps.base import FitStep, PairedFit, Verdict
 from camdegrade.fitting.steps.noise_evidence import noise_evidence, relative_gain
+from camdegrade.profile import CameraProfile
 
-__all__ = ["DEFAULT_EFFECTS", "EffectStage", "EffectStages"]
+__all__ = ["DEFAULT_EFFECTS", "EffectStage", "EffectStages", "profile_gain", "retoned"]
 
 #: A position-dependent stage is kept where it removes at least this share of the held-out mean squared error.
 MIN_RELATIVE_GAIN = 0.01
@@ -116,11 +119,13 @@ class EffectStage(FitStep):
         one is kept where it lowers the validation error by :data:`MIN_RELATIVE_GAIN`; any other is kept."""
         kept, record, line = self._evidence(fit, effect)
         fit.say(f"effect {self.kind.name}: {line}")
-        if kept is not None:
+        if isinstance(kept, CameraProfile):  # the stage with the network's tone refitted through it
+            fit.profile = kept
+        elif kept is not None:
             fit.keep(True, kept)
         return record
 
-    def _evidence(self, fit: PairedFit, effect: Effect) -> tuple[Effect | None, dict[str, Any], str]:
+    def _evidence(self, fit: PairedFit, effect: Effect) -> tuple[Effect | CameraProfile | None, dict[str, Any], str]:
         held_out, fit_pairs = fit.val_pairs, fit.train_pairs
         pairs, label = fit.evidence_pairs
         if type(effect).draws_only_noise():
@@ -132,9 +137,53 @@ class EffectStage(FitStep):
                 label = "training (the validation pairs hold too few flat pixels)"
             return kept, {**evidence.to_dict(), "evidence": label}, f"{evidence.describe()} [evidence: {label}]"
         if effect.position_dependent:
-            gain = relative_gain(fit.profile, effect, *zip(*pairs, strict=True))
-            kept = gain >= MIN_RELATIVE_GAIN
-            note = {"kept": kept, "relative_mse_gain": round(gain, 4), "evidence": label}
-            line = f"relative MSE gain {gain:.2%} on {len(pairs)} {label} pair(s) -> {'kept' if kept else 'dropped'}"
-            return (effect if kept else None), note, line
+            return _position_dependent(fit, effect, pairs, label)
         return effect, {"kept": True}, f"fitted ({effect.extra_repr()})"
+
+
+def _position_dependent(
+    fit: PairedFit, effect: Effect, pairs: list, label: str
+) -> tuple[Effect | CameraProfile | None, dict[str, Any], str]:
+    """A position-dependent stage judged with the network's output curve refitted through it where the network has
+    one (:func:`retoned`: its fit drops the exposure it solves for, which the network's tone must then carry),
+    against the profile with that curve refitted without it (so that the stage is not credited with what the refit
+    alone gains), kept where it lowers the validation error by :data:`MIN_RELATIVE_GAIN`."""
+    candidate, _ = retoned(fit, fit.profile.with_effects(effect))
+    if candidate is None:
+        gain = relative_gain(fit.profile, effect, *zip(*pairs, strict=True))
+    else:
+        reference, _ = retoned(fit, fit.profile)
+        gain = profile_gain(reference, candidate, pairs)
+    kept = gain >= MIN_RELATIVE_GAIN
+    note = {"kept": kept, "relative_mse_gain": round(gain, 4), "evidence": label, "chain_tone": candidate is not None}
+    line = f"relative MSE gain {gain:.2%} on {len(pairs)} {label} pair(s) -> {'kept' if kept else 'dropped'}"
+    line += " (the network's output curve refitted through it)" if candidate is not None else ""
+    return ((candidate or effect) if kept else None), note, line
+
+
+def retoned(fit: PairedFit, profile: CameraProfile) -> tuple[CameraProfile | None, str]:
+    """``profile`` with its network's output curve refitted through its deterministic stages on whole frames of the
+    training pairs (every ⌊N / 32⌋-th, 4 Mpixels at most: :func:`~camdegrade.fitting.network.chain_tone.refit_pairs`),
+    or ``None`` and why not: no output curve, or no gradient through a stage."""
+    network = profile.network
+    if not chain_tone.has_output_curve(network):
+        return None, "the network has no output curve"
+    stages = list(profile.without_randomness().effects)
+    inputs = chain_tone.curve_inputs(network, chain_tone.refit_pairs(fit.train_pairs, CALIBRATION_PAIRS))
+    try:
+        knots = chain_tone.refit_output_curve(network.curve[1], inputs, stages)
+    except ValueError as error:
+        return None, str(error)
+    network = chain_tone.with_output_curve(network, knots)
+    return CameraProfile(network, list(profile.effects), name=profile.name, description=profile.description), ""
+
+
+def profile_gain(before: CameraProfile, after: CameraProfile, pairs: list) -> float:
+    """The share of ``before``'s mean squared error against the captures of ``pairs`` that ``after`` removes
+    (deterministic outputs; negative where it adds error)."""
+    cleans, captures = [clean for clean, _ in pairs], [captured for _, captured in pairs]
+    errors = [
+        sum(float((sim - captured).pow(2).sum()) for sim, captured in zip(sims, captures, strict=True))
+        for sims in (profile.simulate(cleans, 0, deterministic=True) for profile in (before, after))
+    ]
+    return 1.0 - errors[1] / errors[0] if errors[0] > 0 else 0.0
