@@ -5,6 +5,7 @@ compressed by PIL and numpy (not camdegrade's kernels)."""
 from __future__ import annotations
 
 import io
+import json
 
 import numpy as np
 import pytest
@@ -85,6 +86,9 @@ def test_a_stage_is_refused_only_where_it_takes_the_width_away_from_the_captures
     assert not farther(spread, 3.3, 3.5) and farther(spread, 3.3, 3.6)
     unmeasured = EdgeSpread(float("nan"), 0, float("nan"))
     assert not sharpens_away(unmeasured, 3.3, 2.0) and not farther(unmeasured, 3.3, 2.0)
+    assert json.dumps(unmeasured.record(), allow_nan=False) == (
+        '{"captures": null, "steps": 0, "tolerance": 0.25, "slack": 0.05}'
+    )  # a fit's record is JSON: no NaN
 
 
 def _aliasing_camera(scene: Image.Image) -> torch.Tensor:

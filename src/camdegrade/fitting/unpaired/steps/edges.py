@@ -29,6 +29,7 @@ __all__ = [
     "blur_by_edges",
     "captures_edge_spread",
     "farther",
+    "rounded",
     "sharpens_away",
     "simulated_width",
 ]
@@ -61,7 +62,7 @@ class EdgeSpread:
 
     def record(self) -> dict:
         return {
-            "captures": round(self.width, 3),
+            "captures": rounded(self.width),
             "steps": self.steps,
             "tolerance": round(self.tolerance, 3),
             "slack": round(self.slack, 3),
@@ -127,3 +128,8 @@ def sharpens_away(spread: EdgeSpread, unsharpened: float, sharpened: float) -> b
     if not (math.isfinite(unsharpened) and math.isfinite(sharpened)):
         return True
     return abs(sharpened - spread.width) > abs(unsharpened - spread.width) + spread.slack
+
+
+def rounded(width: float) -> float | None:
+    """``width`` to 0.001 px for a record, ``None`` where it is not measured (NaN has no JSON)."""
+    return round(width, 3) if math.isfinite(width) else None

@@ -20,6 +20,7 @@ from camdegrade.fitting.unpaired.steps.edges import (
     blur_by_edges,
     captures_edge_spread,
     farther,
+    rounded,
     sharpens_away,
     simulated_width,
 )
@@ -255,9 +256,9 @@ def judge_by_edges(proposal: TransferProposal) -> tuple[tuple[float, float], dic
     blur of :attr:`TransferProposal.sigma` alone, or within the tolerance of it
     (:func:`~camdegrade.fitting.unpaired.steps.edges.farther`), and whose sharpening does not take it farther than
     its blur alone (:func:`~camdegrade.fitting.unpaired.steps.edges.sharpens_away`), the one of least spectrum
-    mismatch; ``(0, 0)`` where
-    the identity's mismatch is under :data:`SPECTRUM_FLOOR`, or where that choice neither halves it
-    (:data:`SPECTRUM_GAIN`) nor brings the step width closer beyond the tolerance. And the record."""
+    mismatch; ``(0, 0)`` where the identity's mismatch is under :data:`SPECTRUM_FLOOR`, or where that choice
+    neither halves it (:data:`SPECTRUM_GAIN`) nor brings the step width closer beyond the tolerance. And the
+    record (widths not measured: ``None``)."""
     losses, widths, spread = proposal.losses, proposal.widths, proposal.spread
     base = widths.get((proposal.sigma, 0.0), math.nan)
     allowed = [
@@ -281,8 +282,8 @@ def judge_by_edges(proposal: TransferProposal) -> tuple[tuple[float, float], dic
         "edges": {
             **spread.record(),
             "blur_sigma": proposal.sigma,
-            "chosen": round(widths.get(chosen, math.nan), 3),
-            "by_spectrum_alone": round(widths.get(spectrum_best, math.nan), 3),
+            "chosen": rounded(widths.get(chosen, math.nan)),
+            "by_spectrum_alone": rounded(widths.get(spectrum_best, math.nan)),
             "refused": [list(key) for key in sorted(set(losses) - set(allowed))],
         },
     }
@@ -374,5 +375,5 @@ class DetailResponseMatch(UnpairedStep):
         without = simulated_width(fit.simulate(fit.chain(frequency_response=None), crops, "unpaired-response"))
         with_it = simulated_width(fit.simulate(fit.chain(frequency_response=response), crops, "unpaired-response"))
         away = sharpens_away(spread, without, with_it)
-        notes["edges"] = {**spread.record(), "without": round(without, 3), "with": round(with_it, 3), "refused": away}
+        notes["edges"] = {**spread.record(), "without": rounded(without), "with": rounded(with_it), "refused": away}
         return away
