@@ -69,6 +69,9 @@ class Measured:
     clean_rings: Tensor
     real_spectra: Tensor
     real_spectrum: Tensor
+    #: The captures' step-edge spread (:class:`~camdegrade.fitting.unpaired.steps.edges.EdgeSpread`), measured when
+    #: first asked for.
+    edge_spread: Any = None
 
 
 class UnpairedFit:

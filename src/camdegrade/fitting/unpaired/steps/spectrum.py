@@ -15,6 +15,15 @@ from torch import Tensor
 
 from camdegrade.effects import Blur, Effect, FrequencyResponse, Sharpen
 from camdegrade.fitting.unpaired.bench import UnpairedFit, UnpairedStep
+from camdegrade.fitting.unpaired.steps.edges import (
+    EdgeSpread,
+    blur_by_edges,
+    captures_edge_spread,
+    farther,
+    rounded,
+    sharpens_away,
+    simulated_width,
+)
 from camdegrade.functional.analysis.images import hann2d, luma
 
 __all__ = [
@@ -231,26 +240,94 @@ def radial_response(log2_gains: Tensor) -> FrequencyResponse:
 
 
 @dataclass(frozen=True)
+class TransferProposal:
+    """The spectrum mismatch of each (blur sigma, sharpen amount) tried, the median step width of its simulation,
+    the captures' :class:`~camdegrade.fitting.unpaired.steps.edges.EdgeSpread`, and the blur sigma that gives the
+    captures' step width (``None`` where it is not measured: the spectrum alone decides)."""
+
+    losses: dict[tuple[float, float], float]
+    widths: dict[tuple[float, float], float]
+    spread: EdgeSpread
+    sigma: float | None
+
+
+def judge_by_edges(proposal: TransferProposal) -> tuple[tuple[float, float], dict]:
+    """Of the (blur, sharpening) pairs tried whose median step width is as close to the captures' as that of the
+    blur of :attr:`TransferProposal.sigma` alone, or within the tolerance of it
+    (:func:`~camdegrade.fitting.unpaired.steps.edges.farther`), and whose sharpening does not take it farther than
+    its blur alone (:func:`~camdegrade.fitting.unpaired.steps.edges.sharpens_away`), the one of least spectrum
+    mismatch; ``(0, 0)`` where the identity's mismatch is under :data:`SPECTRUM_FLOOR`, or where that choice
+    neither halves it (:data:`SPECTRUM_GAIN`) nor brings the step width closer beyond the tolerance. And the
+    record (widths not measured: ``None``)."""
+    losses, widths, spread = proposal.losses, proposal.widths, proposal.spread
+    base = widths.get((proposal.sigma, 0.0), math.nan)
+    allowed = [
+        (sigma, amount)
+        for sigma, amount in losses
+        if not farther(spread, base, widths.get((sigma, amount), math.nan))
+        and not (amount > 0 and sharpens_away(spread, widths.get((sigma, 0.0), math.nan), widths[(sigma, amount)]))
+    ]
+    best = min(allowed, key=losses.__getitem__)
+    identity, start = losses[(0.0, 0.0)], widths.get((0.0, 0.0), math.nan)
+    off = abs(start - spread.width)
+    closer = off > spread.tolerance and abs(widths[best] - spread.width) < off
+    kept = identity > SPECTRUM_FLOOR and (losses[best] < SPECTRUM_GAIN * identity or closer)
+    chosen = best if kept else (0.0, 0.0)
+    spectrum_best = min(losses, key=losses.__getitem__)
+    notes = {
+        "identity_mismatch": round(identity, 4),
+        "best_mismatch": round(losses[best], 4),
+        "best": list(best),
+        "by_spectrum_alone": list(spectrum_best),
+        "edges": {
+            **spread.record(),
+            "blur_sigma": proposal.sigma,
+            "chosen": rounded(widths.get(chosen, math.nan)),
+            "by_spectrum_alone": rounded(widths.get(spectrum_best, math.nan)),
+            "refused": [list(key) for key in sorted(set(losses) - set(allowed))],
+        },
+    }
+    return chosen, notes
+
+
+@dataclass(frozen=True)
 class TransferMatch(UnpairedStep):
-    """The blur and sharpening step (it needs the clean set): the PSF and unsharp mask whose simulation of the
-    clean set has the captures' mean spectrum (the codec stage, read before it, simulated too)."""
+    """The blur and sharpening step (it needs the clean set): of the PSFs and unsharp masks whose simulation of the
+    clean set keeps the captures' median step width (:mod:`~camdegrade.fitting.unpaired.steps.edges`), the one whose
+    simulation has the captures' mean spectrum (the codec stage, read before it, simulated too); the spectrum alone
+    where too few step edges are seen."""
 
     name: ClassVar[str] = "transfer"
     kinds: ClassVar[tuple[type[Effect], ...]] = (Blur, Sharpen)
     needs_clean: ClassVar[bool] = True
 
-    def propose(self, fit: UnpairedFit) -> dict[tuple[float, float], float]:
+    def propose(self, fit: UnpairedFit) -> TransferProposal:
         use_blur, use_sharpen = fit.wants(Blur), fit.wants(Sharpen)
+        widths: dict[tuple[float, float], float] = {}
 
         def simulate(sigma: float, amount: float) -> list[Tensor]:
             blur = Blur(sigma) if sigma > 0 and use_blur else None
             sharpen = Sharpen(SHARPEN_SIGMA, amount) if amount > 0 and use_sharpen else None
-            return fit.simulate(fit.chain(blur=blur, sharpen=sharpen), fit.sets.spectrum_crops, "unpaired-spectrum")
+            images = fit.simulate(fit.chain(blur=blur, sharpen=sharpen), fit.sets.spectrum_crops, "unpaired-spectrum")
+            widths[(sigma, amount)] = simulated_width(images)
+            return images
 
-        return transfer_mismatches(fit.sets.real_spectrum, simulate)
+        losses = transfer_mismatches(fit.sets.real_spectrum, simulate)
+        spread = captures_edge_spread(fit)
+        unsharpened = {sigma: width for (sigma, amount), width in widths.items() if amount == 0}
+        sigma = (blur_by_edges(unsharpened, spread.width) if use_blur else 0.0) if spread.measured else None
+        for amount in SHARPEN_AMOUNTS if sigma is not None and use_sharpen else ():
+            if (sigma, amount) not in losses:
+                losses[(sigma, amount)] = float(
+                    (mean_spectrum(simulate(sigma, amount)) - fit.sets.real_spectrum).pow(2).mean()
+                )
+        return TransferProposal(losses, widths, spread, sigma)
 
-    def judge(self, fit: UnpairedFit, losses: dict[tuple[float, float], float]) -> dict:
-        (sigma, amount), notes = judge_transfer(losses)
+    def judge(self, fit: UnpairedFit, proposal: TransferProposal) -> dict:
+        if proposal.sigma is None or (0.0, 0.0) not in proposal.widths:
+            (sigma, amount), notes = judge_transfer(proposal.losses)
+        else:
+            (sigma, amount), notes = judge_by_edges(proposal)
         fit.keep(Blur(sigma) if sigma > 0 and fit.wants(Blur) else None, Blur, Sharpen)
         fit.keep(Sharpen(SHARPEN_SIGMA, amount) if amount > 0 and fit.wants(Sharpen) else None)
         fit.say(f"blur and sharpening: sigma {sigma} px, amount {amount} (spectrum mismatch {notes})")
@@ -282,6 +359,21 @@ class DetailResponseMatch(UnpairedStep):
 
     def judge(self, fit: UnpairedFit, proposal: ResponseProposal) -> dict:
         gains, notes = judge_detail_response(fit.sets.real_spectra, self._simulate(fit), proposal)
+        if gains is not None and self._sharpens_away(fit, radial_response(gains), notes):
+            gains, notes["kept"] = None, False
         fit.keep(None if gains is None else radial_response(gains))
         fit.say(f"detail response: {notes}")
         return notes
+
+    def _sharpens_away(self, fit: UnpairedFit, response: FrequencyResponse, notes: dict) -> bool:
+        """Whether ``response`` takes the simulation's median step width farther from the captures'
+        (:func:`~camdegrade.fitting.unpaired.steps.edges.sharpens_away`); its widths go to ``notes``."""
+        spread = captures_edge_spread(fit)
+        if not spread.measured:
+            return False
+        crops = fit.sets.spectrum_crops
+        without = simulated_width(fit.simulate(fit.chain(frequency_response=None), crops, "unpaired-response"))
+        with_it = simulated_width(fit.simulate(fit.chain(frequency_response=response), crops, "unpaired-response"))
+        away = sharpens_away(spread, without, with_it)
+        notes["edges"] = {**spread.record(), "without": rounded(without), "with": rounded(with_it), "refused": away}
+        return away
