@@ -5,7 +5,7 @@ from __future__ import annotations
 import importlib.util
 import os
 import sys
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from types import ModuleType
 
@@ -53,6 +53,33 @@ def unpaired_critic(_no_unpaired_critic: int, monkeypatch: pytest.MonkeyPatch) -
     from camdegrade.fitting.unpaired import judges
 
     monkeypatch.setattr(judges, "MIN_CRITIC_IMAGES", _no_unpaired_critic)
+
+
+#: Why the suite's unpaired fits leave the learned texture stage out (see :func:`_no_learned_texture`).
+NO_LEARNED_TEXTURE = "not fitted in the test suite (the learned_texture fixture fits it)"
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _no_learned_texture() -> Iterator[Callable[..., str | None]]:
+    """The unpaired fit's learned texture step (three trainings of 1,200 steps and their critics: minutes a fit) is
+    run only by the tests that ask for it (the :func:`learned_texture` fixture); every other unpaired fit of the
+    suite records it as not fitted, with :data:`NO_LEARNED_TEXTURE`, as a fit of too few images does. Yields the
+    package's own rule."""
+    from camdegrade.fitting.two_sample import step
+
+    with pytest.MonkeyPatch.context() as patch:
+        default = step.too_few_patches
+        patch.setattr(step, "too_few_patches", lambda *args, **options: NO_LEARNED_TEXTURE)
+        yield default
+
+
+@pytest.fixture
+def learned_texture(_no_learned_texture: Callable[..., str | None], monkeypatch: pytest.MonkeyPatch) -> None:
+    """The unpaired fits of this test run the learned texture step where their images are enough, as a user's fit
+    does."""
+    from camdegrade.fitting.two_sample import step
+
+    monkeypatch.setattr(step, "too_few_patches", _no_learned_texture)
 
 
 @pytest.fixture(scope="session")

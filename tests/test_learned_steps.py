@@ -5,6 +5,8 @@ validation pairs."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import pytest
 import torch
 
@@ -13,7 +15,8 @@ from camdegrade.cli.fit import _unpaired_effects
 from camdegrade.effects import LearnedTexture, Noise
 from camdegrade.fitting import FitConfig
 from camdegrade.fitting.steps.learned import MAX_PSNR_LOSS_DB, LearnedTexturePaired
-from camdegrade.fitting.two_sample.gate import CRITIC_SLACK, Judgement, LearnedTextureMatch
+from camdegrade.fitting.two_sample.gate import CRITIC_SLACK, Judgement
+from camdegrade.fitting.two_sample.step import LearnedTextureMatch
 from camdegrade.fitting.unpaired import fit as unpaired_fit
 from camdegrade.fitting.unpaired import fit_unpaired
 from camdegrade.fitting.unpaired.fit import UNPAIRED_EFFECTS, UNPAIRED_OPTIONAL, check_unpaired_effects
@@ -50,20 +53,27 @@ def test_the_gate_wants_one_measure_better_and_neither_worse_than_its_noise(
     assert judgement.to_dict()["keep"] is keep
 
 
-def test_the_learned_stage_is_fitted_only_when_asked_for() -> None:
-    assert "learned_texture" in UNPAIRED_OPTIONAL and "learned_texture" not in UNPAIRED_EFFECTS
+def test_the_learned_stage_is_the_unpaired_fits_last_default_stage() -> None:
+    assert UNPAIRED_EFFECTS[-1] == "learned_texture" and UNPAIRED_OPTIONAL == ()
+    assert [label for label, step in unpaired_fit.UNPAIRED_STEPS if isinstance(step, LearnedTextureMatch)] == [
+        "learned texture: trained on half A, judged on B",
+        "learned texture: trained on half B, judged on A",
+        "learned texture: trained on all",
+    ]
     assert check_unpaired_effects(["noise", "learned_texture"]) == ["noise", "learned_texture"]
     with pytest.raises(ValueError, match=r"effects must be names from .*'learned_texture'.*got 'texture'"):
         check_unpaired_effects(["texture"])
 
 
 @pytest.mark.slow
-def test_the_step_runs_last_trains_after_the_named_stages_and_records_its_judgement(monkeypatch) -> None:
+def test_the_step_runs_last_trains_after_the_named_stages_and_records_its_judgement(
+    monkeypatch, learned_texture
+) -> None:
     """A tiny fit (8 grainy captures of 96², 8 clean images, 4 training steps): the step's record holds both
     halves' judgements (or the first, refused) and a training per half plus one on all where kept; the profile
     has the stage last exactly where the record says kept, and the same seed gives the same profile."""
     steps = tuple(
-        (label, LearnedTextureMatch(steps=4) if isinstance(step, LearnedTextureMatch) else step)
+        (label, replace(step, steps=4) if isinstance(step, LearnedTextureMatch) else step)
         for label, step in unpaired_fit.UNPAIRED_STEPS
     )
     assert isinstance(steps[-1][1], LearnedTextureMatch)
@@ -76,7 +86,7 @@ def test_the_step_runs_last_trains_after_the_named_stages_and_records_its_judgem
     kept = record["kept"]
     assert len(record["judgements"]) == (2 if record["judgements"][0]["keep"] else 1)
     assert kept == all(judgement["keep"] for judgement in record["judgements"]) and len(record["judgements"]) >= 1
-    assert len(record["training_seconds"]) == len(record["judgements"]) + (1 if kept else 0)
+    assert record["trainings"] == len(record["judgements"]) + (1 if kept else 0)
     assert profiles[0].effect_names == (["learned_texture"] if kept else [])
     first, again = (
         {key: value for effect in p.effects for key, value in effect.state_dict().items()} for p in profiles

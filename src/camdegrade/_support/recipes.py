@@ -105,7 +105,7 @@ TRAIN_PRECISIONS: tuple[str, ...] = ("auto", "float32", "bfloat16")
 #: (:mod:`camdegrade.fitting.steps.denoise`), each where the validation pairs confirm it; ``none``: no such stages.
 TEXTURES: tuple[str, ...] = ("match", "none")
 #: ``critic``: a learned texture stage last, trained against a critic (:mod:`camdegrade.fitting.two_sample`), kept
-#: where held-out data confirm it; ``none``: not (every recipe's default).
+#: where held-out data confirm it; ``none``: not (every recipe's default; ``fit --unpaired`` fits it by default).
 LEARNED_TEXTURES: tuple[str, ...] = ("critic", "none")
 #: The smallest sensor scale a recipe accepts (``camdegrade.effects.Resolution.MIN_SCALE``; a test keeps them equal).
 MIN_SENSOR_SCALE = 0.125
@@ -179,8 +179,8 @@ FIELDS: tuple[RecipeField, ...] = (
         "learned_texture",
         "choice",
         "critic: last, a small network trained against a critic (and L2 on the pairs) for the texture no stage "
-        "names, kept where held-out data say a fresh critic tells it less easily (with --unpaired: where the "
-        "halves of the sets say so); minutes more",
+        "names, kept where held-out data say a fresh critic tells it less easily (with --unpaired: the default, "
+        "where each half of the sets holds enough patches and the halves say so); minutes more",
         LEARNED_TEXTURES,
         toggles=("learned_texture",),
     ),

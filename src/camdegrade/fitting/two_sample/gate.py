@@ -18,8 +18,8 @@ errors; the critic fell 0.68 → 0.62 and 0.77 → 0.66): the stage takes about 
 cycles/pixel band, a change the named stages' judges would not call one (docs/results.md).
 
 Both directions are judged (trained on half A, judged on half B, and back; once one is refused the other is not
-trained); the stage kept is then trained on all images. :class:`LearnedTextureMatch` is the step,
-:func:`fit_learned_stage` the same for any profile.
+trained); the stage kept is then trained on all images. :func:`fit_learned_stage` does it for any profile; the
+unpaired fit's step (:mod:`camdegrade.fitting.two_sample.step`) does it in three parts.
 """
 
 from __future__ import annotations
@@ -27,32 +27,35 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any, ClassVar
+from typing import Any
 
 import torch
 from torch import Tensor
 
-from camdegrade.effects import Effect, LearnedTexture
+from camdegrade.effects import LearnedTexture
 from camdegrade.effects.base import evenly_spaced
 from camdegrade.fitting.two_sample.train import TwoSampleOptions, fit_two_sample
-from camdegrade.fitting.unpaired.bench import UnpairedFit, UnpairedStep
 from camdegrade.fitting.unpaired.judges import SIGNIFICANCE, common_crops, split_half_error
 from camdegrade.fitting.unpaired.steps.noise import flat_sums
 from camdegrade.fitting.unpaired.steps.spectrum import SPECTRUM_SIDE, centre_crop
+from camdegrade.functional.analysis.noise import NoiseSums
 from camdegrade.measures.critic import repeated_critic_test
 from camdegrade.measures.fidelity import band_power
 from camdegrade.profile import CameraProfile
 
 __all__ = [
     "CRITIC_SLACK",
+    "HALVES",
     "JUDGE_IMAGES",
+    "ImageStatistics",
     "Judgement",
-    "LearnedTextureMatch",
     "StageTraining",
     "fit_learned_stage",
+    "judge_half",
     "judge_halves",
     "judge_learned_stage",
     "kept_stage",
+    "measured_statistics",
     "set_statistics",
     "statistics_distance",
 ]
@@ -60,8 +63,8 @@ __all__ = [
 #: How much easier the fresh critic may find the simulation with the stage (accuracy; two critics on 8–10 held-out
 #: images spread by about 0.05, docs/results.md).
 CRITIC_SLACK = 0.02
-#: A judgement uses at most this many held-out clean images and as many captures (evenly spaced): its critics and
-#: simulations are most of the gate's time, and 16 City100 scenes already separate the rows of docs/results.md.
+#: A judgement uses at most this many held-out clean images and as many captures (evenly spaced): its critics are
+#: most of its time, and 16 City100 scenes already separate the rows of docs/results.md.
 JUDGE_IMAGES = 20
 
 
@@ -115,17 +118,42 @@ class Judgement:
         }
 
 
+@dataclass(frozen=True)
+class ImageStatistics:
+    """What :func:`set_statistics` reads of one image: its centre crop's band power and its flat-pixel noise sums.
+    Measured once per image, a set's statistics are their sums, whichever part of a set is asked for (the
+    split-half error asks for 32 parts of the same images)."""
+
+    power: Tensor
+    noise: NoiseSums
+
+    @classmethod
+    def of(cls, image: Tensor) -> ImageStatistics:
+        return cls(band_power(centre_crop(image, SPECTRUM_SIDE))[0], flat_sums([image]))
+
+
 def set_statistics(images: Sequence[Tensor], captures: Sequence[Tensor]) -> dict[str, Any]:
     """``images`` against ``captures`` (other scenes allowed): the set means' log2 band power differences on centre
     crops of :data:`SPECTRUM_SIDE`, and the flat-noise ratio, each set's own flat pixels
     (:func:`~camdegrade.fitting.unpaired.steps.noise.flat_sums`)."""
+    measured = [[ImageStatistics.of(image) for image in side] for side in (images, captures)]
+    return measured_statistics(*measured)
 
-    def bands(side: Sequence[Tensor]) -> Tensor:
-        powers = [band_power(centre_crop(image, SPECTRUM_SIDE))[0] for image in side]
-        return torch.stack(powers).clamp_min(1e-8).log2().mean(0)
 
-    real_std = flat_sums(list(captures)).pooled_std()
-    ratio = flat_sums(list(images)).pooled_std() / real_std if real_std > 0 else math.nan
+def measured_statistics(images: Sequence[ImageStatistics], captures: Sequence[ImageStatistics]) -> dict[str, Any]:
+    """:func:`set_statistics` of images measured already (the same numbers: the same sums in the same order)."""
+
+    def bands(side: Sequence[ImageStatistics]) -> Tensor:
+        return torch.stack([image.power for image in side]).clamp_min(1e-8).log2().mean(0)
+
+    def noise(side: Sequence[ImageStatistics]) -> NoiseSums:
+        total = NoiseSums.zeros()
+        for image in side:
+            total = total + image.noise
+        return total
+
+    real_std = noise(captures).pooled_std()
+    ratio = noise(images).pooled_std() / real_std if real_std > 0 else math.nan
     return {
         "bands": [round(float(value), 3) for value in bands(images) - bands(captures)],
         "noise_ratio": round(ratio, 3) if math.isfinite(ratio) else None,
@@ -140,14 +168,16 @@ def statistics_distance(statistics: dict[str, Any]) -> float:
     return math.sqrt(sum(value * value for value in parts) / len(parts))
 
 
-def _change_error(without: list[Tensor], with_stage: list[Tensor], captures: list[Tensor], seed: int) -> float:
+def _change_error(
+    without: list[ImageStatistics], with_stage: list[ImageStatistics], captures: list[ImageStatistics], seed: int
+) -> float:
     """The split-half standard error of the statistics' change (with the stage less without) over the judging
     images: how much their content alone moves it."""
 
     def change(capture_part: list[int], clean_part: list[int]) -> Tensor:
         reals = [captures[index] for index in capture_part]
         distances = [
-            statistics_distance(set_statistics([sims[index] for index in clean_part], reals))
+            statistics_distance(measured_statistics([sims[index] for index in clean_part], reals))
             for sims in (without, with_stage)
         ]
         return torch.tensor([distances[1] - distances[0]])
@@ -168,37 +198,56 @@ def judge_learned_stage(
     each; :class:`Judgement`)."""
     cleans, captures = common_crops(evenly_spaced(cleans, JUDGE_IMAGES), evenly_spaced(captures, JUDGE_IMAGES))
     scenes = [f"{index:04d}" for index in range(len(cleans))]
-    rows, sims = {}, {}
+    rows, measured = {}, {}
+    real = [ImageStatistics.of(image) for image in captures]
     for label, profile in (("without", named), ("with", named.with_effects(stage))):
-        sims[label] = profile.simulate(cleans, seed, stream="two-sample-gate", eight_bit=True)
-        statistics = set_statistics(sims[label], captures)
-        critic = repeated_critic_test((cleans, captures, sims[label]), scenes, critic_seeds, image_only=True)
+        sims = profile.simulate(cleans, seed, stream="two-sample-gate", eight_bit=True)
+        measured[label] = [ImageStatistics.of(image) for image in sims]
+        statistics = measured_statistics(measured[label], real)
+        critic = repeated_critic_test((cleans, captures, sims), scenes, critic_seeds, image_only=True)
         rows[label] = {
             **statistics,
             "distance": round(statistics_distance(statistics), 4),
             "critic": round(critic.accuracy, 4),
             "critic_std": round(critic.std, 4),
         }
-    error = _change_error(sims["without"], sims["with"], captures, seed)
+    error = _change_error(measured["without"], measured["with"], real, seed)
     return Judgement(without=rows["without"], with_stage=rows["with"], change_error=error)
+
+
+#: The two halves of the fitting images (alternate ones), A and B.
+HALVES = (slice(0, None, 2), slice(1, None, 2))
+
+
+def judge_half(
+    named: CameraProfile,
+    cleans: Sequence[Tensor],
+    captures: Sequence[Tensor],
+    training: StageTraining,
+    fit: slice,
+    held: slice,
+) -> tuple[Judgement, dict[str, Any]]:
+    """A stage after ``named`` trained on the ``fit`` part of the images and judged on the ``held`` part, and the
+    training's record."""
+    cleans, captures = list(cleans), list(captures)
+    stage, record = training.train(named, cleans[fit], captures[fit])
+    judgement = judge_learned_stage(
+        named, stage, cleans[held], captures[held], seed=training.seed, critic_seeds=training.critic_seeds
+    )
+    return judgement, record
 
 
 def judge_halves(
     named: CameraProfile, cleans: Sequence[Tensor], captures: Sequence[Tensor], training: StageTraining
 ) -> tuple[list[Judgement], list[dict[str, Any]]]:
-    """Train a stage after ``named`` on half A of the images (alternate ones) and judge it on half B, then back
+    """Train a stage after ``named`` on half A of the images (:data:`HALVES`) and judge it on half B, then back
     (not once the first is refused): the judgements and the trainings' records."""
-    halves = [slice(0, None, 2), slice(1, None, 2)]
     judgements, trainings = [], []
-    for fit, held in (halves, halves[::-1]):
-        stage, record = training.train(named, cleans[fit], captures[fit])
+    for fit, held in (HALVES, HALVES[::-1]):
+        judgement, record = judge_half(named, cleans, captures, training, fit, held)
+        judgements.append(judgement)
         trainings.append(record)
-        judgements.append(
-            judge_learned_stage(
-                named, stage, cleans[held], captures[held], seed=training.seed, critic_seeds=training.critic_seeds
-            )
-        )
-        if not judgements[-1].keep:
+        if not judgement.keep:
             break
     return judgements, trainings
 
@@ -232,44 +281,3 @@ def kept_stage(
         final, record = training.train(named, cleans, captures)
         trainings = [*trainings, record]
     return final, {"kept": kept, "judgements": [j.to_dict() for j in judgements], "trainings": trainings}
-
-
-@dataclass(frozen=True)
-class LearnedTextureMatch(UnpairedStep):
-    """The learned texture step (it needs the clean set), last: :func:`fit_learned_stage` after every named stage
-    the fit kept, of ``steps`` training steps; its record is the judgements and the trainings' times."""
-
-    name: ClassVar[str] = LearnedTexture.name
-    kinds: ClassVar[tuple[type[Effect], ...]] = (LearnedTexture,)
-    needs_clean: ClassVar[bool] = True
-    steps: int = 1200
-
-    def propose(self, fit: UnpairedFit) -> tuple[list[Judgement], list[dict[str, Any]]]:
-        cleans, captures = _sets(fit)
-        return judge_halves(_named(fit), cleans, captures, StageTraining(seed=fit.seed, steps=self.steps))
-
-    def judge(self, fit: UnpairedFit, proposal: tuple[list[Judgement], list[dict[str, Any]]]) -> dict[str, Any]:
-        cleans, captures = _sets(fit)
-        training = StageTraining(seed=fit.seed, steps=self.steps)
-        stage, evidence = kept_stage(_named(fit), cleans, captures, proposal, training)
-        fit.keep(stage, LearnedTexture)
-        judged = evidence["judgements"]
-        critics = ", ".join(f"{j['without']['critic']:.2f} -> {j['with']['critic']:.2f}" for j in judged)
-        fit.say(f"learned texture: {'kept' if stage else 'dropped'} (fresh critic on the other half: {critics})")
-        return {
-            "kept": evidence["kept"],
-            "steps": self.steps,
-            "judgements": evidence["judgements"],
-            "training_seconds": [record["seconds"] for record in evidence["trainings"]],
-            "magnitude": None if stage is None else round(stage.magnitude(), 4),
-        }
-
-
-def _named(fit: UnpairedFit) -> CameraProfile:
-    """The named stages the fit kept, without a learned one."""
-    return CameraProfile(None, fit.chain(learned_texture=None))
-
-
-def _sets(fit: UnpairedFit) -> tuple[list[Tensor], list[Tensor]]:
-    """The clean images and the captures (the step ``needs_clean``: the loop runs it only with a clean set)."""
-    return (list(fit.cleans.images) if fit.cleans else []), list(fit.captures.images)

@@ -15,7 +15,10 @@ Every stage is fitted by matching a distribution of the captures (an effects-onl
   has no Gaussian-plus-unsharp shape), as a gain per radial band, kept where that is more than a floor and a
   response fitted on each half of the sets also brings the other half's spectrum closer;
 - ``noise``: level per channel and intensity, spatial and chroma correlation, banding, from the captures' flat
-  regions (:mod:`camdegrade.fitting.unpaired.steps.noise`), calibrated through the whole chain.
+  regions (:mod:`camdegrade.fitting.unpaired.steps.noise`), calibrated through the whole chain;
+- ``learned_texture``: last, a small network trained against a patch critic for the texture no stage names, kept
+  where held-out halves of the sets say so; only where each half holds enough patches
+  (:mod:`camdegrade.fitting.two_sample.step`).
 
 The fit runs the paired fit's loop of steps (:func:`~camdegrade.fitting.steps.base.run_steps`) over
 :data:`UNPAIRED_STEPS`, each step judged by random halves of the two sets (:mod:`camdegrade.fitting.unpaired.judges`)
@@ -47,7 +50,7 @@ from camdegrade.errors import CamdegradeError, FitInterrupted
 from camdegrade.fitting.record import machine_record
 from camdegrade.fitting.steps.base import Verdict, run_steps
 from camdegrade.fitting.steps.resolution import sensor_trace, sensor_verdict
-from camdegrade.fitting.two_sample.gate import LearnedTextureMatch
+from camdegrade.fitting.two_sample.step import LearnedTextureMatch
 from camdegrade.fitting.unpaired.bench import Measured, UnpairedFit, UnpairedStep
 from camdegrade.fitting.unpaired.checkpoint import StepCheckpoint, check_checkpoint, fit_fingerprint
 from camdegrade.fitting.unpaired.images import MIN_IMAGES, ImageSet, Source, check_count, load_images, load_sides
@@ -80,13 +83,15 @@ __all__ = [
     "unpaired_fidelity",
 ]
 
-#: The stages :func:`fit_unpaired` fits by default, in the order they are fitted.
+#: The stages :func:`fit_unpaired` fits by default, in the order they are fitted; the learned texture stage last
+#: (:mod:`camdegrade.fitting.two_sample.step`), where the sets are enough for it.
 UNPAIRED_EFFECTS: tuple[str, ...] = (
     "resolution", "jpeg", "color", "tone", "vignetting", "noise", "blur", "sharpen", "frequency_response",
+    LearnedTexture.name,
 )  # fmt: skip
-#: Stages :func:`fit_unpaired` fits only when asked for (``effects``): the learned texture stage
-#: (:mod:`camdegrade.fitting.two_sample.gate`), three trainings of a network and their critics.
-UNPAIRED_OPTIONAL: tuple[str, ...] = (LearnedTexture.name,)
+#: Stages :func:`fit_unpaired` fits only when asked for (``effects``): none since the learned texture stage is a
+#: default (issue 43).
+UNPAIRED_OPTIONAL: tuple[str, ...] = ()
 #: Stages that need to know where each clean pixel landed in the capture: an unpaired set cannot show them.
 NOT_IDENTIFIABLE: dict[str, str] = {
     "misalignment": "a shift between clean image and capture is invisible without the same scene on both sides",
@@ -145,7 +150,9 @@ UNPAIRED_STEPS: tuple[tuple[str, UnpairedStep], ...] = (
     ("noise again", NoiseMatch()),
     ("detail response", DetailResponseMatch()),
     ("noise through the detail response", NoiseMatch(refit=True)),
-    ("learned texture", LearnedTextureMatch()),
+    ("learned texture: trained on half A, judged on B", LearnedTextureMatch("half A")),
+    ("learned texture: trained on half B, judged on A", LearnedTextureMatch("half B")),
+    ("learned texture: trained on all", LearnedTextureMatch("all")),
 )
 
 
