@@ -36,7 +36,7 @@ from torch import Tensor
 from camdegrade.effects import JPEG, Effect, Noise, Resolution
 from camdegrade.effects.base import evenly_spaced
 from camdegrade.fitting.in_chain import CALIBRATION_PAIRS, fit_noise_stage, replace_stage
-from camdegrade.fitting.steps.base import FitStep, PairedFit, Verdict
+from camdegrade.fitting.steps.base import FitStep, PairedFit, Verdict, keep_and_refit_noise
 from camdegrade.fitting.steps.noise_evidence import noise_evidence, relative_gain
 from camdegrade.functional.analysis.images import luma
 from camdegrade.measures.traces.quantisation import read_lattice
@@ -116,16 +116,8 @@ class JpegStage(FitStep):
         return propose_jpeg(fit)
 
     def judge(self, fit: PairedFit, proposal: JpegProposal) -> dict[str, Any]:
-        kept, record, line = judge_jpeg(fit, proposal.stage)
-        fit.say(f"effect jpeg: {line}")
-        record = {**proposal.note, **record}
-        if kept is not None:
-            fit.keep(True, kept)
-            line = noise_through_codec(fit)
-            if line is not None:
-                fit.say(line)
-                record["noise_refitted"] = "refitted through" in line
-        return record
+        judged = judge_jpeg(fit, proposal.stage)
+        return keep_and_refit_noise(fit, self.name, judged, proposal.note, noise_through_codec, "refitted through")
 
 
 def propose_jpeg(fit: PairedFit) -> JpegProposal | Verdict:

@@ -32,7 +32,7 @@ from camdegrade._support.seeds import derived_generator
 from camdegrade.effects import ColorFilterArray, Effect, Noise
 from camdegrade.effects.base import evenly_spaced
 from camdegrade.fitting.in_chain import CALIBRATION_PAIRS, fit_stage_in_chain
-from camdegrade.fitting.steps.base import FitStep, PairedFit, Verdict
+from camdegrade.fitting.steps.base import FitStep, PairedFit, Verdict, keep_and_refit_noise
 from camdegrade.fitting.steps.noise_evidence import as_stored, relative_gain
 from camdegrade.functional.analysis.images import flat_mask
 from camdegrade.functional.analysis.noise import measure_set
@@ -74,16 +74,8 @@ class CfaStage(FitStep):
         return propose_cfa(fit)
 
     def judge(self, fit: PairedFit, proposal: CfaProposal) -> dict[str, Any]:
-        kept, record, line = judge_cfa(fit, proposal.stage, proposal.route)
-        fit.say(f"effect cfa: {line}")
-        record = {**proposal.note, **record}
-        if kept is not None:
-            fit.keep(True, kept)
-            line = noise_before_mosaic(fit)
-            if line is not None:
-                fit.say(line)
-                record["noise_refitted"] = "refitted before" in line
-        return record
+        judged = judge_cfa(fit, proposal.stage, proposal.route)
+        return keep_and_refit_noise(fit, self.name, judged, proposal.note, noise_before_mosaic, "refitted before")
 
 
 def propose_cfa(fit: PairedFit) -> CfaProposal | Verdict:

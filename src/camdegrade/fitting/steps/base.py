@@ -20,7 +20,7 @@ from camdegrade.network import ShiftNetwork
 from camdegrade.pairs.pairset import ImagePair, PairSet
 from camdegrade.profile import CameraProfile
 
-__all__ = ["FitStep", "PairedFit", "TrainedNetwork", "Verdict", "run_steps"]
+__all__ = ["FitStep", "PairedFit", "TrainedNetwork", "Verdict", "keep_and_refit_noise", "run_steps"]
 
 Log = Callable[[str], None]
 #: A step's evidence record, written to the fit's records under the step's name.
@@ -83,6 +83,30 @@ class Bench(Protocol):
     def unmet(self, step: FitStep) -> str | None: ...
 
     def skip(self, step: FitStep, reason: str) -> None: ...
+
+
+def keep_and_refit_noise(
+    fit: PairedFit,
+    name: str,
+    judged: tuple[Effect | None, dict[str, Any], str],
+    note: dict[str, Any],
+    refit_noise: Callable[[PairedFit], str | None],
+    refitted: str,
+) -> dict[str, Any]:
+    """The record of an evidence stage ``name`` judged as ``judged`` (the stage kept or ``None``, its record, its
+    line), after its proposal's ``note``: a kept stage goes into ``fit``'s profile and the noise stage before it is
+    refitted by ``refit_noise`` (a stage that moves the noise's statistics, as a codec or a demosaic does); the
+    record says whether its line holds ``refitted``."""
+    kept, record, line = judged
+    fit.say(f"effect {name}: {line}")
+    record = {**note, **record}
+    if kept is not None:
+        fit.keep(True, kept)
+        line = refit_noise(fit)
+        if line is not None:
+            fit.say(line)
+            record["noise_refitted"] = refitted in line
+    return record
 
 
 def run_steps(steps: Iterable[FitStep], fit: Bench) -> None:
