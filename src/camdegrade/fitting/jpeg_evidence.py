@@ -36,7 +36,7 @@ from torch import Tensor
 from camdegrade.effects import JPEG, Effect, Noise, Resolution
 from camdegrade.effects.base import evenly_spaced
 from camdegrade.fitting.in_chain import CALIBRATION_PAIRS, fit_noise_stage, replace_stage
-from camdegrade.fitting.steps.base import FitStep, PairedFit, Verdict, keep_and_refit_noise
+from camdegrade.fitting.steps.base import FitStep, PairedFit, Verdict, closes_gap, keep_and_refit_noise
 from camdegrade.fitting.steps.noise_evidence import noise_evidence, relative_gain
 from camdegrade.functional.analysis.images import luma
 from camdegrade.measures.traces.quantisation import read_lattice
@@ -186,7 +186,7 @@ def judge_jpeg(fit: PairedFit, stage: JPEG) -> tuple[Effect | None, dict[str, An
     with_stage = fit.profile.with_effects(stage)
     within = block_edge_ratio(with_stage.simulate(cleans, 0, stream="jpeg-evidence", eight_bit=True))
     gap, left = real - without, real - within
-    kept = abs(left) < BLOCK_TOLERANCE or abs(left) <= (1 - MIN_CLOSED) * abs(gap)
+    kept = closes_gap(real, without, within, BLOCK_TOLERANCE, MIN_CLOSED)
     note: dict[str, Any] = {"kept": kept, "quality": int(stage.quality), "block_edges_real": round(real, 3)}
     note |= {"block_edges_without": round(without, 3), "block_edges_with": round(within, 3), "evidence": label}
     note["relative_mse_gain"] = round(relative_gain(fit.profile, stage, cleans, captures), 4)

@@ -32,7 +32,7 @@ from camdegrade._support.seeds import derived_generator
 from camdegrade.effects import ColorFilterArray, Effect, Noise
 from camdegrade.effects.base import evenly_spaced
 from camdegrade.fitting.in_chain import CALIBRATION_PAIRS, fit_stage_in_chain
-from camdegrade.fitting.steps.base import FitStep, PairedFit, Verdict, keep_and_refit_noise
+from camdegrade.fitting.steps.base import FitStep, PairedFit, Verdict, closes_gap, keep_and_refit_noise
 from camdegrade.fitting.steps.noise_evidence import as_stored, relative_gain
 from camdegrade.functional.analysis.images import flat_mask
 from camdegrade.functional.analysis.noise import measure_set
@@ -169,7 +169,7 @@ def judge_cfa(fit: PairedFit, stage: ColorFilterArray, route: str) -> tuple[Effe
     ]
     without, within = (trace(images, stage.pattern) for images in simulated)
     gap, left = real - without, real - within
-    kept = abs(left) < TRACE_TOLERANCE or abs(left) <= (1 - MIN_CLOSED) * abs(gap)
+    kept = closes_gap(real, without, within, TRACE_TOLERANCE, MIN_CLOSED)
     note: dict[str, Any] = {"kept": kept, "demosaic": stage.demosaic, "amount": round(float(stage.amount), 3)}
     note["trace_real"] = round(real, 3)
     note |= {"trace_without": round(without, 3), "trace_with": round(within, 3), "evidence": label}

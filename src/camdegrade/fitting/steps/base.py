@@ -20,7 +20,7 @@ from camdegrade.network import ShiftNetwork
 from camdegrade.pairs.pairset import ImagePair, PairSet
 from camdegrade.profile import CameraProfile
 
-__all__ = ["FitStep", "PairedFit", "TrainedNetwork", "Verdict", "keep_and_refit_noise", "run_steps"]
+__all__ = ["FitStep", "PairedFit", "TrainedNetwork", "Verdict", "closes_gap", "keep_and_refit_noise", "run_steps"]
 
 Log = Callable[[str], None]
 #: A step's evidence record, written to the fit's records under the step's name.
@@ -83,6 +83,13 @@ class Bench(Protocol):
     def unmet(self, step: FitStep) -> str | None: ...
 
     def skip(self, step: FitStep, reason: str) -> None: ...
+
+
+def closes_gap(real: float, without: float, within: float, tolerance: float, share: float) -> bool:
+    """Whether a stage brings a statistic of the simulation (``without`` it, ``within`` with it) to the captures'
+    ``real``: what it leaves is below ``tolerance`` or at most ``1 − share`` of the gap it found."""
+    left = abs(real - within)
+    return left < tolerance or left <= (1 - share) * abs(real - without)
 
 
 def keep_and_refit_noise(
