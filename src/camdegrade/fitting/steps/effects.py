@@ -18,6 +18,7 @@ from camdegrade.fitting.jpeg_evidence import JpegStage
 from camdegrade.fitting.network import chain_tone
 from camdegrade.fitting.steps.base import FitStep, PairedFit, Verdict
 from camdegrade.fitting.steps.noise_evidence import noise_evidence, relative_gain
+from camdegrade.network import ShiftNetwork
 from camdegrade.profile import CameraProfile
 
 __all__ = ["DEFAULT_EFFECTS", "EffectStage", "EffectStages", "profile_gain", "retoned"]
@@ -148,11 +149,12 @@ def _position_dependent(
     one (:func:`retoned`: its fit drops the exposure it solves for, which the network's tone must then carry),
     against the profile with that curve refitted without it (so that the stage is not credited with what the refit
     alone gains), kept where it lowers the validation error by :data:`MIN_RELATIVE_GAIN`."""
-    candidate, _ = retoned(fit, fit.profile.with_effects(effect))
+    inputs = _curve_inputs(fit, fit.profile.network)  # one network pass serves both refits: the network is theirs
+    candidate, _ = retoned(fit, fit.profile.with_effects(effect), inputs)
     if candidate is None:
         gain = relative_gain(fit.profile, effect, *zip(*pairs, strict=True))
     else:
-        reference, _ = retoned(fit, fit.profile)
+        reference, _ = retoned(fit, fit.profile, inputs)
         gain = profile_gain(reference, candidate, pairs)
     kept = gain >= MIN_RELATIVE_GAIN
     note = {"kept": kept, "relative_mse_gain": round(gain, 4), "evidence": label, "chain_tone": candidate is not None}
@@ -161,21 +163,32 @@ def _position_dependent(
     return ((candidate or effect) if kept else None), note, line
 
 
-def retoned(fit: PairedFit, profile: CameraProfile) -> tuple[CameraProfile | None, str]:
+def retoned(
+    fit: PairedFit, profile: CameraProfile, inputs: chain_tone.CurveInputs | None = None
+) -> tuple[CameraProfile | None, str]:
     """``profile`` with its network's output curve refitted through its deterministic stages on whole frames of the
     training pairs (every ⌊N / 32⌋-th, 4 Mpixels at most: :func:`~camdegrade.fitting.network.chain_tone.refit_pairs`),
-    or ``None`` and why not: no output curve, or no gradient through a stage."""
+    or ``None`` and why not: no output curve, or no gradient through a stage. ``inputs``: :func:`_curve_inputs` of
+    ``profile``'s network, where the caller has them."""
     network = profile.network
     if not chain_tone.has_output_curve(network):
         return None, "the network has no output curve"
     stages = list(profile.without_randomness().effects)
-    inputs = chain_tone.curve_inputs(network, chain_tone.refit_pairs(fit.train_pairs, CALIBRATION_PAIRS))
+    if inputs is None:
+        inputs = _curve_inputs(fit, network)
     try:
         knots = chain_tone.refit_output_curve(network.curve[1], inputs, stages)
     except ValueError as error:
         return None, str(error)
     network = chain_tone.with_output_curve(network, knots)
     return CameraProfile(network, list(profile.effects), name=profile.name, description=profile.description), ""
+
+
+def _curve_inputs(fit: PairedFit, network: ShiftNetwork | None) -> chain_tone.CurveInputs | None:
+    """What the network's output curve reads on the refit's whole frames (``None`` where it has no curve)."""
+    if not chain_tone.has_output_curve(network):
+        return None
+    return chain_tone.curve_inputs(network, chain_tone.refit_pairs(fit.train_pairs, CALIBRATION_PAIRS))
 
 
 def profile_gain(before: CameraProfile, after: CameraProfile, pairs: list) -> float:
