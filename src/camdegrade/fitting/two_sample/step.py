@@ -107,8 +107,8 @@ class LearnedTextureMatch(UnpairedStep):
         if self.part == "all":
             fit.keep(result, LearnedTexture)
             fit.say(f"learned texture: trained on all images ({trained})")
-            magnitude = round(result.magnitude(), 4) if self.name in fit.stages else None
             kept = self.name in fit.stages
+            magnitude = round(result.magnitude(), 4) if kept else None
             return {**done, "kept": kept, "trainings": done["trainings"] + 1, "magnitude": magnitude}
         judgement: Judgement = result
         critic = f"{judgement.without['critic']:.2f} -> {judgement.with_stage['critic']:.2f}"
