@@ -11,6 +11,8 @@ measurements:
   images before the network (where the camera has it), and the control's profile;
 - **bands**: the simulation's tone residual minus the captures' (green, 8-bit levels) in 16 bins of clean value,
   in three rings of the frame (r relative, 1 at the corners), for ``refit vignetting`` and ``add tone``;
+- **noise bins**: the held-out flat-pixel noise std per channel and bin of clean value (levels; ``None``: not
+  measured) of the captures and of the profile and the two changes, with the bins the gap weighs (its scale);
 - **flat**: the noise std of a flat field (green, 24² at the frame's centre, where neither vignetting acts) of the
   webcam camera and of the profile, by clean value: the profile's noise-by-level curve.
 
@@ -86,7 +88,19 @@ def families(profile: CameraProfile) -> dict[str, CameraProfile]:
     row("the added falloff on the clean image", held, StatisticSet.measure(sims, held.cleans, held.masks))
     _, control = held_out("control")
     row("control: as fitted", control, Baseline.measure(control, profile).stats)
+    noise_bins(held, {"as fitted": profile, "add tone": tone, "refit vignetting": refit})
     return {"add tone": tone, "refit vignetting": refit}
+
+
+def noise_bins(held: HeldOut, changed: dict[str, CameraProfile]) -> None:
+    def rounded(values: torch.Tensor) -> list[list[float | None]]:
+        return [[None if v != v else round(float(v), 2) for v in channel] for channel in values.reshape(3, -1)]
+
+    print("noise std per channel (R, G, B) and bin of clean value:")
+    print("  captures", rounded(held.real.values()["noise"]))
+    for label, profile in changed.items():
+        print(f"  {label}", rounded(held.statistics(profile)[0].values()["noise"]))
+    print("  scale", rounded(held.scale["noise"]))
 
 
 def bands(changed: dict[str, CameraProfile]) -> None:
