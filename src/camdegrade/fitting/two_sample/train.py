@@ -10,9 +10,10 @@ The game, on random patches (a few hundred to a few thousand fixed steps, seeded
   and its input's (frequency separation: what the named stages fitted is kept, the texture is free), a spectrum
   term that keeps the batch's power in each band of the spectrum (the named stages matched the captures' set
   spectrum; without it the stage learned to smooth edges and left the top band 0.7–1.3 log2 short on City100's
-  held-out scenes, docs/results.md), and, for aligned pairs, an L2 term against the capture (``pixel_weight``:
-  pix2pix's L1 + GAN, in squares). The stage itself cannot move its input's low frequencies
-  (:class:`~camdegrade.effects.LearnedTexture` takes them out of its residual).
+  held-out scenes, docs/results.md; with ``spectrum_target="captures"``, as the unpaired fit's step trains, the
+  batch's power over its input's held at the captures' set gap instead), and, for aligned pairs, an L2 term
+  against the capture (``pixel_weight``: pix2pix's L1 + GAN, in squares). The stage itself cannot move its input's
+  low frequencies (:class:`~camdegrade.effects.LearnedTexture` takes them out of its residual).
 
 Outputs are rounded to 8-bit values in the forward pass (the gradient passes straight through): the captures are
 8-bit, and a critic could tell continuous values from them. The stage returned is an exponential moving average of
