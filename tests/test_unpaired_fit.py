@@ -151,6 +151,8 @@ def test_a_detail_response_blur_and_sharpening_cannot_make_is_fitted_after_them(
     assert notes["kept"] and _stage(profile, "frequency_response") is not None, notes
     assert notes["mismatch"] < 0.5 * notes["mismatch_left"], notes
     assert notes["rounds"][0] > notes["rounds"][-1], notes  # the rounds converge
+    # the response's record describes the profile's chain: fitted again through the noise refitted after it
+    assert notes["refit"]["kept"] and fidelity["spectrum_mismatch"] < 2 * notes["mismatch"] + 0.005, (notes, fidelity)
     assert all(abs(value) <= 0.4 for value in fidelity["bands"]), fidelity
     assert 0.9 <= fidelity["noise_ratio"] <= 1.1, fidelity
 

@@ -10,9 +10,10 @@ The game, on random patches (a few hundred to a few thousand fixed steps, seeded
   and its input's (frequency separation: what the named stages fitted is kept, the texture is free), a spectrum
   term that keeps the batch's power in each band of the spectrum (the named stages matched the captures' set
   spectrum; without it the stage learned to smooth edges and left the top band 0.7–1.3 log2 short on City100's
-  held-out scenes, docs/results.md), and, for aligned pairs, an L2 term against the capture (``pixel_weight``:
-  pix2pix's L1 + GAN, in squares). The stage itself cannot move its input's low frequencies
-  (:class:`~camdegrade.effects.LearnedTexture` takes them out of its residual).
+  held-out scenes, docs/results.md; with ``spectrum_target="captures"``, as the unpaired fit's step trains, the
+  batch's power over its input's held at the captures' set gap instead), and, for aligned pairs, an L2 term
+  against the capture (``pixel_weight``: pix2pix's L1 + GAN, in squares). The stage itself cannot move its input's
+  low frequencies (:class:`~camdegrade.effects.LearnedTexture` takes them out of its residual).
 
 Outputs are rounded to 8-bit values in the forward pass (the gradient passes straight through): the captures are
 8-bit, and a critic could tell continuous values from them. The stage returned is an exponential moving average of
@@ -48,10 +49,10 @@ from camdegrade.errors import FitInterrupted
 from camdegrade.fitting.network.checkpoint import pairs_fingerprint
 from camdegrade.fitting.two_sample.critic import PatchCritic, low_pass
 from camdegrade.fitting.two_sample.state import TwoSampleState, load_state, save_state
-from camdegrade.measures.fidelity import band_power
+from camdegrade.measures.fidelity import BAND_EDGES, band_power
 from camdegrade.profile import CameraProfile
 
-__all__ = ["TwoSampleOptions", "fit_two_sample"]
+__all__ = ["SPECTRUM_TARGETS", "TwoSampleOptions", "fit_two_sample", "spectrum_gap"]
 
 Simulator = Callable[[Sequence[Tensor]], list[Tensor]]
 
@@ -67,7 +68,11 @@ class TwoSampleOptions:
         sigma: the Gaussian low-pass (pixels) that splits content from texture.
         content_weight: weight of the low-pass L1 term; pixel_weight: of the L2 term against aligned captures.
         spectrum_weight: weight of the spectrum term: the mean squared log2 difference of the batch's luma power
-            in the five bands of :data:`~camdegrade.measures.fidelity.BAND_EDGES`, output against input.
+            in the five bands of :data:`~camdegrade.measures.fidelity.BAND_EDGES`, output against input, less
+            the set gap of ``spectrum_target``.
+        spectrum_target: ``"input"``: the output keeps its input's band power (gap 0); ``"captures"``: the
+            output's band power over its input's (a ratio on the same patches: their content cancels) is held at
+            the captures' set gap (:func:`spectrum_gap`), the statistic the gate judges.
         learning_rate, critic_learning_rate: Adam's, constant for the first half, then down linearly to 0.
         average: decay of the weights' moving average (the stage returned).
     """
@@ -81,12 +86,16 @@ class TwoSampleOptions:
     sigma: float = 1.5
     content_weight: float = 20.0
     spectrum_weight: float = 2.0
+    spectrum_target: str = "input"
     pixel_weight: float = 0.0
     learning_rate: float = 2e-3
     critic_learning_rate: float = 2e-3
     average: float = 0.99
 
 
+#: What the spectrum term holds the output's band power to (:class:`TwoSampleOptions`).
+SPECTRUM_TARGETS = ("input", "captures")
+BANDS = len(BAND_EDGES) - 1
 #: Steps between two entries of the evidence's loss history.
 HISTORY_EVERY = 25
 
@@ -123,12 +132,15 @@ def fit_two_sample(
         The stage and its evidence: options, steps, seconds, the loss history.
     """
     options = options or TwoSampleOptions()
+    if options.spectrum_target not in SPECTRUM_TARGETS:
+        raise ValueError(f"spectrum_target must be one of {SPECTRUM_TARGETS}, got {options.spectrum_target!r}")
     inputs = _named_outputs(named, cleans, seed)
     sampler = _Sampler(inputs, list(captures), options.patch, options.batch, paired)
     if checkpoint is not None:
         check_writable(checkpoint)
     fingerprint = pairs_fingerprint([(image,) for image in inputs], [(image,) for image in captures])
-    game = _Game(options, steps, seed, sampler)
+    gap = spectrum_gap(inputs, list(captures)) if options.spectrum_target == "captures" else torch.zeros(BANDS)
+    game = _Game(options, steps, seed, sampler, gap)
     state = game.resumed(checkpoint, fingerprint) if resume else None
     started = time.perf_counter()
     bar = tqdm(total=steps, initial=game.step, desc="learned texture", unit="step", disable=not progress)
@@ -154,6 +166,7 @@ def fit_two_sample(
         "seed": seed,
         "resumed_at": state.step if state is not None else None,
         "seconds": round(time.perf_counter() - started, 1),
+        "spectrum_gap": [round(float(value), 4) for value in gap],
         "history": game.history,
     }
     return game.result(), evidence
@@ -210,6 +223,20 @@ def _band_log2(patches: Tensor) -> Tensor:
     return band_power(patches).mean(0).clamp_min(1e-8).log2()
 
 
+def spectrum_gap(inputs: Sequence[Tensor], captures: Sequence[Tensor]) -> Tensor:
+    """``(5,)`` the captures' set mean of log2 band power (:func:`~camdegrade.measures.fidelity.band_power` of
+    each image whole; the gate reads centre crops) less the inputs', less that difference in the lowest band: the
+    contrast of the two sets' scenes, which the stage cannot move (its residual's low-pass is taken out) and must
+    not be asked to."""
+
+    def mean_log2(images: Sequence[Tensor]) -> Tensor:
+        powers = [band_power(image.float())[0] for image in images]
+        return torch.stack(powers).clamp_min(1e-8).log2().mean(0)
+
+    gap = mean_log2(captures) - mean_log2(inputs)
+    return (gap - gap[0]).float()
+
+
 def _schedule(step: int, steps: int) -> float:
     """The learning rates' factor: 1 for the first half of the steps, then down linearly to 0."""
     return min(1.0, 2.0 * (1.0 - step / steps))
@@ -219,8 +246,8 @@ class _Game:
     """The stage, its moving average, the critic, their optimizers and the sampler's generator: one step at a
     time."""
 
-    def __init__(self, options: TwoSampleOptions, steps: int, seed: int, sampler: _Sampler) -> None:
-        self.options, self.steps, self.seed, self.sampler = options, steps, seed, sampler
+    def __init__(self, options: TwoSampleOptions, steps: int, seed: int, sampler: _Sampler, gap: Tensor) -> None:
+        self.options, self.steps, self.seed, self.sampler, self.gap = options, steps, seed, sampler, gap
         self.stage = LearnedTexture.initial(options.width, derive_seed(seed, "two-sample-stage") % 2**63)
         self.stage.noise, self.stage.sigma = options.noise, options.sigma
         for buffer in self.stage.buffers():
@@ -258,7 +285,7 @@ class _Game:
         self.critic_optimizer.step()
         adversarial = -self.critic(self.critic.planes(fakes, options.sigma)).mean()
         content = (low_pass(fakes, options.sigma) - low_pass(inputs, options.sigma)).abs().mean()
-        spectrum = (_band_log2(fakes) - _band_log2(inputs)).pow(2).mean()
+        spectrum = (_band_log2(fakes) - _band_log2(inputs) - self.gap).pow(2).mean()
         loss = adversarial + options.content_weight * content + options.spectrum_weight * spectrum
         pixel = (fakes - reals).pow(2).mean() if self.sampler.paired else torch.zeros(())
         loss = loss + options.pixel_weight * pixel

@@ -58,6 +58,7 @@ from camdegrade.fitting.unpaired.judges import self_check_critic, self_check_war
 from camdegrade.fitting.unpaired.steps.color_tone import ColorToneMatch
 from camdegrade.fitting.unpaired.steps.jpeg import JpegQuality
 from camdegrade.fitting.unpaired.steps.noise import NoiseMatch, flat_sums
+from camdegrade.fitting.unpaired.steps.response_refit import DetailResponseRefit
 from camdegrade.fitting.unpaired.steps.spectrum import (
     SPECTRUM_SIDE,
     DetailResponseMatch,
@@ -150,6 +151,7 @@ UNPAIRED_STEPS: tuple[tuple[str, UnpairedStep], ...] = (
     ("noise again", NoiseMatch()),
     ("detail response", DetailResponseMatch()),
     ("noise through the detail response", NoiseMatch(refit=True)),
+    ("detail response through the noise", DetailResponseRefit()),
     ("learned texture: trained on half A, judged on B", LearnedTextureMatch("half A")),
     ("learned texture: trained on half B, judged on A", LearnedTextureMatch("half B")),
     ("learned texture: trained on all", LearnedTextureMatch("all")),
