@@ -10,6 +10,7 @@ import torch.nn.functional as F
 from torch import Tensor
 
 __all__ = [
+    "CHANNEL_SPREAD",
     "FLAT_ERODE",
     "FLAT_LEVELS",
     "FLAT_SIGMA",
@@ -103,6 +104,8 @@ def relative_flat_mask(clean: Tensor, quantile: float = 0.5) -> Tensor:
 FLAT_LEVELS = 1.5
 FLAT_SIGMA = 2.0
 FLAT_ERODE = 8
+#: A single channel's gradient may be this many times ``FLAT_LEVELS`` (√3: its independent noise over their mean's).
+CHANNEL_SPREAD = 3**0.5
 
 
 def gaussian_gradient_magnitude(image: Tensor, sigma: float) -> Tensor:
@@ -126,13 +129,25 @@ def gaussian_gradient_magnitude(image: Tensor, sigma: float) -> Tensor:
 def flat_mask(clean: Tensor, levels: float = FLAT_LEVELS, sigma: float = FLAT_SIGMA, erode: int = FLAT_ERODE) -> Tensor:
     """``(H, W)`` pixels where the clean image ``(3, H, W)`` (float in [0, 1]) is flat in absolute terms.
 
-    Its gradient magnitude (channel mean, Gaussian derivatives at ``sigma``) is below ``levels`` 8-bit levels, and
-    so is every pixel within ``erode`` steps (4-connected; the frame's border counts as not flat). Unlike a share
-    of the flattest pixels, this keeps texture out whatever the scene: a detailed city frame may hold none. Noise
-    measured here is noise, not the misfit of a model at edges.
+    Its gradient magnitude (channel mean, Gaussian derivatives at ``sigma``) is below ``levels`` 8-bit levels and
+    every channel's below ``√3 levels``, and so at every pixel within ``erode`` steps (4-connected; the frame's
+    border counts as not flat). Unlike a share of the flattest pixels, this keeps texture out whatever the scene: a
+    detailed city frame may hold none. Noise measured here is noise, not the misfit of a model at edges.
+
+    Each channel too, not only their mean: an edge between two colours of the same channel mean (a red door on a
+    blue wall) is flat in the mean, and its step, which the noise statistics measure per channel, read as noise of
+    10–20 levels on the foreign cameras' walls (docs/results.md, "Noise the flat-noise statistic did not see").
+    A channel holds √3 times the independent noise of their mean, hence its wider bound: noise in the clean image
+    moves the mask no more than before, and a colour edge of tens of levels is still found.
     """
-    gray = clean.mean(-3) * 255.0
-    return _eroded(gaussian_gradient_magnitude(gray, sigma) < levels, erode)
+    return _eroded(_calm(clean, levels, sigma), erode)
+
+
+def _calm(image: Tensor, levels: float, sigma: float) -> Tensor:
+    """``(H, W)``: the gradient (at ``sigma``) of the channel mean below ``levels``, and every channel's below
+    ``√3 levels``."""
+    gradient = gaussian_gradient_magnitude(torch.cat([image.mean(-3, keepdim=True), image]) * 255.0, sigma)
+    return (gradient[0] < levels) & (gradient[1:].amax(0) < CHANNEL_SPREAD * levels)
 
 
 #: The gradient magnitude of 2-D Gaussian noise is Rayleigh-distributed: its 99 % quantile is
@@ -163,7 +178,10 @@ def noisy_flat_mask(image: Tensor) -> Tensor:
     threshold is at least the 99 % quantile of the gradient the image's own noise makes: its high pass's gradient
     where the image is flat at a robust σ (:data:`NOISE_ROBUST_SIGMAS`), the lower quartile of :data:`NOISE_TILE`
     tiles' medians, and only when those gradients spread as noise's do (:data:`MIN_NOISE_SPREAD`). Noise of a few
-    levels leaves it at :data:`FLAT_LEVELS`.
+    levels leaves it at :data:`FLAT_LEVELS`. The channel mean's gradient alone (not each channel's, as
+    :func:`flat_mask` also asks): the maximum of three channels' noise gradients, eroded, keeps too few pixels of a
+    strongly noisy capture (8 levels of correlated noise: 4,164 of 15,051), so a colour edge of the same channel mean
+    is still read as flat here.
     """
     gray = image.mean(-3) * 255.0
     threshold = max(FLAT_LEVELS, RAYLEIGH_Q99_OVER_MEDIAN * _noise_gradient_median(image, gray))
