@@ -131,7 +131,7 @@ class EffectStage(FitStep):
         only noise is judged by :func:`~camdegrade.fitting.steps.noise_evidence.noise_evidence` on the validation
         pairs (on the training pairs when there are none, or they hold too few flat pixels); a position-dependent
         one is kept where it lowers the validation error by :data:`MIN_RELATIVE_GAIN`; any other is kept. Noise
-        fitted at several places is judged at each, and kept at the one nearest the captures
+        fitted at several places is judged at each and kept at one of them
         (:func:`~camdegrade.fitting.steps.noise_evidence.placed_noise`)."""
         if isinstance(effect, dict):
             return placed_noise(fit, effect)

@@ -296,14 +296,20 @@ def placed_noise(fit: Any, candidates: dict[str, Effect]) -> dict[str, Any]:
     :func:`~camdegrade.fitting.in_chain.noise_places`) on the fit's evidence pairs (a
     :class:`~camdegrade.fitting.steps.PairedFit`), put the one :func:`_chosen_place` picks into ``fit.profile`` at
     its place, and return the record: its evidence, its place and every place's numbers."""
-    pairs, label = fit.evidence_pairs
     places = noise_places(fit.profile, type(next(iter(candidates.values()))))
-    judged = {
-        where: noise_evidence(
-            fit.profile, stage, *zip(*pairs, strict=True), eight_bit=fit.eight_bit, insert=places[where]
-        )
-        for where, stage in candidates.items()
-    }
+
+    def judge(pairs: Sequence[tuple[Tensor, Tensor]]) -> dict[str, tuple[Effect | None, NoiseEvidence]]:
+        return {
+            where: noise_evidence(
+                fit.profile, stage, *zip(*pairs, strict=True), eight_bit=fit.eight_bit, insert=places[where]
+            )
+            for where, stage in candidates.items()
+        }
+
+    pairs, label = fit.evidence_pairs
+    judged = judge(pairs)
+    if all(evidence.capture_noise is None for _, evidence in judged.values()) and fit.val_pairs:
+        judged, label = judge(fit.train_pairs), "training (the validation pairs hold too few flat pixels)"
     chosen = _chosen_place({where: evidence for where, (_, evidence) in judged.items()})
     stage, evidence = judged[chosen]
     if stage is not None:
