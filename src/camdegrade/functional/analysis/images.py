@@ -223,10 +223,10 @@ def noisy_flat_mask(image: Tensor) -> Tensor:
     threshold is at least the 99 % quantile of the gradient the image's own noise makes: its high pass's gradient
     where the image is flat at a robust σ (:data:`NOISE_ROBUST_SIGMAS`), the lower quartile of :data:`NOISE_TILE`
     tiles' medians, and only when those gradients spread as noise's do (:data:`MIN_NOISE_SPREAD`). Noise of a few
-    levels leaves it at :data:`FLAT_LEVELS`. The channel mean's gradient alone (not each channel's, as
-    :func:`flat_mask` also asks): the maximum of three channels' noise gradients, eroded, keeps too few pixels of a
-    strongly noisy capture (8 levels of correlated noise: 4,164 of 15,051), so a colour edge of the same channel mean
-    is still read as flat here.
+    levels leaves it at :data:`FLAT_LEVELS`. The channel mean's gradient alone (not each channel's edges,
+    :func:`channel_edges`, as :func:`flat_mask` also asks): the maximum of three channels' noise gradients, eroded,
+    keeps too few pixels of a strongly noisy capture (8 levels of correlated noise: 4,164 of 15,051), so a colour
+    edge of the same channel mean is still read as flat here.
     """
     gray = image.mean(-3) * 255.0
     threshold = max(FLAT_LEVELS, RAYLEIGH_Q99_OVER_MEDIAN * _noise_gradient_median(image, gray))
