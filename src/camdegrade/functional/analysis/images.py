@@ -27,6 +27,7 @@ __all__ = [
     "flat_mask",
     "flattest_window",
     "gaussian_gradient_magnitude",
+    "gaussian_gradients",
     "gradient_energy",
     "hann2d",
     "high_pass",
