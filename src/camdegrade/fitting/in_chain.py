@@ -10,11 +10,18 @@ import torch
 from torch import Tensor
 
 from camdegrade._support.pixels import as_unit
-from camdegrade.effects import Effect, Noise
+from camdegrade.effects import STAGES, Effect, Noise, Resolution
 from camdegrade.network.inference import run_network
 from camdegrade.profile import CameraProfile
 
-__all__ = ["CALIBRATION_PAIRS", "fit_noise_stage", "fit_stage_in_chain", "replace_stage"]
+__all__ = [
+    "CALIBRATION_PAIRS",
+    "after_resampler",
+    "fit_noise_stage",
+    "fit_stage_in_chain",
+    "noise_places",
+    "replace_stage",
+]
 
 #: A stage that calibrates itself by simulation uses about this many pairs (every ⌊N / this⌋-th of N pairs, so
 #: between this many and twice as many): about 1 Mpixel at 256².
@@ -80,3 +87,31 @@ def replace_stage(profile: CameraProfile, effect: Effect) -> CameraProfile:
     noise stage is the whole of the noise, not an addition to it)."""
     chain = [e for e in profile.effects if not (type(e) is type(effect) and type(e).draws_only_noise())]
     return profile.with_chain(chain).with_effects(effect)
+
+
+def after_resampler(profile: CameraProfile, effect: Effect) -> CameraProfile:
+    """``profile`` with ``effect`` right after its ``resolution`` stage (the resampler), in place of the stages of
+    its kind that draw only noise, as :func:`replace_stage` does at the stage's own place: noise that a camera adds
+    after its resize (an analog link, a second gain) comes out white there, where noise put before the resize comes
+    out upsampled and correlated."""
+    chain = [e for e in profile.effects if not (type(e) is type(effect) and type(e).draws_only_noise())]
+    places = [index for index, stage in enumerate(chain) if isinstance(stage, Resolution)]
+    if not places:
+        raise ValueError(f"profile has no resolution stage to put {effect.name} after (its chain: {chain})")
+    chain.insert(places[-1] + 1, effect)
+    return profile.with_chain(chain)
+
+
+def noise_places(
+    profile: CameraProfile, kind: type[Effect]
+) -> dict[str, Callable[[CameraProfile, Effect], CameraProfile]]:
+    """Where a stage of ``kind`` that draws only noise can go in ``profile``, by name: at its own stage
+    (:func:`replace_stage`; before a resampler of the ISP), and where the chain resamples after that place, right
+    after the resampler too (:func:`after_resampler`). A stage of any other kind has its own place alone."""
+    places: dict[str, Callable[[CameraProfile, Effect], CameraProfile]] = {"at its stage": replace_stage}
+    if not kind.draws_only_noise():
+        return places
+    own = sum(1 for effect in profile.effects if STAGES.index(effect.stage) <= STAGES.index(kind.stage))
+    if any(isinstance(effect, Resolution) for effect in profile.effects[own:]):
+        places["after resolution"] = after_resampler
+    return places

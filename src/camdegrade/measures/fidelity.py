@@ -10,7 +10,8 @@ same clean images (1 or 0: the same):
   (negative: too smooth; positive: too sharp or too noisy).
 - **flat noise** (:func:`noise_ratios`): the noise std and the row banding where the clean image is flat
   (:func:`~camdegrade.functional.analysis.images.flat_mask`,
-  :class:`~camdegrade.functional.analysis.noise.NoiseSums`).
+  :class:`~camdegrade.functional.analysis.noise.NoiseSums`), of the clean images that hold no noise or fine texture
+  of their own there where some do (:func:`quiet_masks`).
 
 Every function takes ``[N, 3, H, W]`` or ``[3, H, W]`` float images in [0, 1]; :func:`measure_fidelity` pools
 them over a set of frames of any sizes into a :class:`FidelityReport`. The learned critic, which asks the same
@@ -39,6 +40,8 @@ __all__ = [
     "GRID_PERIOD",
     "MIN_BAND_POWER",
     "MIN_ROW_STD_LEVELS",
+    "QUIET_CLEAN_LEVELS",
+    "QUIET_SHARE",
     "FidelityReport",
     "band_log2_ratios",
     "band_power",
@@ -47,6 +50,7 @@ __all__ = [
     "luma_spectrum",
     "measure_fidelity",
     "noise_ratios",
+    "quiet_masks",
 ]
 
 #: Period (pixels) of the grid that two stride-2 transposed convolutions print.
@@ -151,6 +155,32 @@ def noise_ratios(sim: NoiseSums, real: NoiseSums) -> tuple[float | None, float |
     return noise, banding
 
 
+#: A clean image whose flat pixels hold less than this of their own (8-bit levels; rounding a smooth field leaves
+#: 0.29) is quiet: what a capture holds there beyond the simulation is the camera's noise. A photo's "flat" sky or
+#: wall holds fine texture or noise of 0.6–13 levels (the foreign cameras' photo crops; City100's, PolyU's, CC15's
+#: and SIDD's clean images 0.49–4.4), which a camera's resampler and the profile's treat differently: read as
+#: noise, it gave a noiseless camera a noise stage (docs/results.md, "Noise the flat-noise statistic did not see").
+QUIET_CLEAN_LEVELS = 0.5
+#: ... and the quiet images are measured alone where they hold at least this share of the flat pixels.
+QUIET_SHARE = 0.25
+
+
+def quiet_masks(cleans: Sequence[Tensor], masks: Sequence[Tensor]) -> list[Tensor]:
+    """``masks`` (the flat pixels of ``cleans``) of the quiet clean images (:data:`QUIET_CLEAN_LEVELS`), the others'
+    emptied, where the quiet ones hold :data:`QUIET_SHARE` of the flat pixels; all of ``masks`` otherwise (real
+    pairs' clean images are photos with noise of their own: none of City100's 73 is quiet)."""
+    own = [
+        NoiseSums.measure(clean.to(torch.float32), clean, mask).pooled_std()
+        for clean, mask in zip(cleans, masks, strict=True)
+    ]
+    quiet = [math.isfinite(level) and level < QUIET_CLEAN_LEVELS for level in own]
+    pixels = [int(mask.sum()) for mask in masks]
+    quiet_pixels = sum(count for count, keep in zip(pixels, quiet, strict=True) if keep)
+    if quiet_pixels == 0 or quiet_pixels < QUIET_SHARE * sum(pixels):
+        return list(masks)
+    return [mask if keep else torch.zeros_like(mask) for mask, keep in zip(masks, quiet, strict=True)]
+
+
 def _finite(value: float) -> float | None:
     return value if math.isfinite(value) else None
 
@@ -201,10 +231,10 @@ def measure_fidelity(sims: Sequence[Tensor], reals: Sequence[Tensor], cleans: Se
         )
     sim_sums, real_sums = NoiseSums.zeros(), NoiseSums.zeros()
     grids, powers, errors = [], [], []
-    for sim, real, clean in zip(sims, reals, cleans, strict=True):
+    masks = quiet_masks(cleans, [flat_mask(clean) for clean in cleans])
+    for sim, real, clean, mask in zip(sims, reals, cleans, masks, strict=True):
         grids.append((grid_rms(sim), grid_rms(real)))
         powers.append((band_power(sim)[0], band_power(real)[0]))
-        mask = flat_mask(clean)
         sim_sums = sim_sums + NoiseSums.measure(sim.to(torch.float32), clean, mask)
         real_sums = real_sums + NoiseSums.measure(real.to(torch.float32), clean, mask)
         errors.append(float((sim.double() - real.double()).pow(2).mean()))

@@ -13,11 +13,11 @@ from camdegrade._support.recipes import DEFAULT_EFFECTS
 from camdegrade.effects import EFFECTS, JPEG, STAGES, Color, ColorFilterArray, Effect, Resolution, check_effect_names
 from camdegrade.fitting.colour_shift import colour_shift
 from camdegrade.fitting.evidence import CfaStage
-from camdegrade.fitting.in_chain import CALIBRATION_PAIRS, fit_stage_in_chain
+from camdegrade.fitting.in_chain import CALIBRATION_PAIRS, fit_stage_in_chain, noise_places
 from camdegrade.fitting.jpeg_evidence import JpegStage
 from camdegrade.fitting.network import chain_tone
 from camdegrade.fitting.steps.base import FitStep, PairedFit, Verdict
-from camdegrade.fitting.steps.noise_evidence import noise_evidence, relative_gain
+from camdegrade.fitting.steps.noise_evidence import noise_evidence, placed_noise, relative_gain
 from camdegrade.network import ShiftNetwork
 from camdegrade.profile import CameraProfile
 
@@ -84,20 +84,33 @@ class EffectStage(FitStep):
     def name(self) -> str:  # type: ignore[override]
         return self.kind.name
 
-    def propose(self, fit: PairedFit) -> Effect | Verdict:
+    def propose(self, fit: PairedFit) -> Effect | dict[str, Effect] | Verdict:
+        """The stage fitted on the training pairs at its place; a noise stage of a chain that resamples after the
+        sensor at each of its places (:func:`~camdegrade.fitting.in_chain.noise_places`), by place."""
         absent = self._absent_noise(fit)
         if absent is not None:  # dropped whatever it would be fitted to: not fitted (the same record)
             return absent
         cleans = [clean for clean, _ in fit.train_pairs]
         captured = [target for _, target in fit.train_pairs]
         simulated = fit.profile.simulate(cleans, seed=0, deterministic=True)
+        places = noise_places(fit.profile, self.kind)
         try:
-            return fit_stage_in_chain(
-                fit.profile, self.kind, cleans, captured, calibration_pairs=CALIBRATION_PAIRS, sources=simulated
-            )
+            fitted = {
+                where: fit_stage_in_chain(
+                    fit.profile,
+                    self.kind,
+                    cleans,
+                    captured,
+                    calibration_pairs=CALIBRATION_PAIRS,
+                    sources=simulated,
+                    insert=insert,
+                )
+                for where, insert in places.items()
+            }
         except ValueError as error:  # e.g. too few pixels to estimate it
             fit.say(f"effect {self.kind.name}: not fitted ({error})")
             return Verdict({"kept": False, "reason": str(error)})
+        return fitted if len(fitted) > 1 else next(iter(fitted.values()))
 
     def _absent_noise(self, fit: PairedFit) -> Verdict | None:
         """For a stage that draws only noise: the record and log line :meth:`judge` would give when the validation
@@ -113,11 +126,15 @@ class EffectStage(FitStep):
         fit.say(f"effect {self.kind.name}: {evidence.describe()} [evidence: validation]")
         return Verdict({**evidence.to_dict(), "evidence": "validation"})
 
-    def judge(self, fit: PairedFit, effect: Effect) -> dict[str, Any]:
+    def judge(self, fit: PairedFit, effect: Effect | dict[str, Effect]) -> dict[str, Any]:
         """The stage kept (``effect``, ``effect`` less its banding, or none) and its record. A stage that draws
         only noise is judged by :func:`~camdegrade.fitting.steps.noise_evidence.noise_evidence` on the validation
         pairs (on the training pairs when there are none, or they hold too few flat pixels); a position-dependent
-        one is kept where it lowers the validation error by :data:`MIN_RELATIVE_GAIN`; any other is kept."""
+        one is kept where it lowers the validation error by :data:`MIN_RELATIVE_GAIN`; any other is kept. Noise
+        fitted at several places is judged at each and kept at one of them
+        (:func:`~camdegrade.fitting.steps.noise_evidence.placed_noise`)."""
+        if isinstance(effect, dict):
+            return placed_noise(fit, effect)
         kept, record, line = self._evidence(fit, effect)
         fit.say(f"effect {self.kind.name}: {line}")
         if isinstance(kept, CameraProfile):  # the stage with the network's tone refitted through it

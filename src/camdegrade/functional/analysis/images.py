@@ -10,6 +10,7 @@ import torch.nn.functional as F
 from torch import Tensor
 
 __all__ = [
+    "CHANNEL_SPREAD",
     "FLAT_ERODE",
     "FLAT_LEVELS",
     "FLAT_SIGMA",
@@ -22,9 +23,11 @@ __all__ = [
     "NOISE_TILE_QUANTILE",
     "RAYLEIGH_Q99_OVER_MEDIAN",
     "box_mean",
+    "channel_edges",
     "flat_mask",
     "flattest_window",
     "gaussian_gradient_magnitude",
+    "gaussian_gradients",
     "gradient_energy",
     "hann2d",
     "high_pass",
@@ -103,36 +106,94 @@ def relative_flat_mask(clean: Tensor, quantile: float = 0.5) -> Tensor:
 FLAT_LEVELS = 1.5
 FLAT_SIGMA = 2.0
 FLAT_ERODE = 8
+#: A single channel's gradient may be this many times ``FLAT_LEVELS`` (√3: its independent noise over their mean's).
+CHANNEL_SPREAD = 3**0.5
 
 
 def gaussian_gradient_magnitude(image: Tensor, sigma: float) -> Tensor:
     """``[..., H, W]`` → the same: magnitude of the image's gradient through Gaussian derivatives (σ in pixels,
     taps out to 4σ, edges replicated)."""
+    gx, gy = gaussian_gradients(image, sigma)
+    return torch.sqrt(gx * gx + gy * gy)
+
+
+def gaussian_gradients(image: Tensor, sigma: float, *, point_reflected: bool = False) -> tuple[Tensor, Tensor]:
+    """``[..., H, W]`` → its horizontal and vertical Gaussian derivatives (σ in pixels, taps out to 4σ), each of the
+    image's shape. Beyond the frame the image is its edge replicated, or with ``point_reflected`` ``2·edge − mirror``
+    (a linear or bilinear ramp goes on as it was, so its gradient stays the same up to the frame's edge)."""
     radius = max(1, int(4.0 * sigma + 0.5))
     offsets = torch.arange(-radius, radius + 1, dtype=image.dtype, device=image.device)
     gauss = torch.exp(-0.5 * (offsets / sigma) ** 2)
     gauss = gauss / gauss.sum()
     derivative = -offsets / sigma**2 * gauss
-    flat = F.pad(image.reshape(-1, 1, *image.shape[-2:]), (radius, radius, radius, radius), mode="replicate")
+    flat = image.reshape(-1, 1, *image.shape[-2:])
+    rows, cols = (min(radius, side - 1) if point_reflected else 0 for side in image.shape[-2:])
+    flat = _point_reflected(_point_reflected(flat, cols, -1), rows, -2)
+    flat = F.pad(flat, (radius - cols, radius - cols, radius - rows, radius - rows), mode="replicate")
 
     def separable(rows: Tensor, cols: Tensor) -> Tensor:
         out = F.conv2d(flat, cols.view(1, 1, 1, -1))
         return F.conv2d(out, rows.view(1, 1, -1, 1))
 
     gx, gy = separable(gauss, derivative), separable(derivative, gauss)
-    return torch.sqrt(gx * gx + gy * gy).reshape(image.shape)
+    return gx.reshape(image.shape), gy.reshape(image.shape)
+
+
+def _point_reflected(image: Tensor, width: int, dim: int) -> Tensor:
+    """``image`` extended by ``width`` (< its side) pixels at both ends of ``dim`` with ``2·edge − mirror``."""
+    if width < 1:
+        return image
+    length = image.shape[dim]
+    before = 2 * image.narrow(dim, 0, 1) - image.narrow(dim, 1, width).flip(dim)
+    after = 2 * image.narrow(dim, length - 1, 1) - image.narrow(dim, length - 1 - width, width).flip(dim)
+    return torch.cat([before, image, after], dim)
 
 
 def flat_mask(clean: Tensor, levels: float = FLAT_LEVELS, sigma: float = FLAT_SIGMA, erode: int = FLAT_ERODE) -> Tensor:
     """``(H, W)`` pixels where the clean image ``(3, H, W)`` (float in [0, 1]) is flat in absolute terms.
 
-    Its gradient magnitude (channel mean, Gaussian derivatives at ``sigma``) is below ``levels`` 8-bit levels, and
-    so is every pixel within ``erode`` steps (4-connected; the frame's border counts as not flat). Unlike a share
-    of the flattest pixels, this keeps texture out whatever the scene: a detailed city frame may hold none. Noise
-    measured here is noise, not the misfit of a model at edges.
+    Its gradient magnitude (channel mean, Gaussian derivatives at ``sigma``) is below ``levels`` 8-bit levels, every
+    channel holds no edge (:func:`channel_edges`), and so at every pixel within ``erode`` steps (4-connected; the
+    frame's border counts as not flat). Unlike a share of the flattest pixels, this keeps texture out whatever the
+    scene: a detailed city frame may hold none. Noise measured here is noise, not the misfit of a model at edges.
+
+    Each channel too, not only their mean: an edge between two colours of the same channel mean (a red door on a
+    blue wall) is flat in the mean, and its step, which the noise statistics measure per channel, read as noise of
+    10–20 levels on the foreign cameras' walls (docs/results.md, "Noise the flat-noise statistic did not see").
     """
-    gray = clean.mean(-3) * 255.0
-    return _eroded(gaussian_gradient_magnitude(gray, sigma) < levels, erode)
+    return _eroded(_calm(clean, levels, sigma), erode)
+
+
+def _calm(image: Tensor, levels: float, sigma: float) -> Tensor:
+    """``(H, W)``: the gradient (at ``sigma``) of the channel mean below ``levels``, and no channel's edge."""
+    mean = gaussian_gradient_magnitude(image.mean(-3) * 255.0, sigma)
+    return (mean < levels) & ~channel_edges(image, CHANNEL_SPREAD * levels, sigma)
+
+
+def channel_edges(image: Tensor, levels: float, sigma: float = FLAT_SIGMA) -> Tensor:
+    """``(H, W)`` pixels of ``image`` ``(3, H, W)`` (float in [0, 1]) where some channel has an edge: its gradient
+    (Gaussian derivatives at ``sigma``, :func:`gaussian_gradients`) is ``levels`` 8-bit levels or more, and so is
+    that gradient less its :data:`NOISE_HIGH_PASS` local mean. A smooth colour ramp is no edge, however steep.
+
+    The gradient less its local mean is the gradient of the image's high pass (away from the frame's border), and the
+    noise statistics read each channel after that high pass (``noise_stats.HIGH_PASS``): a box mean removes a linear
+    or bilinear ramp exactly (the mean of ``a + bx + cy + dxy`` over a window centred on a pixel is its value there),
+    so a ramp adds nothing to the noise read; a step survives it, within ``NOISE_HIGH_PASS // 2`` pixels. The raw
+    gradient of each channel alone cannot tell them apart: a smooth random-colour ramp climbs 3–6 levels a pixel in
+    each channel while the channel mean stays flat, and a bound on it left such frames without flat pixels (a
+    noise-only camera got no noise stage). A ramp's gradient is constant (or linear in the position), so it is
+    removed up to the frame's border, where the derivatives continue the image by point reflection and the local
+    mean is that of the window's part inside the frame. The raw gradient too, because the high pass spreads a step's
+    mark over the whole window (its local mean takes ``h / 17`` a pixel of a step of ``h``): alone, with the erosion,
+    it took a quarter of the foreign walls' flat pixels off, 13–16 px from an edge, beyond the statistic's reach.
+    A step of ``h`` reads 0.20 ``h`` raw and 0.14 ``h`` high-passed at ``sigma`` 2; at the default bound (√3 × 1.5
+    levels: a channel carries √3 times the independent noise of their mean, so noise in a clean image moves this
+    test no more than the mean's) steps of 19 levels and more are edges.
+    """
+    gx, gy = gaussian_gradients(image * 255.0, sigma, point_reflected=True)
+    steep = gx * gx + gy * gy >= levels * levels
+    gx, gy = gx - box_mean(gx, NOISE_HIGH_PASS), gy - box_mean(gy, NOISE_HIGH_PASS)
+    return (steep & (gx * gx + gy * gy >= levels * levels)).any(-3)
 
 
 #: The gradient magnitude of 2-D Gaussian noise is Rayleigh-distributed: its 99 % quantile is
@@ -163,7 +224,10 @@ def noisy_flat_mask(image: Tensor) -> Tensor:
     threshold is at least the 99 % quantile of the gradient the image's own noise makes: its high pass's gradient
     where the image is flat at a robust σ (:data:`NOISE_ROBUST_SIGMAS`), the lower quartile of :data:`NOISE_TILE`
     tiles' medians, and only when those gradients spread as noise's do (:data:`MIN_NOISE_SPREAD`). Noise of a few
-    levels leaves it at :data:`FLAT_LEVELS`.
+    levels leaves it at :data:`FLAT_LEVELS`. The channel mean's gradient alone (not each channel's edges,
+    :func:`channel_edges`, as :func:`flat_mask` also asks): the maximum of three channels' noise gradients, eroded,
+    keeps too few pixels of a strongly noisy capture (8 levels of correlated noise: 4,164 of 15,051), so a colour
+    edge of the same channel mean is still read as flat here.
     """
     gray = image.mean(-3) * 255.0
     threshold = max(FLAT_LEVELS, RAYLEIGH_Q99_OVER_MEDIAN * _noise_gradient_median(image, gray))
