@@ -41,3 +41,16 @@ def patch_chart(size: int = 192, patches: int = 8, seed: int = 0) -> Tensor:
     generator = torch.Generator().manual_seed(seed)
     levels = 0.02 + 0.95 * torch.rand(3, patches, patches, generator=generator)
     return F.interpolate(levels[None], size=(size, size), mode="nearest")[0]
+
+
+def smooth_scenes(count: int, seed: int, side: int = 64) -> list[Tensor]:
+    """Smooth random scenes (a coarse random field upsampled): flat enough for grain to show."""
+    generator = torch.Generator().manual_seed(seed)
+    coarse = torch.rand(count, 3, side // 16, side // 16, generator=generator) * 0.6 + 0.2
+    return list(F.interpolate(coarse, size=(side, side), mode="bicubic").clamp(0, 1))
+
+
+def grainy(images: list[Tensor], levels: float, seed: int) -> list[Tensor]:
+    """``images`` with white Gaussian grain of ``levels`` 8-bit levels (seeded), clamped to [0, 1]."""
+    generator = torch.Generator().manual_seed(seed)
+    return [(image + levels / 255 * torch.randn(image.shape, generator=generator)).clamp(0, 1) for image in images]

@@ -18,20 +18,9 @@ from camdegrade.fitting import FitInterrupted
 from camdegrade.fitting.two_sample.critic import low_pass
 from camdegrade.fitting.two_sample.gate import judge_learned_stage, statistics_distance
 from camdegrade.fitting.two_sample.train import TwoSampleOptions, _Sampler, fit_two_sample
+from effects_images import grainy, smooth_scenes
 
 SMALL = TwoSampleOptions(patch=32, batch=4, width=4, critic_width=4)
-
-
-def _scenes(count: int, seed: int, side: int = 64) -> list[Tensor]:
-    """Smooth random scenes (a coarse random field upsampled): flat enough for grain to show."""
-    generator = torch.Generator().manual_seed(seed)
-    coarse = torch.rand(count, 3, side // 16, side // 16, generator=generator) * 0.6 + 0.2
-    return list(torch.nn.functional.interpolate(coarse, size=(side, side), mode="bicubic").clamp(0, 1))
-
-
-def _grainy(images: list[Tensor], levels: float, seed: int) -> list[Tensor]:
-    generator = torch.Generator().manual_seed(seed)
-    return [(image + levels / 255 * torch.randn(image.shape, generator=generator)).clamp(0, 1) for image in images]
 
 
 def _identity(images) -> list[Tensor]:
@@ -39,7 +28,7 @@ def _identity(images) -> list[Tensor]:
 
 
 def _fit(steps: int = 6, **keywords) -> tuple[LearnedTexture, dict]:
-    cleans, captures = _scenes(3, 0), _grainy(_scenes(3, 1), 8.0, 2)
+    cleans, captures = smooth_scenes(3, 0), grainy(smooth_scenes(3, 1), 8.0, 2)
     return fit_two_sample(_identity, cleans, captures, seed=0, steps=steps, options=SMALL, **keywords)
 
 
@@ -72,7 +61,7 @@ def test_an_interrupted_fit_resumes_to_the_same_bytes(tmp_path: Path) -> None:
 def test_resume_refuses_other_options_other_data_and_other_files(tmp_path: Path) -> None:
     path = tmp_path / "state.safetensors"
     _fit(steps=4, checkpoint=path, checkpoint_every=4)
-    cleans, captures = _scenes(3, 0), _grainy(_scenes(3, 1), 8.0, 2)
+    cleans, captures = smooth_scenes(3, 0), grainy(smooth_scenes(3, 1), 8.0, 2)
     other = TwoSampleOptions(patch=32, batch=4, width=4, critic_width=4, content_weight=5.0)
     with pytest.raises(ValueError, match=r"was written with other options .*content_weight"):
         fit_two_sample(_identity, cleans, captures, steps=4, options=other, checkpoint=path, resume=True)
@@ -86,17 +75,17 @@ def test_resume_refuses_other_options_other_data_and_other_files(tmp_path: Path)
 
 
 def test_images_too_small_for_a_patch_and_unaligned_pairs_are_refused() -> None:
-    cleans = _scenes(2, 0)
+    cleans = smooth_scenes(2, 0)
     with pytest.raises(ValueError, match="captures must be non-empty images of at least 32x32 pixels"):
         fit_two_sample(_identity, cleans, [torch.rand(3, 16, 64)], steps=1, options=SMALL)
     with pytest.raises(ValueError, match="paired: captures must be aligned with cleans"):
-        fit_two_sample(_identity, cleans, _scenes(3, 1), steps=1, options=SMALL, paired=True)
+        fit_two_sample(_identity, cleans, smooth_scenes(3, 1), steps=1, options=SMALL, paired=True)
     with pytest.raises(ValueError, match=r"named must give one image per clean image \(2\), got 1"):
-        fit_two_sample(lambda images: images[:1], cleans, _scenes(2, 1), steps=1, options=SMALL)
+        fit_two_sample(lambda images: images[:1], cleans, smooth_scenes(2, 1), steps=1, options=SMALL)
 
 
 def test_paired_patches_come_from_the_same_place() -> None:
-    inputs = _scenes(3, 0)
+    inputs = smooth_scenes(3, 0)
     sampler = _Sampler(inputs, [image.flip(-1) for image in inputs], 32, 4, paired=True)
     _, reals, noise = sampler.draw(torch.Generator().manual_seed(0))
     places = sampler._crops(inputs, torch.Generator().manual_seed(0))[1]
@@ -114,7 +103,7 @@ def test_statistics_distance_is_the_rms_of_bands_and_log_noise() -> None:
 def test_it_learns_grain_the_captures_have_and_keeps_the_low_frequencies() -> None:
     """Clean scenes through an identity 'profile' against other scenes with 8 levels of white grain: the stage
     adds grain (flat-pixel std from 0 to within a factor 2 of 8 levels) and keeps each image's low-pass."""
-    cleans, captures = _scenes(6, 0, side=96), _grainy(_scenes(6, 1, side=96), 8.0, 2)
+    cleans, captures = smooth_scenes(6, 0, side=96), grainy(smooth_scenes(6, 1, side=96), 8.0, 2)
     options = TwoSampleOptions(patch=48, batch=8, width=8, critic_width=8)
     stage, evidence = fit_two_sample(_identity, cleans, captures, seed=0, steps=300, options=options)
     out = stage(torch.stack(cleans), stage.make_params((6, 3, 96, 96), torch.Generator().manual_seed(0)))
@@ -141,10 +130,10 @@ def test_the_gate_keeps_grain_the_captures_have_and_refuses_far_too_much() -> No
     """Held-out scenes against captures of other scenes with 6 levels of grain: after a profile without grain a
     stage adding 6 levels moves the statistics closer and the fresh critic finds it no easier; after a profile that
     already adds the 6 levels, a stage adding 40 more is refused."""
-    cleans, captures = _scenes(6, 3, side=192), _grainy(_scenes(6, 4, side=192), 6.0, 5)
+    cleans, captures = smooth_scenes(6, 3, side=192), grainy(smooth_scenes(6, 4, side=192), 6.0, 5)
     right = judge_learned_stage(CameraProfile(None, []), _grain_stage(6.0), cleans, captures, critic_seeds=1)
     assert right.keep and right.with_stage["distance"] < right.without["distance"], right.to_dict()
-    grainy = CameraProfile(None, [Noise(b=(6.0 / 255) ** 2, linear=False)])
-    wrong = judge_learned_stage(grainy, _grain_stage(40.0), cleans, captures, critic_seeds=1)
+    grain_profile = CameraProfile(None, [Noise(b=(6.0 / 255) ** 2, linear=False)])
+    wrong = judge_learned_stage(grain_profile, _grain_stage(40.0), cleans, captures, critic_seeds=1)
     assert not wrong.not_farther and not wrong.keep, wrong.to_dict()
     assert wrong.with_stage["noise_ratio"] > 3 * wrong.without["noise_ratio"]

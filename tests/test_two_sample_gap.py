@@ -12,38 +12,28 @@ from torch import Tensor
 
 from camdegrade.fitting.two_sample.train import TwoSampleOptions, fit_two_sample, spectrum_gap
 from camdegrade.measures.fidelity import band_power
+from effects_images import grainy, smooth_scenes
 
 torch.set_num_threads(1)
 SMALL = TwoSampleOptions(patch=32, batch=4, width=4, critic_width=4)
 
 
-def _scenes(count: int, seed: int, side: int = 64) -> list[Tensor]:
-    generator = torch.Generator().manual_seed(seed)
-    coarse = torch.rand(count, 3, side // 16, side // 16, generator=generator) * 0.6 + 0.2
-    return list(torch.nn.functional.interpolate(coarse, size=(side, side), mode="bicubic").clamp(0, 1))
-
-
-def _grainy(images: list[Tensor], levels: float, seed: int) -> list[Tensor]:
-    generator = torch.Generator().manual_seed(seed)
-    return [(image + levels / 255 * torch.randn(image.shape, generator=generator)).clamp(0, 1) for image in images]
-
-
 def test_the_gap_is_zero_for_the_same_images_and_for_a_contrast_change_alone() -> None:
-    images = _grainy(_scenes(3, 0), 4.0, 1)
+    images = grainy(smooth_scenes(3, 0), 4.0, 1)
     assert torch.equal(spectrum_gap(images, images), torch.zeros(5))
     halved = [(image - image.mean()) * 0.5 + image.mean() for image in images]  # power / 4 in every band
     assert float(spectrum_gap(images, halved).abs().max()) < 1e-4
 
 
 def test_the_gap_is_the_grain_the_captures_have_above_the_lowest_band() -> None:
-    gap = spectrum_gap(_scenes(3, 0), _grainy(_scenes(3, 1), 8.0, 2))
+    gap = spectrum_gap(smooth_scenes(3, 0), grainy(smooth_scenes(3, 1), 8.0, 2))
     assert gap[0] == 0.0
     assert bool((gap[1:] > 4.0).all()) and bool((gap[1:].diff() > 0).all()), gap  # white grain over smooth scenes
 
 
 def _output_gap(target: str) -> Tensor:
     """The band log2 power of the stage's output over its input's, trained 20 steps against grainy captures."""
-    cleans, captures = _scenes(3, 0), _grainy(_scenes(3, 1), 8.0, 2)
+    cleans, captures = smooth_scenes(3, 0), grainy(smooth_scenes(3, 1), 8.0, 2)
     options = replace(SMALL, spectrum_target=target, spectrum_weight=20.0)
     stage, evidence = fit_two_sample(lambda images: list(images), cleans, captures, seed=0, steps=20, options=options)
     assert evidence["options"]["spectrum_target"] == target
@@ -63,8 +53,8 @@ def test_an_unknown_target_is_refused_by_name() -> None:
     with pytest.raises(ValueError, match=r"spectrum_target must be one of \('input', 'captures'\), got 'real'"):
         fit_two_sample(
             lambda images: list(images),
-            _scenes(2, 0),
-            _scenes(2, 1),
+            smooth_scenes(2, 0),
+            smooth_scenes(2, 1),
             steps=1,
             options=replace(SMALL, spectrum_target="real"),
         )
