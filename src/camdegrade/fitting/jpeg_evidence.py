@@ -35,9 +35,10 @@ from torch import Tensor
 
 from camdegrade.effects import JPEG, Effect, Noise, Resolution
 from camdegrade.effects.base import evenly_spaced
+from camdegrade.fitting.evidence.statistic import judge_by_statistic
 from camdegrade.fitting.in_chain import CALIBRATION_PAIRS, fit_noise_stage, replace_stage
-from camdegrade.fitting.steps.base import FitStep, PairedFit, Verdict, closes_gap, keep_and_refit_noise
-from camdegrade.fitting.steps.noise_evidence import noise_evidence, relative_gain
+from camdegrade.fitting.steps.base import FitStep, PairedFit, Verdict, keep_and_refit_noise
+from camdegrade.fitting.steps.noise_evidence import noise_evidence
 from camdegrade.functional.analysis.images import luma
 from camdegrade.measures.traces.quantisation import read_lattice
 
@@ -179,25 +180,22 @@ def judge_jpeg(fit: PairedFit, stage: JPEG) -> tuple[Effect | None, dict[str, An
     """``stage`` kept where it brings the sampled simulation's :func:`block_edge_ratio` toward the judged
     captures' (:data:`MIN_CLOSED`, :data:`BLOCK_TOLERANCE`); the record and log line say by how much, with the
     share of the deterministic output's squared error it removes."""
-    pairs, label = fit.evidence_pairs
-    cleans, captures = (list(side) for side in zip(*pairs, strict=True))
-    real = block_edge_ratio(captures)
-    without = block_edge_ratio(fit.profile.simulate(cleans, 0, stream="jpeg-evidence", eight_bit=True))
-    with_stage = fit.profile.with_effects(stage)
-    within = block_edge_ratio(with_stage.simulate(cleans, 0, stream="jpeg-evidence", eight_bit=True))
-    gap, left = real - without, real - within
-    kept = closes_gap(real, without, within, BLOCK_TOLERANCE, MIN_CLOSED)
-    note: dict[str, Any] = {"kept": kept, "quality": int(stage.quality), "block_edges_real": round(real, 3)}
-    note |= {"block_edges_without": round(without, 3), "block_edges_with": round(within, 3), "evidence": label}
-    note["relative_mse_gain"] = round(relative_gain(fit.profile, stage, cleans, captures), 4)
-    if not kept:
-        note["reason"] = f"it leaves {abs(left):.3f} of the block-edge gap of {abs(gap):.3f}"
-    line = (
-        f"quality {int(stage.quality)}: 8×8 block edges {real:.3f}× the mean in the captures, {without:.3f}× "
-        f"simulated without, {within:.3f}× with; relative MSE gain {note['relative_mse_gain']:.2%} on {len(pairs)} "
-        f"{label} pair(s) -> {'kept' if kept else 'dropped'}"
+    judged = judge_by_statistic(
+        fit,
+        stage,
+        block_edge_ratio,
+        stream="jpeg-evidence",
+        eight_bit=True,
+        tolerance=BLOCK_TOLERANCE,
+        share=MIN_CLOSED,
     )
-    return (stage if kept else None), note, line
+    note: dict[str, Any] = {"kept": judged.kept, "quality": int(stage.quality)}
+    note |= judged.record("block_edges", "the block-edge gap")
+    line = (
+        f"quality {int(stage.quality)}: 8×8 block edges {judged.real:.3f}× the mean in the captures, "
+        f"{judged.without:.3f}× simulated without, {judged.within:.3f}× with; {judged.line_end()}"
+    )
+    return (stage if judged.kept else None), note, line
 
 
 def noise_through_codec(fit: PairedFit) -> str | None:

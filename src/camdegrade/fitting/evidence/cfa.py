@@ -31,9 +31,10 @@ from torch import Tensor
 from camdegrade._support.seeds import derived_generator
 from camdegrade.effects import ColorFilterArray, Effect, Noise
 from camdegrade.effects.base import evenly_spaced
+from camdegrade.fitting.evidence.statistic import judge_by_statistic
 from camdegrade.fitting.in_chain import CALIBRATION_PAIRS, fit_stage_in_chain
-from camdegrade.fitting.steps.base import FitStep, PairedFit, Verdict, closes_gap, keep_and_refit_noise
-from camdegrade.fitting.steps.noise_evidence import as_stored, relative_gain
+from camdegrade.fitting.steps.base import FitStep, PairedFit, Verdict, keep_and_refit_noise
+from camdegrade.fitting.steps.noise_evidence import as_stored
 from camdegrade.functional.analysis.images import flat_mask
 from camdegrade.functional.analysis.noise import measure_set
 from camdegrade.functional.sensor.cfa import DEMOSAICS
@@ -159,29 +160,23 @@ def judge_cfa(fit: PairedFit, stage: ColorFilterArray, route: str) -> tuple[Effe
     """``stage`` kept where it brings the sampled simulation's trace (by ``route``) toward the judged captures'
     (:data:`MIN_CLOSED`, :data:`TRACE_TOLERANCE`); the record and log line say by how much, with the share of the
     deterministic output's squared error it removes."""
-    pairs, label = fit.evidence_pairs
-    cleans, captures = (list(side) for side in zip(*pairs, strict=True))
     trace = ROUTES[route]
-    real = trace(captures, stage.pattern)
-    simulated = [
-        profile.simulate(cleans, 0, stream="cfa-evidence", eight_bit=fit.eight_bit)
-        for profile in (fit.profile, fit.profile.with_effects(stage))
-    ]
-    without, within = (trace(images, stage.pattern) for images in simulated)
-    gap, left = real - without, real - within
-    kept = closes_gap(real, without, within, TRACE_TOLERANCE, MIN_CLOSED)
-    note: dict[str, Any] = {"kept": kept, "demosaic": stage.demosaic, "amount": round(float(stage.amount), 3)}
-    note["trace_real"] = round(real, 3)
-    note |= {"trace_without": round(without, 3), "trace_with": round(within, 3), "evidence": label}
-    note["relative_mse_gain"] = round(relative_gain(fit.profile, stage, cleans, captures), 4)
-    if not kept:
-        note["reason"] = f"it leaves {abs(left):.3f} of the mosaic trace's gap of {abs(gap):.3f}"
-    line = (
-        f"{stage.pattern} {stage.demosaic} at {float(stage.amount):.3f}: {route} trace {real:.3f} in the captures, "
-        f"{without:.3f} simulated without, {within:.3f} with; relative MSE gain {note['relative_mse_gain']:.2%} on "
-        f"{len(pairs)} {label} pair(s) -> {'kept' if kept else 'dropped'}"
+    judged = judge_by_statistic(
+        fit,
+        stage,
+        lambda images: trace(images, stage.pattern),
+        stream="cfa-evidence",
+        eight_bit=fit.eight_bit,
+        tolerance=TRACE_TOLERANCE,
+        share=MIN_CLOSED,
     )
-    return (stage if kept else None), note, line
+    note: dict[str, Any] = {"kept": judged.kept, "demosaic": stage.demosaic, "amount": round(float(stage.amount), 3)}
+    note |= judged.record("trace", "the mosaic trace's gap")
+    line = (
+        f"{stage.pattern} {stage.demosaic} at {float(stage.amount):.3f}: {route} trace {judged.real:.3f} in the "
+        f"captures, {judged.without:.3f} simulated without, {judged.within:.3f} with; {judged.line_end()}"
+    )
+    return (stage if judged.kept else None), note, line
 
 
 def before_mosaic(profile: CameraProfile, noise: Effect) -> CameraProfile:
