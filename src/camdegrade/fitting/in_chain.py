@@ -85,8 +85,12 @@ def _network_output(profile: CameraProfile, clean: Tensor) -> Tensor:
 def replace_stage(profile: CameraProfile, effect: Effect) -> CameraProfile:
     """``profile`` with ``effect`` at its stage, in place of the stages of its kind that draw only noise (a fitted
     noise stage is the whole of the noise, not an addition to it)."""
-    chain = [e for e in profile.effects if not (type(e) is type(effect) and type(e).draws_only_noise())]
-    return profile.with_chain(chain).with_effects(effect)
+    return profile.with_chain(_without_noise_like(profile, effect)).with_effects(effect)
+
+
+def _without_noise_like(profile: CameraProfile, effect: Effect) -> list[Effect]:
+    """``profile``'s chain less the stages of ``effect``'s kind that draw only noise."""
+    return [e for e in profile.effects if not (type(e) is type(effect) and type(e).draws_only_noise())]
 
 
 def after_resampler(profile: CameraProfile, effect: Effect) -> CameraProfile:
@@ -94,7 +98,7 @@ def after_resampler(profile: CameraProfile, effect: Effect) -> CameraProfile:
     its kind that draw only noise, as :func:`replace_stage` does at the stage's own place: noise that a camera adds
     after its resize (an analog link, a second gain) comes out white there, where noise put before the resize comes
     out upsampled and correlated."""
-    chain = [e for e in profile.effects if not (type(e) is type(effect) and type(e).draws_only_noise())]
+    chain = _without_noise_like(profile, effect)
     places = [index for index, stage in enumerate(chain) if isinstance(stage, Resolution)]
     if not places:
         raise ValueError(f"profile has no resolution stage to put {effect.name} after (its chain: {chain})")

@@ -17,7 +17,7 @@ from camdegrade.fitting.in_chain import CALIBRATION_PAIRS, fit_stage_in_chain, n
 from camdegrade.fitting.jpeg_evidence import JpegStage
 from camdegrade.fitting.network import chain_tone
 from camdegrade.fitting.steps.base import FitStep, PairedFit, Verdict
-from camdegrade.fitting.steps.noise_evidence import noise_evidence, placed_noise, relative_gain
+from camdegrade.fitting.steps.noise_evidence import noise_evidence, on_flat_pixels, placed_noise, relative_gain
 from camdegrade.network import ShiftNetwork
 from camdegrade.profile import CameraProfile
 
@@ -144,16 +144,14 @@ class EffectStage(FitStep):
         return record
 
     def _evidence(self, fit: PairedFit, effect: Effect) -> tuple[Effect | CameraProfile | None, dict[str, Any], str]:
-        held_out, fit_pairs = fit.val_pairs, fit.train_pairs
-        pairs, label = fit.evidence_pairs
         if type(effect).draws_only_noise():
-            kept, evidence = noise_evidence(fit.profile, effect, *zip(*pairs, strict=True), eight_bit=fit.eight_bit)
-            if evidence.capture_noise is None and held_out:
-                kept, evidence = noise_evidence(
-                    fit.profile, effect, *zip(*fit_pairs, strict=True), eight_bit=fit.eight_bit
-                )
-                label = "training (the validation pairs hold too few flat pixels)"
+            (kept, evidence), label = on_flat_pixels(
+                fit,
+                lambda pairs: noise_evidence(fit.profile, effect, *zip(*pairs, strict=True), eight_bit=fit.eight_bit),
+                lambda judged: judged[1].capture_noise is not None,
+            )
             return kept, {**evidence.to_dict(), "evidence": label}, f"{evidence.describe()} [evidence: {label}]"
+        pairs, label = fit.evidence_pairs
         if effect.position_dependent:
             return _position_dependent(fit, effect, pairs, label)
         return effect, {"kept": True}, f"fitted ({effect.extra_repr()})"

@@ -30,7 +30,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
-from typing import Any
+from typing import Any, TypeVar
 
 import torch
 from torch import Tensor
@@ -43,6 +43,7 @@ from camdegrade.functional.analysis.images import flat_mask
 from camdegrade.functional.analysis.noise import NoiseSums
 from camdegrade.measures.fidelity import noise_ratios, quiet_masks
 from camdegrade.network.inference import run_network
+from camdegrade.pairs.pairset import ImagePair
 from camdegrade.profile import CameraProfile
 
 __all__ = [
@@ -53,9 +54,12 @@ __all__ = [
     "NoiseEvidence",
     "as_stored",
     "noise_evidence",
+    "on_flat_pixels",
     "placed_noise",
     "relative_gain",
 ]
+
+Judged = TypeVar("Judged")
 
 #: The capture's flat noise must be at least this many times the profile's without the stage: below it the
 #: profile already has 90 % of the camera's noise (a flat-noise ratio of 0.9 or more) and needs no stage.
@@ -291,6 +295,18 @@ def _mean_squared_error(predictions: Sequence[Tensor], targets: Sequence[Tensor]
     return total / sum(t.numel() for t in targets)
 
 
+def on_flat_pixels(
+    fit: Any, judge: Callable[[Sequence[ImagePair]], Judged], measured: Callable[[Judged], bool]
+) -> tuple[Judged, str]:
+    """``judge`` of a :class:`~camdegrade.fitting.steps.PairedFit`'s evidence pairs and their name; of its training
+    pairs where the validation pairs hold too few flat pixels for the noise to be ``measured`` there."""
+    pairs, label = fit.evidence_pairs
+    judged = judge(pairs)
+    if not measured(judged) and fit.val_pairs:
+        return judge(fit.train_pairs), "training (the validation pairs hold too few flat pixels)"
+    return judged, label
+
+
 def placed_noise(fit: Any, candidates: dict[str, Effect]) -> dict[str, Any]:
     """Judge a noise stage fitted at each place of ``candidates`` (place name → stage, the places of
     :func:`~camdegrade.fitting.in_chain.noise_places`) on the fit's evidence pairs (a
@@ -306,10 +322,10 @@ def placed_noise(fit: Any, candidates: dict[str, Effect]) -> dict[str, Any]:
             for where, stage in candidates.items()
         }
 
-    pairs, label = fit.evidence_pairs
-    judged = judge(pairs)
-    if all(evidence.capture_noise is None for _, evidence in judged.values()) and fit.val_pairs:
-        judged, label = judge(fit.train_pairs), "training (the validation pairs hold too few flat pixels)"
+    def measured(found: dict[str, tuple[Effect | None, NoiseEvidence]]) -> bool:
+        return any(evidence.capture_noise is not None for _, evidence in found.values())
+
+    judged, label = on_flat_pixels(fit, judge, measured)
     chosen = _chosen_place({where: evidence for where, (_, evidence) in judged.items()})
     stage, evidence = judged[chosen]
     if stage is not None:
