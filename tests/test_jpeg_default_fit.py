@@ -16,13 +16,13 @@ from camdegrade._support.pixels import bytes_to_unit, unit_to_bytes
 from camdegrade.effects import JPEG, Blur, Noise, Resolution
 from camdegrade.fitting import DEFAULT_EFFECTS, FitConfig, fit_profile
 from camdegrade.fitting.codec_warning import codec_warnings
-from camdegrade.fitting.jpeg_evidence import BLOCK_TOLERANCE, block_edge_ratio
+from camdegrade.fitting.jpeg_evidence import BLOCK_TOLERANCE, block_edge_ratio, noise_through_codec
 from camdegrade.fitting.steps.effects import EffectStages
 from camdegrade.functional import jpeg_image
 from camdegrade.io import read_image
 from camdegrade.sim import VirtualCamera
 from camdegrade.synthetic import dead_leaves_images
-from steps_for_tests import run_step
+from steps_for_tests import paired_fit, run_step
 
 torch.set_num_threads(1)
 NOISE = Noise(a=0.0004, b=1e-5)
@@ -83,6 +83,22 @@ def test_a_camera_with_jpeg_blocks_keeps_a_jpeg_stage_last_and_its_noise_refitte
     assert left < min(BLOCK_TOLERANCE, abs(note["block_edges_real"] - note["block_edges_without"])), note
     assert "noise_refitted" in note, note  # refitted through the codec, or kept where the refit is no closer
     assert any(line.startswith("effect noise: ") and "flat-noise ratio" in line for line in lines), lines
+
+
+@pytest.mark.slow
+def test_noise_placed_after_a_resampler_is_refitted_through_the_codec_where_it_sits() -> None:
+    # a camera whose noise comes after its resize (white), fitted with too little noise there: the refit through the
+    # codec must stay after the resampler, where an earlier step placed it, not go back to the sensor stage
+    camera = CameraProfile(None, []).with_chain([Resolution(0.5), Noise(a=0.0004, b=1e-5), JPEG(40)])
+    profile = CameraProfile(None, []).with_chain([Resolution(0.5), Noise(a=1e-6, b=1e-7), JPEG(40)])
+    leaves = dead_leaves_images(12, 96, seed=3)
+    cleans = [bytes_to_unit(leaves[i]) if i % 2 else _chart(96, 300 + i) for i in range(12)]
+    captures = [bytes_to_unit(unit_to_bytes(image)) for image in camera.simulate(cleans, 5)]
+    pairs = list(zip(cleans, captures, strict=True))
+    fit = paired_fit(profile, pairs[:8], pairs[8:])
+    line = noise_through_codec(fit)
+    assert line is not None and "refitted through the jpeg stage" in line, line
+    assert fit.profile.effect_names == ["resolution", "noise", "jpeg"]
 
 
 def test_a_camera_without_a_codec_gets_no_jpeg_stage_though_its_upscale_lifts_the_block_edges() -> None:

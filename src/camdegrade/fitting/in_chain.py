@@ -19,6 +19,7 @@ __all__ = [
     "after_resampler",
     "fit_noise_stage",
     "fit_stage_in_chain",
+    "in_its_place",
     "noise_places",
     "replace_stage",
 ]
@@ -86,6 +87,18 @@ def replace_stage(profile: CameraProfile, effect: Effect) -> CameraProfile:
     """``profile`` with ``effect`` at its stage, in place of the stages of its kind that draw only noise (a fitted
     noise stage is the whole of the noise, not an addition to it)."""
     return profile.with_chain(_without_noise_like(profile, effect)).with_effects(effect)
+
+
+def in_its_place(profile: CameraProfile, effect: Effect) -> CameraProfile:
+    """``profile`` with ``effect`` where the first of its kind's stages that draw only noise sits now (the others of
+    them dropped), or at its own stage (:func:`replace_stage`) where it has none: a refit keeps the place an earlier
+    step chose (noise after a resampler stays after it)."""
+    chain = list(profile.effects)
+    places = [index for index, stage in enumerate(chain) if type(stage) is type(effect) and stage.draws_only_noise()]
+    if not places:
+        return replace_stage(profile, effect)
+    chain[places[0]] = effect
+    return profile.with_chain([stage for index, stage in enumerate(chain) if index not in places[1:]])
 
 
 def _without_noise_like(profile: CameraProfile, effect: Effect) -> list[Effect]:

@@ -36,7 +36,7 @@ from torch import Tensor
 from camdegrade.effects import JPEG, Effect, Noise, Resolution
 from camdegrade.effects.base import evenly_spaced
 from camdegrade.fitting.evidence.statistic import judge_by_statistic
-from camdegrade.fitting.in_chain import CALIBRATION_PAIRS, fit_noise_stage, replace_stage
+from camdegrade.fitting.in_chain import CALIBRATION_PAIRS, fit_stage_in_chain, in_its_place
 from camdegrade.fitting.steps.base import FitStep, PairedFit, Verdict, keep_and_refit_noise
 from camdegrade.fitting.steps.noise_evidence import noise_evidence
 from camdegrade.functional.analysis.images import luma
@@ -200,24 +200,30 @@ def judge_jpeg(fit: PairedFit, stage: JPEG) -> tuple[Effect | None, dict[str, An
 
 def noise_through_codec(fit: PairedFit) -> str | None:
     """With a JPEG stage just kept after the profile's noise stage: that noise refitted through the codec (the codec
-    smooths it, and it was calibrated without one), in its place where the judged pairs' flat-noise ratio comes
-    closer to 1 with it (:func:`~camdegrade.fitting.steps.noise_evidence.noise_evidence`); the log line, or
-    ``None`` without a noise stage."""
+    smooths it, and it was calibrated without one) at the place it holds (after a resampler, where an earlier step put
+    it there: :func:`~camdegrade.fitting.in_chain.in_its_place`), in place of it where the judged pairs' flat-noise
+    ratio comes closer to 1 with it (:func:`~camdegrade.fitting.steps.noise_evidence.noise_evidence`); the log line,
+    or ``None`` without a noise stage."""
     old = next((effect for effect in fit.profile.effects if isinstance(effect, Noise)), None)
     if old is None:
         return None
     cleans = [clean for clean, _ in fit.train_pairs]
     captured = [target for _, target in fit.train_pairs]
     with torch.no_grad():
-        refit = fit_noise_stage(fit.profile, cleans, captured, calibration_pairs=CALIBRATION_PAIRS)
+        refit = fit_stage_in_chain(
+            fit.profile, Noise, cleans, captured, calibration_pairs=CALIBRATION_PAIRS, insert=in_its_place
+        )
     pairs, label = fit.evidence_pairs
     judged = [list(side) for side in zip(*pairs, strict=True)]
-    evidence = [noise_evidence(fit.profile, stage, *judged, eight_bit=fit.eight_bit)[1] for stage in (old, refit)]
+    evidence = [
+        noise_evidence(fit.profile, stage, *judged, eight_bit=fit.eight_bit, insert=in_its_place)[1]
+        for stage in (old, refit)
+    ]
     ratios = [found.noise_ratio_with for found in evidence]
     if None in ratios:
         return f"effect noise: not refitted through the jpeg stage (too few flat {label} pixels)"
     closer = abs(math.log(ratios[1])) < abs(math.log(ratios[0]))
     if closer:
-        fit.profile = replace_stage(fit.profile, refit)
+        fit.profile = in_its_place(fit.profile, refit)
     verdict = "refitted through the jpeg stage" if closer else "kept as fitted before the jpeg stage"
     return f"effect noise: {verdict}: flat-noise ratio {ratios[0]:.2f} as fitted, {ratios[1]:.2f} refitted [{label}]"
