@@ -17,7 +17,7 @@ The fit: 10 PolyU captures (Canon 5D Mk II, 128² crops saved as JPEG q85) besid
 
 Run from the repo root::
 
-    OMP_NUM_THREADS=1 .venv/bin/python experiments/unpaired_polyu_truth.py [REAL_PAIRS_DIR]
+    OMP_NUM_THREADS=1 .venv/bin/python experiments/unpaired_polyu_truth.py [REAL_PAIRS_DIR] [--without color,tone]
 """
 
 from __future__ import annotations
@@ -39,7 +39,7 @@ from unpaired_polyu_noise import CAPTURES, _scene, default_real_pairs_dir, write
 
 from camdegrade import CameraProfile
 from camdegrade._support.pixels import as_unit
-from camdegrade.fitting.unpaired import fit_unpaired, unpaired_fidelity
+from camdegrade.fitting.unpaired import UNPAIRED_EFFECTS, fit_unpaired, unpaired_fidelity
 from camdegrade.io import read_image
 
 CAMERA = "Canon5D2"
@@ -100,12 +100,12 @@ def _parts(profile: CameraProfile) -> dict[str, CameraProfile]:
     return parts
 
 
-def measure(root: Path) -> dict:
-    """Fit the case and return the three readings of the module."""
+def measure(root: Path, without: tuple[str, ...] = ()) -> dict:
+    """Fit the case (``without`` these stages) and return the three readings of the module."""
     with tempfile.TemporaryDirectory() as scratch_name:
         scratch = Path(scratch_name)
         captured, clean, means = write_sets(root, scratch)
-        profile = fit_unpaired(captured, clean, seed=0)
+        profile = fit_unpaired(captured, clean, effects=[e for e in UNPAIRED_EFFECTS if e not in without], seed=0)
         out = {"kept": profile.effect_names, "records": profile.fitted["effects"]}
         out["own check"] = profile.quality["unpaired_fidelity"]
         out["warnings"], out["notes"] = profile.fitted.get("warnings", []), profile.fitted.get("notes", [])
@@ -121,9 +121,10 @@ def measure(root: Path) -> dict:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("root", nargs="?", type=Path, default=default_real_pairs_dir())
+    parser.add_argument("--without", default="", help="stages not to fit, comma-separated (e.g. color,tone)")
     args = parser.parse_args(argv)
     torch.set_num_threads(1)
-    result = measure(args.root)
+    result = measure(args.root, tuple(name for name in args.without.split(",") if name))
     for key, value in result.items():
         print(f"{key}: {json.dumps(value)}")
     return 0

@@ -9,7 +9,9 @@ such a result. The check reads the same images the stages were fitted on (an unp
 each stage was already kept only where random halves of the sets agreed), so it cannot say that a profile is right,
 only that it is wrong: a noise ratio far from 1 or a band far off is a result that does not even reproduce what it
 was fitted to (the real PolyU captures of issue 43, before the smooth noise curve: noise ratio 1.79 with 16–20-level
-speckle on flat greys). A fresh image-only critic (:func:`self_check_critic`: never a critic any stage was trained
+speckle on flat greys). Each band's reading carries its split-half spread (:func:`band_spread`); a band the sets'
+content alone moves past the gate is neither warned of nor passed but named in a note (:func:`unmeasured_bands`).
+A fresh image-only critic (:func:`self_check_critic`: never a critic any stage was trained
 against) says what a model trained on the simulation would see; above
 :data:`~camdegrade.fitting.critic_warning.CRITIC_WARNING_ACCURACY` the fit warns. Where the clean set's scenes differ
 in kind from the captures' (indoor against outdoor, say), the critic may read that content as well: the warning says
