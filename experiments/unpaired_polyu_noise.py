@@ -106,6 +106,7 @@ def measure(root: Path, png: Path | None = None) -> dict:
         "kept": profile.effect_names,
         "fidelity": profile.quality["unpaired_fidelity"],
         "warnings": profile.fitted.get("warnings", []),
+        "notes": profile.fitted.get("notes", []),
         "levels": (noise[0].levels * 255).double() if noise else None,
         "truth": truth,
         "flats": flats,
@@ -151,6 +152,7 @@ def main(argv: list[str] | None = None) -> int:
     print("kept:", result["kept"])
     print("own check:", result["fidelity"])
     print("warnings:", result["warnings"])
+    print("notes:", result["notes"])
     if result["levels"] is not None:
         print(
             "noise levels (8-bit, per channel and knot):",

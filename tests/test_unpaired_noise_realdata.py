@@ -47,3 +47,7 @@ def test_real_polyu_captures_get_no_speckle(real_pairs_dir: Path) -> None:
     neighbours = torch.maximum(levels[:, :-2], levels[:, 2:])
     assert bool((levels[:, 1:-1] <= 2 * neighbours).all()), levels
     assert 0.67 <= result["fidelity"]["noise_ratio"] <= 1.5, result["fidelity"]
+    # each band's split-half spread at ten 128² crops is 0.77–1.54 log2: not measurable, said so, no band warning
+    assert all(3 * spread > 1 for spread in result["fidelity"]["band_spread"]), result["fidelity"]
+    assert any("band power not measurable" in note for note in result["notes"]), result["notes"]
+    assert not any("band power" in warning for warning in result["warnings"]), result["warnings"]

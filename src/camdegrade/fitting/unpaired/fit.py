@@ -54,7 +54,7 @@ from camdegrade.fitting.two_sample.step import LearnedTextureMatch
 from camdegrade.fitting.unpaired.bench import Measured, UnpairedFit, UnpairedStep
 from camdegrade.fitting.unpaired.checkpoint import StepCheckpoint, check_checkpoint, fit_fingerprint
 from camdegrade.fitting.unpaired.images import MIN_IMAGES, ImageSet, Source, check_count, load_images, load_sides
-from camdegrade.fitting.unpaired.judges import self_check_critic, self_check_warnings
+from camdegrade.fitting.unpaired.judges import band_spread, self_check_critic, self_check_warnings, unmeasured_bands
 from camdegrade.fitting.unpaired.steps.color_tone import ColorToneMatch
 from camdegrade.fitting.unpaired.steps.jpeg import JpegQuality
 from camdegrade.fitting.unpaired.steps.noise import NoiseMatch, flat_sums
@@ -245,9 +245,10 @@ def fit_unpaired(
     profile = CameraProfile(None, fit.chain(), name=name, description=description)
     profile.quality = {"unpaired_fidelity": set_fidelity(fit)}
     fit.warnings += self_check_warnings(profile.quality["unpaired_fidelity"], wanted, with_clean=cleans is not None)
-    profile.fitted = _record(fit, time.perf_counter() - started)
-    for warning in fit.warnings:
-        say(f"warning: {warning}")
+    notes = unmeasured_bands(profile.quality["unpaired_fidelity"], wanted, with_clean=cleans is not None)
+    profile.fitted = _record(fit, time.perf_counter() - started) | ({"notes": notes} if notes else {})
+    for line in [f"note: {note}" for note in notes] + [f"warning: {warning}" for warning in fit.warnings]:
+        say(line)
     if strict and fit.warnings:
         raise CamdegradeError(f"{fit.warnings[0]}; strict: no profile (fix the input, or run without strict)")
     return profile
@@ -325,13 +326,14 @@ def set_fidelity(fit: UnpairedFit, profile: CameraProfile | None = None) -> dict
     real_std = fit.sets.real_noise.pooled_std()
     ratio = noisy.pooled_std() / real_std if real_std > 0 else math.nan
     sims = fit.simulate(chain, fit.sets.spectrum_crops, "unpaired-check")
-    sim_bands = torch.stack([band_power(image)[0] for image in sims]).clamp_min(1e-8).log2().mean(0)
+    sim_bands = torch.stack([band_power(image)[0] for image in sims]).clamp_min(1e-8).log2()
     real_crops = [centre_crop(image, SPECTRUM_SIDE) for image in fit.captures.images]
-    real_bands = torch.stack([band_power(image)[0] for image in real_crops]).clamp_min(1e-8).log2().mean(0)
+    real_bands = torch.stack([band_power(image)[0] for image in real_crops]).clamp_min(1e-8).log2()
     mismatch = float((mean_spectrum(sims) - fit.sets.real_spectrum).pow(2).mean())
     return {
         "noise_ratio": round(ratio, 3) if math.isfinite(ratio) else None,
-        "bands": [round(float(value), 3) for value in sim_bands - real_bands],
+        "bands": [round(float(value), 3) for value in sim_bands.mean(0) - real_bands.mean(0)],
+        "band_spread": band_spread(real_bands, sim_bands, fit.seed),  # what content alone moves each band by
         "band_edges": list(BAND_EDGES),
         "spectrum_mismatch": round(mismatch, 4),
         # without a clean set the simulation runs on the captures smoothed, whose lost detail a critic would read
