@@ -109,17 +109,19 @@ class Resolution(Effect):
         *,
         scales: tuple[float, ...] = SCALES,
         upsamplers: tuple[str, ...] = UPSAMPLERS,
+        samplers: tuple[str, ...] = SAMPLERS,
     ) -> Resolution:
-        """The scale (of ``scales``, or the full resolution) and the ISP's kernel (of ``upsamplers``) whose
-        ``up(down(source))`` is nearest ``target`` in mean squared error. Exact on a target made by one of them
-        (tested); on PIL's upscales of a box-sampled sensor it names PIL's kernel (its bicubic as ``catmull_rom``),
-        but box and nearest are one kernel at integer factors (``tests/test_resampler_fit.py``). It needs the
-        source to hold the detail the sensor lost, so after a fitted network it is not the way to find one
-        (:mod:`camdegrade.fitting.steps.resolution` is)."""
+        """The scale (of ``scales``, or the full resolution), the ISP's kernel (of ``upsamplers``) and the sensor's
+        sampling (of ``samplers``) whose ``up(down(source))`` is nearest ``target`` in mean squared error. Exact on a
+        target made by one of them (tested); on PIL's upscales of a box- or bilinear-sampled sensor it names PIL's
+        kernel (its bicubic as ``catmull_rom``) and the sampling, but box and nearest are one kernel at integer
+        factors (``tests/test_resampler_fit.py``). It needs the source to hold the detail the sensor lost, so after
+        a fitted network it is not the way to find one (:mod:`camdegrade.fitting.steps.resolution` is)."""
         pairs = as_pairs(source, target)
 
-        def error(choice: tuple[float, str]) -> float:
-            return sum(float((resolution_image(s, choice[0], choice[1]) - t).pow(2).mean()) for s, t in pairs)
+        def error(choice: tuple[float, str, str]) -> float:
+            return sum(float((resolution_image(s, *choice) - t).pow(2).mean()) for s, t in pairs)
 
-        choices = [(1.0, "bicubic"), *[(scale, kernel) for scale in scales for kernel in upsamplers]]
+        choices = [(1.0, "bicubic", "antialiased")]
+        choices += [(scale, kernel, sampler) for scale in scales for kernel in upsamplers for sampler in samplers]
         return cls(*min(choices, key=error))
