@@ -1,5 +1,5 @@
 """The resampler step: the resolution stage's upsampling kernel chosen by the grid's phase in the gradient energy
-(camdegrade.fitting.steps.resampler, camdegrade.measures.traces.grid_phase)."""
+(camdegrade.fitting.steps.resolution, camdegrade.measures.traces.grid_phase)."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from camdegrade import CameraProfile
 from camdegrade._support.pixels import bytes_to_unit, unit_to_bytes
 from camdegrade.effects import Noise, Resolution
 from camdegrade.fitting import FitConfig
-from camdegrade.fitting.steps.resampler import ResamplerKernel, with_upsampler
+from camdegrade.fitting.steps.resolution import ResamplerKernel, with_upsampler
 from camdegrade.functional.sensor.resolution import UPSAMPLERS
 from camdegrade.measures.traces.grid_phase import grid_phase_energy, grid_phase_spread
 from camdegrade.synthetic import dead_leaves_images
