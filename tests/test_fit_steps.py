@@ -95,7 +95,7 @@ def test_an_unregistered_step_is_refused_by_name(toy_step) -> None:
             FitConfig().replace(steps=("resolution", "toy_gain"))
     finally:
         STEPS[ToyGain.name] = ToyGain
-    assert list(STEPS)[:5] == ["resolution", "effects", "texture", "denoise", "response"]
+    assert list(STEPS)[:6] == ["resolution", "effects", "resampler", "texture", "denoise", "response"]
 
 
 def test_a_step_that_needs_a_network_records_that_there_is_none() -> None:

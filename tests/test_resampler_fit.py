@@ -79,26 +79,43 @@ def _foreign_pairs(sensor: str, scale: float, zoom: str) -> tuple[list[torch.Ten
 
 
 @pytest.mark.parametrize(
-    ("sensor", "scale", "zoom", "named"),
+    ("sensor", "scale", "zoom", "named", "sampled"),
     [
         # A bilinear sensor (the stage's own reduction): PIL's kernel named, its bicubic as Keys' a = −0.5.
-        ("bilinear", 2 / 3, "bilinear", {"bilinear"}),
-        ("bilinear", 2 / 3, "bicubic", {"catmull_rom"}),
-        ("bilinear", 2 / 3, "lanczos", {"lanczos"}),
+        ("bilinear", 2 / 3, "bilinear", {"bilinear"}, "antialiased"),
+        ("bilinear", 2 / 3, "bicubic", {"catmull_rom"}, "antialiased"),
+        ("bilinear", 2 / 3, "lanczos", {"lanczos"}, "antialiased"),
         # PIL's box upscale by 1.5 is pixel replication (our nearest); PIL's nearest at 1.5 replicates other pixels
         # (its rounding of the centres), which no kernel here matches: the fit takes the cubic.
-        ("bilinear", 2 / 3, "box", {"nearest"}),
-        ("bilinear", 2 / 3, "nearest", {"catmull_rom"}),
-        # A box sensor (each pixel integrates its area): the stage's bilinear reduction blurs more, and the fit
-        # takes a sharper kernel than PIL's (bilinear read as catmull_rom, bicubic as lanczos); box and nearest are
-        # one kernel at 2×.
-        ("box", 1 / 2, "bilinear", {"catmull_rom"}),
-        ("box", 1 / 2, "bicubic", {"lanczos"}),
-        ("box", 1 / 2, "lanczos", {"lanczos"}),
-        ("box", 1 / 2, "nearest", {"box", "nearest"}),
-        ("box", 1 / 2, "box", {"box", "nearest"}),
+        ("bilinear", 2 / 3, "box", {"nearest"}, "antialiased"),
+        ("bilinear", 2 / 3, "nearest", {"catmull_rom"}, "antialiased"),
+        # A box sensor (each pixel integrates its area): sampled over the area, PIL's kernel named (with the
+        # bilinear reduction alone, which blurs more, the fit took a sharper kernel than PIL's: bilinear read as
+        # catmull_rom, bicubic as lanczos); box and nearest are one kernel at 2×.
+        ("box", 1 / 2, "bilinear", {"bilinear"}, "area"),
+        ("box", 1 / 2, "bicubic", {"catmull_rom"}, "area"),
+        ("box", 1 / 2, "lanczos", {"lanczos"}, "area"),
+        ("box", 1 / 2, "nearest", {"box", "nearest"}, "area"),
+        ("box", 1 / 2, "box", {"box", "nearest"}, "area"),
     ],
 )
-def test_fit_names_the_kernel_of_a_foreign_zoom(sensor: str, scale: float, zoom: str, named: set[str]) -> None:
+def test_fit_names_the_kernel_and_the_sampling_of_a_foreign_zoom(
+    sensor: str, scale: float, zoom: str, named: set[str], sampled: str
+) -> None:
     fitted = Resolution.fit(*_foreign_pairs(sensor, scale, zoom))
     assert float(fitted.scale) == pytest.approx(scale, abs=1e-6) and fitted.upsample in named
+    assert fitted.sample == sampled
+
+
+def test_area_sampling_is_a_box_sensor_and_the_default_is_unchanged() -> None:
+    """``sample="area"``: each sensor pixel the mean of the 2×2 output pixels it covers (a box sensor: detail finer
+    than its grid aliases); profiles saved without the setting keep the antialiased reduction."""
+    image = photo(long_side=32)[None, :, :32, :32]
+    pooled = torch.nn.functional.avg_pool2d(image, 2)
+    replicated = pooled.repeat_interleave(2, -1).repeat_interleave(2, -2)
+    assert torch.allclose(resolution_image(image, 0.5, "box", "area"), replicated, atol=1e-6)
+    assert not torch.allclose(resolution_image(image, 0.5, "box"), replicated, atol=1e-3)
+    assert Resolution(0.5).sample == "antialiased" and Resolution.from_config({}).sample == "antialiased"
+    assert Resolution.from_config({"sample": "area"}).config() == {"upsample": "bicubic", "sample": "area"}
+    with pytest.raises(ValueError, match=r"sample must be one of \('antialiased', 'area'\), got sample='box'"):
+        Resolution(0.5, sample="box")

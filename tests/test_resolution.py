@@ -17,6 +17,7 @@ from camdegrade.effects.isp.resolution import SCALES
 from camdegrade.errors import CamdegradeError
 from camdegrade.fitting import FitConfig, fit_profile
 from camdegrade.fitting.network.training import _sensor_crop, fit_network, random_crop_batch
+from camdegrade.fitting.steps.resolution import SENSOR_SAMPLING
 from camdegrade.functional import resolution_image
 from camdegrade.measures.metrics import psnr
 from camdegrade.measures.traces.resampling import MIN_EXCESS, resampling_trace
@@ -200,6 +201,7 @@ def test_a_fit_trains_its_network_through_the_upscale_it_finds() -> None:
     plain = fit_profile(train, FitConfig.recipe("fast", **TINY, sensor_scale=1.0))
     assert found.fitted["resolution"]["kept"] is True and found.fitted["resolution"]["scale"] == 0.5
     assert [type(effect) for effect in found.effects] == [Resolution]
+    assert found.effects[0].sample == SENSOR_SAMPLING == "area"
     assert plain.effects == [] or not any(isinstance(effect, Resolution) for effect in plain.effects)
 
     def held_psnr(profile) -> float:

@@ -236,6 +236,8 @@ def _scalars(bound: Bound | None, *names: str) -> dict[str, Buffer]:
 _UNIT = Bound(0.0, 1.0)
 #: camdegrade.functional.sensor.resolution.UPSAMPLERS (this module imports no torch).
 RESOLUTION_UPSAMPLERS = ("bicubic", "bilinear", "catmull_rom", "lanczos", "box", "nearest")
+#: camdegrade.functional.sensor.resolution.SAMPLERS (a profile saved before it had none: ``antialiased``).
+RESOLUTION_SAMPLERS = ("antialiased", "area")
 _LINEAR = Setting(bool, True)
 _NOISE_LEVEL = Bound(0.0, 1.0)  # Noise.MAX_LEVEL
 
@@ -326,7 +328,10 @@ BUILT_IN: dict[str, EffectFacts] = {
     ),
     "resolution": EffectFacts(
         "isp",
-        {"upsample": Setting(str, "bicubic", choices=RESOLUTION_UPSAMPLERS)},
+        {
+            "upsample": Setting(str, "bicubic", choices=RESOLUTION_UPSAMPLERS),
+            "sample": Setting(str, "antialiased", choices=RESOLUTION_SAMPLERS),
+        },
         {"scale": Buffer(bound=Bound(0.125, 1.0))},  # Resolution.MIN_SCALE
     ),
     "noise": EffectFacts(

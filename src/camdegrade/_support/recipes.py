@@ -40,6 +40,7 @@ FAST: dict[str, Any] = {
     "steps": (
         ("resolution", {"scale": "auto"}),
         ("effects", {"names": ("noise", "vignetting", "cfa", "jpeg")}),
+        ("resampler", {}),
         ("texture", {}),
         ("denoise", {}),
         ("response", {}),

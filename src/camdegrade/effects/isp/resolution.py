@@ -14,7 +14,7 @@ from torch import Tensor
 from camdegrade.effects._common import scalar
 from camdegrade.effects._fitting import as_pairs
 from camdegrade.effects.base import Effect, Pairs, check_range, register_effect
-from camdegrade.functional.sensor.resolution import UPSAMPLERS, resolution_image
+from camdegrade.functional.sensor.resolution import SAMPLERS, UPSAMPLERS, resolution_image
 
 __all__ = ["SCALES", "Resolution"]
 
@@ -26,7 +26,7 @@ SCALES: tuple[float, ...] = (1 / 2, 1 / 3, 1 / 4, 2 / 3, 3 / 4)
 @register_effect
 class Resolution(Effect):
     """A sensor of ``scale`` times the output's resolution: ``y = up(down(x))``, the image reduced to ``scale`` of its
-    size (bilinear, antialiased) and upsampled back by the ISP's kernel ``upsample`` (kernel
+    size (``sample``) and upsampled back by the ISP's kernel ``upsample`` (kernel
     :func:`~camdegrade.functional.sensor.resolution.resolution_image`). Cheap cameras and phones in video modes output
     more pixels than they sample; the upsampling leaves a pattern locked to the sensor's grid that a convolutional
     network cannot learn, so ``fit_profile`` trains its network through this stage when it finds one.
@@ -35,8 +35,14 @@ class Resolution(Effect):
         scale: the sensor's resolution relative to the output, from :attr:`MIN_SCALE` to 1 (1, the default: none).
         upsample: the ISP's resampling kernel, one of :data:`~camdegrade.functional.sensor.resolution.UPSAMPLERS`
             (default ``bicubic``).
+        sample: how the sensor samples, one of :data:`~camdegrade.functional.sensor.resolution.SAMPLERS`:
+            ``antialiased`` (the default, a bilinear reduction without aliasing) or ``area`` (each sensor pixel the
+            mean over its area: detail finer than the sensor's grid aliases, as in a camera without an optical
+            low-pass filter; what a fit's sensor step uses, the network before it deciding how much detail reaches
+            it).
 
-    Valid values (:meth:`check_values`): ``scale`` from :attr:`MIN_SCALE` to 1; ``upsample`` one of the kernels.
+    Valid values (:meth:`check_values`): ``scale`` from :attr:`MIN_SCALE` to 1; ``upsample`` one of the kernels;
+    ``sample`` one of the samplers.
 
     Not a default diagnosis candidate (:attr:`Effect.candidate`): fitted after a network that has already learned
     the camera's low-pass, a second reduction blurs twice (docs/results.md, *The sensor-resolution trace*); it is
@@ -56,12 +62,15 @@ class Resolution(Effect):
     MIN_SCALE: ClassVar[float] = 0.125
     scale: Tensor
 
-    def __init__(self, scale: float = 1.0, upsample: str = "bicubic") -> None:
+    def __init__(self, scale: float = 1.0, upsample: str = "bicubic", sample: str = "antialiased") -> None:
         super().__init__()
         check_range("scale", float(scale), self.MIN_SCALE, 1.0)
         if not isinstance(upsample, str) or upsample not in UPSAMPLERS:
             raise ValueError(f"upsample must be one of {UPSAMPLERS}, got upsample={upsample!r}")
+        if not isinstance(sample, str) or sample not in SAMPLERS:
+            raise ValueError(f"sample must be one of {SAMPLERS}, got sample={sample!r}")
         self.upsample = upsample
+        self.sample = sample
         self.register_buffer("scale", scalar(scale))
 
     def check_values(self) -> None:
@@ -69,7 +78,7 @@ class Resolution(Effect):
         check_range("scale", self.scale, self.MIN_SCALE, 1.0)
 
     def config(self) -> dict[str, str]:
-        return {"upsample": self.upsample}
+        return {"upsample": self.upsample, "sample": self.sample}
 
     @property
     def period(self) -> int:
@@ -90,7 +99,7 @@ class Resolution(Effect):
         return -math.log2(float(self.scale))
 
     def forward(self, image: Tensor, params: Mapping[str, Tensor] | None = None) -> Tensor:
-        return resolution_image(image, float(self.scale), self.upsample)
+        return resolution_image(image, float(self.scale), self.upsample, self.sample)
 
     @classmethod
     def fit(
@@ -100,17 +109,19 @@ class Resolution(Effect):
         *,
         scales: tuple[float, ...] = SCALES,
         upsamplers: tuple[str, ...] = UPSAMPLERS,
+        samplers: tuple[str, ...] = SAMPLERS,
     ) -> Resolution:
-        """The scale (of ``scales``, or the full resolution) and the ISP's kernel (of ``upsamplers``) whose
-        ``up(down(source))`` is nearest ``target`` in mean squared error. Exact on a target made by one of them
-        (tested); on PIL's upscales of a box-sampled sensor it names PIL's kernel (its bicubic as ``catmull_rom``),
-        but box and nearest are one kernel at integer factors (``tests/test_resampler_fit.py``). It needs the
-        source to hold the detail the sensor lost, so after a fitted network it is not the way to find one
-        (:mod:`camdegrade.fitting.steps.resolution` is)."""
+        """The scale (of ``scales``, or the full resolution), the ISP's kernel (of ``upsamplers``) and the sensor's
+        sampling (of ``samplers``) whose ``up(down(source))`` is nearest ``target`` in mean squared error. Exact on a
+        target made by one of them (tested); on PIL's upscales of a box- or bilinear-sampled sensor it names PIL's
+        kernel (its bicubic as ``catmull_rom``) and the sampling, but box and nearest are one kernel at integer
+        factors (``tests/test_resampler_fit.py``). It needs the source to hold the detail the sensor lost, so after
+        a fitted network it is not the way to find one (:mod:`camdegrade.fitting.steps.resolution` is)."""
         pairs = as_pairs(source, target)
 
-        def error(choice: tuple[float, str]) -> float:
-            return sum(float((resolution_image(s, choice[0], choice[1]) - t).pow(2).mean()) for s, t in pairs)
+        def error(choice: tuple[float, str, str]) -> float:
+            return sum(float((resolution_image(s, *choice) - t).pow(2).mean()) for s, t in pairs)
 
-        choices = [(1.0, "bicubic"), *[(scale, kernel) for scale in scales for kernel in upsamplers]]
+        choices = [(1.0, "bicubic", "antialiased")]
+        choices += [(scale, kernel, sampler) for scale in scales for kernel in upsamplers for sampler in samplers]
         return cls(*min(choices, key=error))

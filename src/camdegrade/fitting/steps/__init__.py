@@ -8,7 +8,7 @@ from camdegrade.fitting.steps.base import FitStep, PairedFit, Verdict, run_steps
 from camdegrade.fitting.steps.denoise import DenoiseMatch
 from camdegrade.fitting.steps.effects import EffectStages
 from camdegrade.fitting.steps.learned import LearnedTexturePaired
-from camdegrade.fitting.steps.resolution import SensorResolution
+from camdegrade.fitting.steps.resolution import ResamplerKernel, SensorResolution
 from camdegrade.fitting.steps.response import ResponseMatch
 from camdegrade.fitting.steps.texture import TextureMatch
 
@@ -16,6 +16,7 @@ from camdegrade.fitting.steps.texture import TextureMatch
 STEPS: dict[str, type[FitStep]] = {
     SensorResolution.name: SensorResolution,
     EffectStages.name: EffectStages,
+    ResamplerKernel.name: ResamplerKernel,
     TextureMatch.name: TextureMatch,
     DenoiseMatch.name: DenoiseMatch,
     ResponseMatch.name: ResponseMatch,

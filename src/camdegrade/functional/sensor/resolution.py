@@ -1,7 +1,10 @@
 """Kernel of a sensor with fewer pixels than the image it outputs: sampled at a fraction of the resolution, then
 upsampled back by the ISP.
 
-The sampling low-passes (an antialiased bilinear reduction) and the upsampling leaves the images of the sampled
+The sampling low-passes (``antialiased``: a bilinear reduction that filters out what the sensor's grid cannot hold;
+``area``: each sensor pixel the mean of the output pixels it covers, as a sensor's pixel integrates the light on
+its area, so that detail above the sensor's Nyquist frequency aliases as it does in a camera without an optical
+low-pass filter) and the upsampling leaves the images of the sampled
 spectrum above its Nyquist frequency, a pattern locked to the sensor's grid (period ``1 / scale`` pixels) that no
 shift-invariant filter, and so no convolutional network by itself, reproduces.
 
@@ -19,13 +22,16 @@ import torch.nn.functional as F
 from camdegrade.functional._utils import apply_float, check_image
 from camdegrade.functional.sensor.resampling import resample_matrix
 
-__all__ = ["UPSAMPLERS", "resolution_image", "sensor_size"]
+__all__ = ["SAMPLERS", "UPSAMPLERS", "resolution_image", "sensor_size"]
 
 #: How the ISP brings the sensor's samples back to the output size: ``bicubic`` (Keys, a = −0.75) and ``bilinear``
 #: by ``torch.nn.functional.interpolate``, the others by :mod:`camdegrade.functional.sensor.resampling`
 #: (``catmull_rom``: Keys with a = −0.5, PIL's and OpenCV's bicubic; ``lanczos``: 3 lobes; ``box`` and ``nearest``:
 #: pixel replication, alike at integer factors).
 UPSAMPLERS: tuple[str, ...] = ("bicubic", "bilinear", "catmull_rom", "lanczos", "box", "nearest")
+#: How the sensor samples the image: ``antialiased`` (bilinear, antialiased: no aliasing) or ``area`` (the mean over
+#: each sensor pixel's area: aliasing as a sensor's).
+SAMPLERS: tuple[str, ...] = ("antialiased", "area")
 
 
 def sensor_size(height: int, width: int, scale: float) -> tuple[int, int]:
@@ -33,14 +39,17 @@ def sensor_size(height: int, width: int, scale: float) -> tuple[int, int]:
     return max(1, round(height * scale)), max(1, round(width * scale))
 
 
-def resolution_image(image: torch.Tensor, scale: float, upsample: str = "bicubic") -> torch.Tensor:
-    """``up(down(x))``: ``image`` reduced to ``scale`` of its size (bilinear, antialiased) and upsampled back
-    (``upsample``: bicubic or bilinear), clipped to [0, 1]; ``scale`` 1 is the identity.
+def resolution_image(
+    image: torch.Tensor, scale: float, upsample: str = "bicubic", sample: str = "antialiased"
+) -> torch.Tensor:
+    """``up(down(x))``: ``image`` reduced to ``scale`` of its size (``sample``) and upsampled back (``upsample``),
+    clipped to [0, 1]; ``scale`` 1 is the identity.
 
     Args:
         image: ``[..., 3, H, W]`` uint8 or float in [0, 1].
         scale: the sensor's resolution relative to the output, in (0, 1].
         upsample: one of :data:`UPSAMPLERS` (the ISP's resampling kernel).
+        sample: one of :data:`SAMPLERS` (how the sensor samples).
 
     Examples:
         >>> image = torch.rand(1, 3, 16, 16, generator=torch.Generator().manual_seed(0))
@@ -54,6 +63,8 @@ def resolution_image(image: torch.Tensor, scale: float, upsample: str = "bicubic
         raise ValueError(f"scale must be in (0, 1], got scale={scale!r}")
     if upsample not in UPSAMPLERS:
         raise ValueError(f"upsample must be one of {UPSAMPLERS}, got upsample={upsample!r}")
+    if sample not in SAMPLERS:
+        raise ValueError(f"sample must be one of {SAMPLERS}, got sample={sample!r}")
     height, width = image.shape[-2:]
     low = sensor_size(height, width, float(scale))
     if low == (height, width):
@@ -61,7 +72,10 @@ def resolution_image(image: torch.Tensor, scale: float, upsample: str = "bicubic
 
     def kernel(x: torch.Tensor) -> torch.Tensor:
         flat = x.reshape(-1, *x.shape[-3:])
-        sampled = F.interpolate(flat, size=low, mode="bilinear", antialias=True, align_corners=False)
+        if sample == "area":
+            sampled = F.interpolate(flat, size=low, mode="area")
+        else:
+            sampled = F.interpolate(flat, size=low, mode="bilinear", antialias=True, align_corners=False)
         if upsample in ("bicubic", "bilinear"):
             restored = F.interpolate(sampled, size=(height, width), mode=upsample, align_corners=False)
         else:
