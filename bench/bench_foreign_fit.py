@@ -110,7 +110,9 @@ def held_out_critic(cleans: list[torch.Tensor], reals: list[torch.Tensor], sampl
 def measure(name: str, args: argparse.Namespace) -> dict[str, Any]:
     """One camera's row: its default fit, held-out PSNRs, the baseline, skipped codes and the fit's own record."""
     log = (lambda line: print(f"[{name}] {line}", flush=True)) if args.verbose else None
-    profile, record = fitted_profile(name, args.fit_pairs, args.size, args.out, log=log)
+    profile, record = fitted_profile(
+        name, args.fit_pairs, args.size, args.out, log=log, learned_texture=args.learned_texture
+    )
     held = held_out_pairs(camera(name), args.held_out, args.size)
     cleans = [clean.float().div(255.0) for clean, _ in held]
     reals = [captured.float().div(255.0) for _, captured in held]
@@ -123,11 +125,13 @@ def measure(name: str, args: argparse.Namespace) -> dict[str, Any]:
     def mean_psnr(images: list[torch.Tensor]) -> float:
         return round(sum(psnr(image, real) for image, real in zip(images, reals, strict=True)) / len(reals), 2)
 
+    extra = {"learned_texture": fitted.get("learned_texture")} if args.learned_texture else {}
     return {
         "camera": name,
         "chain": camera(name).describe(),
         "stages": stages_of(profile),
         "fit_seconds": record["seconds"],
+        "fit_cpu_seconds": record.get("cpu_seconds"),
         "fit_pairs": args.fit_pairs,
         "held_out_pairs": args.held_out,
         "size": args.size,
@@ -144,6 +148,7 @@ def measure(name: str, args: argparse.Namespace) -> dict[str, Any]:
         "resolution": fitted.get("resolution"),
         "warnings": fitted.get("warnings", []),
         "save_error": record.get("save_error"),
+        **extra,
     }
 
 
@@ -224,7 +229,12 @@ def evidence_png(names: list[str], args: argparse.Namespace, path: Path) -> None
     """The crops of :func:`evidence_tiles` of each camera's default fit (fitted, or loaded from ``OUT/fits/``) in
     one PNG, a row per camera."""
     rows = [
-        (name, evidence_tiles(name, fitted_profile(name, args.fit_pairs, args.size, args.out)[0], args))
+        (
+            name,
+            evidence_tiles(
+                name, fitted_profile(name, args.fit_pairs, args.size, args.out, None, args.learned_texture)[0], args
+            ),
+        )
         for name in names
     ]
     _compose(rows, path)
@@ -258,6 +268,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--table-only", action="store_true", help="print the table of the rows already written")
     parser.add_argument("--out", type=Path, default=DEFAULT_OUT)
     parser.add_argument("--verbose", action="store_true", help="print the fit's log")
+    parser.add_argument(
+        "--learned-texture",
+        choices=("critic",),
+        default=None,
+        help="fit with the recipe option learned_texture (fit --learned-texture critic); profiles kept apart",
+    )
     args = parser.parse_args(argv)
     torch.set_num_threads(1)
     if args.quick:

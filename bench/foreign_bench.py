@@ -22,7 +22,7 @@ from torch import Tensor
 REPOSITORY = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPOSITORY / "tests"))
 
-from camdegrade import fit_profile, load_profile  # noqa: E402
+from camdegrade import FitConfig, fit_profile, load_profile  # noqa: E402
 from camdegrade.profile import CameraProfile  # noqa: E402
 from foreign_cameras import Camera, camera, scenes  # noqa: E402
 
@@ -55,29 +55,38 @@ def held_out_pairs(chain: Camera, count: int, size: int) -> Pairs:
     return make_pairs(chain, count, size, HELD_OUT_SEED, OTHER_PHOTOS)
 
 
-#: Profiles fitted in this process, by (camera, pairs, size): a fit whose profile cannot be saved is still reused.
-_FITTED: dict[tuple[str, int, int], tuple[CameraProfile, dict]] = {}
+#: Profiles fitted in this process, by (camera, pairs, size, learned texture): a fit whose profile cannot be saved is
+#: still reused.
+_FITTED: dict[tuple[str, int, int, str | None], tuple[CameraProfile, dict]] = {}
 
 
-def fitted_profile(name: str, count: int, size: int, out: Path, log: Any = None) -> tuple[CameraProfile, dict]:
+def fitted_profile(
+    name: str, count: int, size: int, out: Path, log: Any = None, learned_texture: str | None = None
+) -> tuple[CameraProfile, dict]:
     """The default fit (``fit_profile(pairs)``: the default recipe, one thread) of camera ``name`` on ``count``
-    training pairs of ``size``², and a record of how it was made (pairs, size, seconds). Fitted once per process,
-    saved to ``out/fits/`` and loaded from there by later processes. A profile that ``CameraProfile.save`` refuses
-    is kept in this process only, and the refusal is recorded (``save_error``): the fit's output, as a user of
-    ``camdegrade fit`` would meet it."""
-    key = (name, count, size)
+    training pairs of ``size``², and a record of how it was made (pairs, size, seconds wall and CPU). Fitted once per
+    process, saved to ``out/fits/`` and loaded from there by later processes. A profile that ``CameraProfile.save``
+    refuses is kept in this process only, and the refusal is recorded (``save_error``): the fit's output, as a user
+    of ``camdegrade fit`` would meet it. ``learned_texture`` (``"critic"``): the default recipe with that option
+    (``fit --learned-texture critic``), kept under its own file name (``CAMERA-PAIRSxSIZE-critic``)."""
+    key = (name, count, size, learned_texture)
     if key in _FITTED:
         return _FITTED[key]
     folder = out / "fits"
-    path, record_path = folder / f"{name}-{count}x{size}.safetensors", folder / f"{name}-{count}x{size}.json"
+    stem = f"{name}-{count}x{size}" + (f"-{learned_texture}" if learned_texture else "")
+    path, record_path = folder / f"{stem}.safetensors", folder / f"{stem}.json"
     if path.is_file() and record_path.is_file():
         _FITTED[key] = load_profile(path), json.loads(record_path.read_text())
         return _FITTED[key]
     pairs = train_pairs(name, count, size)
-    started = time.perf_counter()
-    profile = fit_profile(pairs, threads=1, name=f"foreign-{name}", log=log)
+    recipe = FitConfig.recipe("fast", learned_texture=learned_texture)
+    started, cpu_started = time.perf_counter(), time.process_time()
+    profile = fit_profile(pairs, recipe, threads=1, name=f"foreign-{name}", log=log)
     record: dict[str, Any] = {"camera": name, "pairs": count, "size": size}
     record["seconds"] = round(time.perf_counter() - started, 1)
+    record["cpu_seconds"] = round(time.process_time() - cpu_started, 1)
+    if learned_texture:
+        record["learned_texture"] = learned_texture
     folder.mkdir(parents=True, exist_ok=True)
     try:
         profile.save(path)
