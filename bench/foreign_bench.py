@@ -12,6 +12,7 @@ from __future__ import annotations
 import json
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -23,6 +24,8 @@ REPOSITORY = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPOSITORY / "tests"))
 
 from camdegrade import FitConfig, fit_profile, load_profile  # noqa: E402
+from camdegrade.effects import LearnedTexture  # noqa: E402
+from camdegrade.fitting.steps.learned import LearnedTexturePaired  # noqa: E402
 from camdegrade.profile import CameraProfile  # noqa: E402
 from foreign_cameras import Camera, camera, scenes  # noqa: E402
 
@@ -60,6 +63,34 @@ def held_out_pairs(chain: Camera, count: int, size: int) -> Pairs:
 _FITTED: dict[tuple[str, int, int, str | None], tuple[CameraProfile, dict]] = {}
 
 
+@dataclass(frozen=True)
+class _StageKeptAside(LearnedTexturePaired):
+    """The paired fit's learned texture step, its trained stage also put in :data:`_TRAINED` whatever its gate says
+    (the bench measures it held out ungated too)."""
+
+    def judge(self, fit: Any, proposal: tuple[LearnedTexture, dict]) -> dict[str, Any]:
+        _TRAINED.append(proposal[0])
+        return super().judge(fit, proposal)
+
+
+_TRAINED: list[LearnedTexture] = []
+
+
+def _recipe(learned_texture: str | None) -> FitConfig:
+    """The default recipe, with the learned texture option where asked (its step keeping its stage aside)."""
+    config = FitConfig.recipe("fast", learned_texture=learned_texture)
+    steps = tuple(_StageKeptAside() if isinstance(s, LearnedTexturePaired) else s for s in config.steps)
+    return config.replace(steps=steps)
+
+
+def _save_ungated(profile: CameraProfile, path: Path, record: dict[str, Any]) -> None:
+    """``profile`` with the stage its learned step trained (kept by the gate or not) saved to ``path``."""
+    stage = _TRAINED.pop()
+    kept = any(isinstance(effect, LearnedTexture) for effect in profile.effects)
+    (profile if kept else profile.with_effects(stage)).save(path)
+    record["ungated"] = path.name
+
+
 def fitted_profile(
     name: str, count: int, size: int, out: Path, log: Any = None, learned_texture: str | None = None
 ) -> tuple[CameraProfile, dict]:
@@ -68,7 +99,9 @@ def fitted_profile(
     process, saved to ``out/fits/`` and loaded from there by later processes. A profile that ``CameraProfile.save``
     refuses is kept in this process only, and the refusal is recorded (``save_error``): the fit's output, as a user
     of ``camdegrade fit`` would meet it. ``learned_texture`` (``"critic"``): the default recipe with that option
-    (``fit --learned-texture critic``), kept under its own file name (``CAMERA-PAIRSxSIZE-critic``)."""
+    (``fit --learned-texture critic``), kept under its own file name (``CAMERA-PAIRSxSIZE-critic``); the profile
+    with the stage it trained, whether its gate kept it or not, beside it (``...-critic-ungated``, named in the
+    record's ``ungated``)."""
     key = (name, count, size, learned_texture)
     if key in _FITTED:
         return _FITTED[key]
@@ -79,7 +112,7 @@ def fitted_profile(
         _FITTED[key] = load_profile(path), json.loads(record_path.read_text())
         return _FITTED[key]
     pairs = train_pairs(name, count, size)
-    recipe = FitConfig.recipe("fast", learned_texture=learned_texture)
+    recipe = _recipe(learned_texture)
     started, cpu_started = time.perf_counter(), time.process_time()
     profile = fit_profile(pairs, recipe, threads=1, name=f"foreign-{name}", log=log)
     record: dict[str, Any] = {"camera": name, "pairs": count, "size": size}
@@ -90,6 +123,8 @@ def fitted_profile(
     folder.mkdir(parents=True, exist_ok=True)
     try:
         profile.save(path)
+        if _TRAINED:
+            _save_ungated(profile, folder / f"{stem}-ungated.safetensors", record)
     except ValueError as error:
         record["save_error"] = str(error)
     record_path.write_text(json.dumps(record, indent=2) + "\n")

@@ -8,8 +8,9 @@ Run from the repo root::
     .venv/bin/python bench/foreign_learned_compare.py WITHOUT_OUT WITH_OUT
 
 Columns: held-out image-only critic, PSNR sampled and mean (dB), without → with; the gate's record on the fit's own
-validation pairs (fresh critic and the conditional mean's PSNR, without → with, kept or dropped); the stages the
-fit with the option kept; its fit seconds (wall, and CPU where recorded); whether each fit warned.
+validation pairs (fresh critic and the conditional mean's PSNR, without → with, kept or dropped); the same held-out
+numbers of the fit with the stage its step trained, whether the gate kept it or not (the row's ``ungated``); the
+stages the fit with the option kept; its fit seconds (wall, and CPU where recorded); whether each fit warned.
 """
 
 from __future__ import annotations
@@ -48,11 +49,19 @@ def gate_cell(record: dict[str, Any] | None) -> str:
     )
 
 
+def ungated_cell(ungated: dict[str, float] | None) -> str:
+    """The held-out numbers of the fit with its trained stage, whether the gate kept it or not."""
+    if not ungated:
+        return "–"
+    return f"{ungated['critic_held_out_image_only']:.2f}, {ungated['psnr_sampled']:.2f} / {ungated['psnr_mean']:.2f}"
+
+
 def table(without: dict[str, dict], with_: dict[str, dict]) -> str:
     lines = [
         "| camera | held-out critic image-only | PSNR sampled (dB) | PSNR mean (dB) | gate on validation: critic, "
-        "PSNR mean | stages kept with the option | fit s wall / CPU | warns without / with | rule met |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "PSNR mean | the stage ungated, held out: critic, PSNR sampled / mean | stages kept with the option "
+        "| fit s wall / CPU (stage training wall) | warns without / with | rule met |",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for name, row in with_.items():
         base = without.get(name)
@@ -62,8 +71,10 @@ def table(without: dict[str, dict], with_: dict[str, dict]) -> str:
         lines.append(
             f"| {name} | {base['critic_held_out_image_only']:.2f} → {row['critic_held_out_image_only']:.2f} "
             f"| {base['psnr_sampled']:.2f} → {row['psnr_sampled']:.2f} | {base['psnr_mean']:.2f} → "
-            f"{row['psnr_mean']:.2f} | {gate_cell(row.get('learned_texture'))} | {', '.join(row['stages'])} "
+            f"{row['psnr_mean']:.2f} | {gate_cell(row.get('learned_texture'))} | {ungated_cell(row.get('ungated'))} "
+            f"| {', '.join(row['stages'])} "
             f"| {base['fit_seconds']:.0f} → {row['fit_seconds']:.0f} / {'–' if cpu is None else f'{cpu:.0f}'} "
+            f"({(row.get('learned_texture') or {}).get('training_seconds', 0):.0f}) "
             f"| {'yes' if base['warnings'] else 'no'} / {'yes' if row['warnings'] else 'no'} | {verdict(base, row)} |"
         )
     return "\n".join(lines)

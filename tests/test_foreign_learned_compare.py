@@ -26,11 +26,18 @@ def test_the_rule_needs_a_lower_critic_and_both_psnrs_within_three_tenths() -> N
 
 
 def test_the_table_pairs_the_rows_of_two_runs_by_camera(tmp_path: Path) -> None:
+    ungated = {"critic_held_out_image_only": 0.72, "psnr_sampled": 26.4, "psnr_mean": 28.95}
     gate = {"kept": False, "without": {"critic": 0.71, "psnr": 29.0}, "with": {"critic": 0.74, "psnr": 28.9}}
-    for folder, row in (("a", _row(0.75, 26.66, 29.12)), ("b", _row(0.70, 26.5, 29.0, learned_texture=gate))):
+    for folder, row in (
+        ("a", _row(0.75, 26.66, 29.12)),
+        ("b", _row(0.70, 26.5, 29.0, learned_texture=gate, ungated=ungated)),
+    ):
         (tmp_path / folder / "fit").mkdir(parents=True)
         (tmp_path / folder / "fit" / "phone.json").write_text(json.dumps(row))
     lines = compare.table(compare.rows_of(tmp_path / "a"), compare.rows_of(tmp_path / "b")).splitlines()
     assert len(lines) == 3
-    assert lines[2].startswith("| phone | 0.75 → 0.70 | 26.66 → 26.50 | 29.12 → 29.00 | dropped: 0.71 → 0.74")
+    assert lines[2].startswith(
+        "| phone | 0.75 → 0.70 | 26.66 → 26.50 | 29.12 → 29.00 | dropped: 0.71 → 0.74, 29.00 → 28.90 "
+        "| 0.72, 26.40 / 28.95 |"
+    )
     assert lines[2].endswith("| yes |")
