@@ -40,6 +40,7 @@ from foreign_bench import DEFAULT_OUT, Pairs, fitted_profile, held_out_pairs, st
 from PIL import Image, ImageDraw
 from scipy import ndimage
 
+from camdegrade import load_profile
 from camdegrade.fitting.quality import FIT_CRITIC_SEEDS
 from camdegrade.measures.critic import repeated_critic_test
 from camdegrade.measures.metrics import psnr
@@ -107,10 +108,21 @@ def held_out_critic(cleans: list[torch.Tensor], reals: list[torch.Tensor], sampl
     return round(float(result.to_dict()["accuracy"]), 3)
 
 
+def ungated_row(profile: Any, cleans: list[torch.Tensor], reals: list[torch.Tensor]) -> dict[str, float]:
+    """Held-out image-only critic and PSNR (sampled, mean) of the profile with its learned stage, gate or not."""
+    sampled = profile.simulate(cleans, 0, stream="foreign-held-out", eight_bit=True)
+    mean = profile.simulate(cleans, 0, stream="foreign-held-out", deterministic=True, eight_bit=True)
+    scores = [sum(psnr(i, r) for i, r in zip(images, reals, strict=True)) / len(reals) for images in (sampled, mean)]
+    critic = held_out_critic(cleans, reals, sampled)
+    return {"critic_held_out_image_only": critic, "psnr_sampled": round(scores[0], 2), "psnr_mean": round(scores[1], 2)}
+
+
 def measure(name: str, args: argparse.Namespace) -> dict[str, Any]:
     """One camera's row: its default fit, held-out PSNRs, the baseline, skipped codes and the fit's own record."""
     log = (lambda line: print(f"[{name}] {line}", flush=True)) if args.verbose else None
-    profile, record = fitted_profile(name, args.fit_pairs, args.size, args.out, log=log)
+    profile, record = fitted_profile(
+        name, args.fit_pairs, args.size, args.out, log=log, learned_texture=args.learned_texture
+    )
     held = held_out_pairs(camera(name), args.held_out, args.size)
     cleans = [clean.float().div(255.0) for clean, _ in held]
     reals = [captured.float().div(255.0) for _, captured in held]
@@ -123,11 +135,15 @@ def measure(name: str, args: argparse.Namespace) -> dict[str, Any]:
     def mean_psnr(images: list[torch.Tensor]) -> float:
         return round(sum(psnr(image, real) for image, real in zip(images, reals, strict=True)) / len(reals), 2)
 
+    extra = {"learned_texture": fitted.get("learned_texture")} if args.learned_texture else {}
+    if record.get("ungated"):
+        extra["ungated"] = ungated_row(load_profile(args.out / "fits" / record["ungated"]), cleans, reals)
     return {
         "camera": name,
         "chain": camera(name).describe(),
         "stages": stages_of(profile),
         "fit_seconds": record["seconds"],
+        "fit_cpu_seconds": record.get("cpu_seconds"),
         "fit_pairs": args.fit_pairs,
         "held_out_pairs": args.held_out,
         "size": args.size,
@@ -144,6 +160,7 @@ def measure(name: str, args: argparse.Namespace) -> dict[str, Any]:
         "resolution": fitted.get("resolution"),
         "warnings": fitted.get("warnings", []),
         "save_error": record.get("save_error"),
+        **extra,
     }
 
 
@@ -220,18 +237,22 @@ def evidence_tiles(name: str, profile: Any, args: argparse.Namespace) -> list[Im
     return tiles
 
 
+def shown_profile(name: str, args: argparse.Namespace) -> Any:
+    """The profile :func:`evidence_png` shows: the default fit, or with ``--learned-texture`` the fit with the stage
+    its learned step trained, whether the gate kept it or not (``OUT/fits/...-ungated``)."""
+    profile, record = fitted_profile(name, args.fit_pairs, args.size, args.out, None, args.learned_texture)
+    return load_profile(args.out / "fits" / record["ungated"]) if record.get("ungated") else profile
+
+
 def evidence_png(names: list[str], args: argparse.Namespace, path: Path) -> None:
-    """The crops of :func:`evidence_tiles` of each camera's default fit (fitted, or loaded from ``OUT/fits/``) in
-    one PNG, a row per camera."""
-    rows = [
-        (name, evidence_tiles(name, fitted_profile(name, args.fit_pairs, args.size, args.out)[0], args))
-        for name in names
-    ]
-    _compose(rows, path)
+    """The crops of :func:`evidence_tiles` of each camera's default fit (fitted, or loaded from ``OUT/fits/``;
+    :func:`shown_profile`) in one PNG, a row per camera."""
+    rows = [(name, evidence_tiles(name, shown_profile(name, args), args)) for name in names]
+    _compose(rows, path, "fit+stage" if args.learned_texture else "default fit")
 
 
-def _compose(rows: list[tuple[str, list[Image.Image]]], path: Path) -> None:
-    labels = ["capture 2x", "default fit 2x", "blur+map 2x", "capture 1:1", "default fit 1:1", "blur+map 1:1"]
+def _compose(rows: list[tuple[str, list[Image.Image]]], path: Path, fit: str) -> None:
+    labels = [f"{kind} {zoom}" for zoom in ("2x", "1:1") for kind in ("capture", fit, "blur+map")]
     gap, head, side = 4, 14, rows[0][1][0].width
     canvas = Image.new("RGB", (6 * (side + gap) + 90, len(rows) * (side + gap) + head), "white")
     draw = ImageDraw.Draw(canvas)
@@ -258,6 +279,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--table-only", action="store_true", help="print the table of the rows already written")
     parser.add_argument("--out", type=Path, default=DEFAULT_OUT)
     parser.add_argument("--verbose", action="store_true", help="print the fit's log")
+    parser.add_argument(
+        "--learned-texture",
+        choices=("critic",),
+        default=None,
+        help="fit with the recipe option learned_texture (fit --learned-texture critic); profiles kept apart",
+    )
     args = parser.parse_args(argv)
     torch.set_num_threads(1)
     if args.quick:
