@@ -29,7 +29,7 @@ from camdegrade import network as network_module
 from camdegrade._profile_format.effect_facts import BUILT_IN, Bound
 from camdegrade._profile_format.header import read_header
 from camdegrade._profile_format.network_entry import FIELD_CHANNELS, LINEAR_TAPS, NETWORK_CLASSES, network_shapes
-from camdegrade.effects import EFFECTS, JPEG, Effect, Noise
+from camdegrade.effects import EFFECTS, JPEG, Effect, Noise, Tone
 from camdegrade.errors import ProfileError
 from camdegrade.network import ARCHITECTURES
 from camdegrade.profile import METADATA_KEY, builtin_profiles_dir
@@ -370,6 +370,8 @@ def _full(name: str) -> Effect:
     """The effect with every optional part (a noise stage with a level table, kernels, columns and mixing)."""
     if name == "noise":
         return load_profile(PAPER_BUILT_IN).effects[1]
+    if name == "tone":  # a local curve: its base layer is written only where it is one
+        return Tone(1.2, 0.03, 0.95, 0.2, exposure_jitter=0.3, base_sigma=3.0)
     return strong(name)
 
 

@@ -367,7 +367,7 @@ BUILT_IN: dict[str, EffectFacts] = {
     ),
     "tone": EffectFacts(
         "isp",
-        {"exposure_jitter": Setting(float, 0.0, Bound(0.0, 4.0))},
+        {"exposure_jitter": Setting(float, 0.0, Bound(0.0, 4.0)), "base_sigma": Setting(float, 0.0, Bound(0.0, 64.0))},
         {
             "gamma": Buffer(bound=Bound(0.0, 16.0, low_open=True)),
             **_scalars(Bound(-16.0, 16.0), "black", "white", "exposure"),

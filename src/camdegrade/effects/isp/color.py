@@ -15,6 +15,7 @@ from camdegrade.effects._fitting import as_pairs, downscale, huber_weights, mini
 from camdegrade.effects.base import Effect, Encoding, Pairs, check_range, register_effect, shown
 from camdegrade.functional import color_matrix_image, srgb_to_linear, tone_curve_image
 from camdegrade.functional._utils import as_channel_view, per_sample
+from camdegrade.functional.isp.local_tone import local_tone_image
 from camdegrade.functional.isp.tone import exposed_, levels_gamma_, tone_curve
 
 __all__ = ["Color", "Tone"]
@@ -140,6 +141,10 @@ class Tone(Effect):
     Args:
         exposure_jitter: standard deviation (stops) of a per-sample exposure offset drawn in
             :meth:`make_params` (auto-exposure variation between shots). 0 disables it.
+        base_sigma: 0 (default): the curve maps every pixel (a global curve). Above 0: a local tone mapping, the
+            curve applied to a base layer (each channel blurred by a Gaussian of this many pixels) and the detail
+            above it carried at the curve's mean slope (:func:`~camdegrade.functional.isp.local_tone.local_tone_image`),
+            so the detail a scene keeps does not depend on its brightness.
     """
 
     name = "tone"
@@ -158,6 +163,7 @@ class Tone(Effect):
         exposure: float = 0.0,
         *,
         exposure_jitter: float = 0.0,
+        base_sigma: float = 0.0,
     ) -> None:
         super().__init__()
         if not float(gamma) > 0:
@@ -167,13 +173,15 @@ class Tone(Effect):
         for key, value in (("gamma", gamma), ("black", black), ("white", white), ("exposure", exposure)):
             self.register_buffer(key, scalar(value))
         self.exposure_jitter = check_non_negative(exposure_jitter, "exposure_jitter")
+        self.base_sigma = check_non_negative(base_sigma, "base_sigma")
 
     def config(self) -> dict[str, Any]:
-        return {"exposure_jitter": self.exposure_jitter}
+        local = {"base_sigma": self.base_sigma} if self.base_sigma > 0 else {}
+        return {"exposure_jitter": self.exposure_jitter, **local}
 
     def check_values(self) -> None:
         """Gamma above 0 and at most 16, levels from -16 to 16 with white above black, exposure from -16 to 16 stops,
-        ``exposure_jitter`` from 0 to 4 stops."""
+        ``exposure_jitter`` from 0 to 4 stops, ``base_sigma`` from 0 to 64 pixels."""
         super().check_values()
         check_range("gamma", self.gamma, 0.0, 16.0, low_open=True)
         check_range("black", self.black, -16.0, 16.0)
@@ -184,6 +192,7 @@ class Tone(Effect):
             )
         check_range("exposure", self.exposure, -16.0, 16.0)
         check_range("exposure_jitter", self.exposure_jitter, 0.0, 4.0)
+        check_range("base_sigma", self.base_sigma, 0.0, 64.0)
 
     def without_randomness(self) -> Tone:
         centre = copy.deepcopy(self)
@@ -201,13 +210,18 @@ class Tone(Effect):
     def forward(self, image: Tensor, params: Mapping[str, Tensor] | None = None) -> Tensor:
         device = image.device
         exposure = self._exposure(image, params)
-        return tone_curve_image(image, self.gamma.to(device), self.black.to(device), self.white.to(device), exposure)
+        levels = (self.gamma.to(device), self.black.to(device), self.white.to(device), exposure)
+        if self.base_sigma > 0:
+            return local_tone_image(image, self.base_sigma, *levels)
+        return tone_curve_image(image, *levels)
 
     def encodings(self) -> tuple[Encoding, Encoding]:
-        """Linear-light input when an exposure gain applies (it acts on linear light), else sRGB."""
-        return ("linear", "srgb") if self._has_exposure() else ("srgb", "srgb")
+        """Linear-light input when an exposure gain applies to a global curve (it acts on linear light), else sRGB."""
+        return ("linear", "srgb") if self._has_exposure() and self.base_sigma == 0 else ("srgb", "srgb")
 
     def forward_encoded(self, image: Tensor, params: Mapping[str, Tensor] | None = None) -> Tensor:
+        if self.base_sigma > 0:
+            return self.forward(image, params)
         if self._has_exposure():
             exposure = as_channel_view(per_sample(self._exposure(image, params), image, "exposure"))
             exposed_(image, exposure, linear_input=True)

@@ -7,7 +7,8 @@ Every stage is fitted by matching a distribution of the captures (an effects-onl
   quantisation lattice its pixels still hold (a JPEG saved again losslessly, with a warning); a mixture of the
   qualities found when they differ; kept only when the captures are compressed more than the clean images
   (:mod:`camdegrade.fitting.unpaired.steps.jpeg`);
-- ``color``, ``tone``: white-balance gains and a tone curve by quantile matching of the two sets;
+- ``color``, ``tone``: white-balance gains and a tone curve by quantile matching of the two sets, the curve on a
+  smooth base layer where the captures' detail by brightness says so (:mod:`.steps.local_tone`);
 - ``vignetting``: the captures' mean radial luma profile over the clean set's (over a flat field without one);
 - ``blur``, ``sharpen``: the PSF and the unsharp mask whose simulation of the clean set has the captures' radial
   power spectrum (noise and codec simulated too, so the noise floor is not read as sharpness);
@@ -57,6 +58,7 @@ from camdegrade.fitting.unpaired.images import MIN_IMAGES, ImageSet, Source, che
 from camdegrade.fitting.unpaired.judges import band_spread, self_check_critic, self_check_warnings, unmeasured_bands
 from camdegrade.fitting.unpaired.steps.color_tone import ColorToneMatch
 from camdegrade.fitting.unpaired.steps.jpeg import JpegQuality
+from camdegrade.fitting.unpaired.steps.local_tone import LocalToneMatch
 from camdegrade.fitting.unpaired.steps.noise import NoiseMatch, flat_sums
 from camdegrade.fitting.unpaired.steps.response_refit import DetailResponseRefit
 from camdegrade.fitting.unpaired.steps.spectrum import (
@@ -147,6 +149,7 @@ UNPAIRED_STEPS: tuple[tuple[str, UnpairedStep], ...] = (
     ("noise", NoiseMatch()),
     ("blur and sharpening", TransferMatch()),
     ("colour and tone through the blur", ColorToneMatch()),
+    ("local tone", LocalToneMatch()),
     ("vignetting through the blur", VignettingMatch(simulated=True)),
     ("noise again", NoiseMatch()),
     ("detail response", DetailResponseMatch()),
