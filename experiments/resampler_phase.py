@@ -52,7 +52,8 @@ def main() -> None:
     rows = {"clean": [clean * 255 for clean in cleans], "capture": [captured.float() for _, captured in pairs]}
     for path in args.profiles:
         simulated = load_profile(path).simulate(cleans, 0)
-        rows[f"{len(rows) - 1}: {Path(path).parent.parent.name}/{Path(path).name}"] = [unit_to_bytes(image).float() for image in simulated]
+        label = f"{len(rows) - 1}: {Path(path).parent.parent.name}/{Path(path).name}"
+        rows[label] = [unit_to_bytes(image).float() for image in simulated]
     print(f"{args.camera}, {len(pairs)} held-out pairs of 128², grid period {args.period}: across | down")
     for label, images in rows.items():
         across, down = phase_energy(images, args.period)
