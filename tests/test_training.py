@@ -102,9 +102,8 @@ def test_callback_sees_every_epoch():
 
 def test_the_paper_recipe_halves_the_learning_rate_every_30_epochs():
     paper = {"epochs": 100, "crop": 128, "batch_size": 32, "lr": 0.01, "lr_halving_epochs": 30, "crops_per_pair": 8}
-    expected = FitConfig(**paper, schedule="step", patience=0, arch="paper", curves="none").replace(
-        texture="none", sensor_scale=1.0, effects=("noise", "vignetting")
-    )
+    steps = (("resolution", {"scale": 1.0}), ("effects", {"names": ("noise", "vignetting")}))
+    expected = FitConfig(**paper, schedule="step", patience=0, arch="paper", curves="none", steps=steps)
     assert FitConfig.recipe("paper") == expected
     seen = []
     config = FitConfig.recipe("paper", epochs=31, crop=16, batch_size=8, crops_per_pair=1)
