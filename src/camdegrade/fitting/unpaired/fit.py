@@ -7,8 +7,7 @@ Every stage is fitted by matching a distribution of the captures (an effects-onl
   quantisation lattice its pixels still hold (a JPEG saved again losslessly, with a warning); a mixture of the
   qualities found when they differ; kept only when the captures are compressed more than the clean images
   (:mod:`camdegrade.fitting.unpaired.steps.jpeg`);
-- ``color``, ``tone``: white-balance gains and a tone curve by quantile matching of the two sets, the curve on a
-  smooth base layer where the captures' detail by brightness says so (:mod:`.steps.local_tone`);
+- ``color``, ``tone``: white balance and a tone curve by quantile matching (local: :mod:`.steps.local_tone`);
 - ``vignetting``: the captures' mean radial luma profile over the clean set's (over a flat field without one);
 - ``blur``, ``sharpen``: the PSF and the unsharp mask whose simulation of the clean set has the captures' radial
   power spectrum (noise and codec simulated too, so the noise floor is not read as sharpness);
