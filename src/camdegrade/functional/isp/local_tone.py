@@ -5,8 +5,8 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from camdegrade.functional._utils import ParamLike, apply_float, as_channel_view, check_image, per_sample
-from camdegrade.functional.isp.tone import tone_curve
+from camdegrade.functional._utils import ParamLike, apply_float, check_image
+from camdegrade.functional.isp.tone import curve_parameters, tone_curve
 from camdegrade.functional.optics.blur import blur_image
 
 __all__ = ["local_tone_image"]
@@ -42,14 +42,7 @@ def local_tone_image(
     check_image(image)
     if not float(sigma) >= 0:
         raise ValueError(f"sigma must be non-negative, got sigma={float(sigma)!r}")
-    values = [
-        as_channel_view(per_sample(v, image, n))
-        for v, n in ((gamma, "gamma"), (black, "black"), (white, "white"), (exposure, "exposure"))
-    ]
-    if bool((values[0] <= 0).any()):
-        raise ValueError(f"gamma must be positive, got gamma={values[0][values[0] <= 0].flatten()[0].item():g}")
-    if bool((values[2] - values[1] <= 0).any()):
-        raise ValueError("white must be greater than black for every sample, got white <= black")
+    values = curve_parameters(image, gamma, black, white, exposure)
 
     def kernel(x: Tensor) -> Tensor:
         def curve(v: Tensor) -> Tensor:

@@ -8,7 +8,7 @@ from torch import Tensor
 from camdegrade.functional._utils import ParamLike, apply_float, as_channel_view, check_image, per_sample
 from camdegrade.functional.isp.color import linear_to_srgb, linear_to_srgb_, srgb_to_linear, srgb_to_linear_
 
-__all__ = ["exposed_", "levels_gamma_", "tone_curve", "tone_curve_image"]
+__all__ = ["curve_parameters", "exposed_", "levels_gamma_", "tone_curve", "tone_curve_image"]
 
 
 def tone_curve_image(
@@ -32,15 +32,24 @@ def tone_curve_image(
     Every parameter is a scalar or per-sample ``(N,)``. The curve is monotone non-decreasing in ``x``.
     """
     check_image(image)
-    gamma_t = as_channel_view(per_sample(gamma, image, "gamma"))
-    black_t = as_channel_view(per_sample(black, image, "black"))
-    white_t = as_channel_view(per_sample(white, image, "white"))
-    exposure_t = as_channel_view(per_sample(exposure, image, "exposure"))
+    values = curve_parameters(image, gamma, black, white, exposure)
+    return apply_float(image, lambda x: tone_curve(x, *values))
+
+
+def curve_parameters(
+    image: Tensor, gamma: ParamLike, black: ParamLike, white: ParamLike, exposure: ParamLike
+) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    """The curve's ``(gamma, black, white, exposure)`` for ``image``'s samples, each viewed to broadcast over its
+    channels and pixels; ``ValueError`` for a gamma not above 0 or a white not above black."""
+    gamma_t, black_t, white_t, exposure_t = (
+        as_channel_view(per_sample(value, image, name))
+        for value, name in ((gamma, "gamma"), (black, "black"), (white, "white"), (exposure, "exposure"))
+    )
     if bool((gamma_t <= 0).any()):
         raise ValueError(f"gamma must be positive, got gamma={gamma_t[gamma_t <= 0].flatten()[0].item():g}")
     if bool((white_t - black_t <= 0).any()):
         raise ValueError("white must be greater than black for every sample, got white <= black")
-    return apply_float(image, lambda x: tone_curve(x, gamma_t, black_t, white_t, exposure_t))
+    return gamma_t, black_t, white_t, exposure_t
 
 
 def tone_curve(x: Tensor, gamma: Tensor, black: Tensor, white: Tensor, exposure: Tensor) -> Tensor:
