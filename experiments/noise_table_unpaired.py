@@ -44,7 +44,7 @@ from noise_table import SUBSETS, _load, _residual_sums, _simulate, default_real_
 from camdegrade.effects import Noise
 from camdegrade.fitting.unpaired import MIN_IMAGES, fit_unpaired
 from camdegrade.fitting.unpaired.fit import STAND_IN_SIGMA
-from camdegrade.fitting.unpaired.steps.noise import flat_sums, judge_noise, propose_noise
+from camdegrade.fitting.unpaired.steps.noise import FINE_WINDOW, flat_sums, judge_noise, propose_noise
 from camdegrade.functional.optics.blur import blur_image
 
 
@@ -112,8 +112,8 @@ def subset_rows(root: Path, only: Sequence[str] | None = None, calibrated: bool 
         }
         if calibrated:
             simulate = partial(_simulate_or_clean, cleans=cleans)
-            real = flat_sums(reals)
-            stages["own moments calibrated on clean"] = judge_noise(propose_noise(real, simulate), real)
+            own = flat_sums(reals, FINE_WINDOW)  # read as the calibration reads the simulations
+            stages["own moments calibrated on clean"] = judge_noise(propose_noise(own, simulate), own)
         row = {"subset": subset, "fit": len(reals), "check": len(held_reals), "flat_pixels": real.pixels}
         for label, noise in stages.items():
             sims = _simulate(noise, held_cleans, 1) if noise is not None else held_cleans

@@ -19,7 +19,13 @@ from camdegrade.errors import CamdegradeError
 from camdegrade.fitting.unpaired import fit_unpaired
 from camdegrade.fitting.unpaired.judges import self_check_warnings
 from camdegrade.fitting.unpaired.steps.color_tone import channel_quantiles, color_tone_estimate, pixel_sample
-from camdegrade.fitting.unpaired.steps.noise import RAISE_LIMIT, fit_noise_unpaired, flat_sums, smooth_levels
+from camdegrade.fitting.unpaired.steps.noise import (
+    FINE_WINDOW,
+    RAISE_LIMIT,
+    fit_noise_unpaired,
+    flat_sums,
+    smooth_levels,
+)
 from camdegrade.profile import CameraProfile, check_profile_values
 from camdegrade.synthetic import dead_leaves_images
 
@@ -30,7 +36,8 @@ def test_the_noise_calibration_stays_in_range_behind_a_codec_that_removes_the_no
     saved); now at most 4× the captures' own noise."""
     generator = torch.Generator().manual_seed(0)
     flat = [torch.full((3, 64, 64), value) for value in (0.2, 0.35, 0.5, 0.65, 0.8)]
-    real = flat_sums([(image + torch.randn(image.shape, generator=generator) * 30 / 255).clamp(0, 1) for image in flat])
+    noisy = [(image + torch.randn(image.shape, generator=generator) * 30 / 255).clamp(0, 1) for image in flat]
+    real = flat_sums(noisy, FINE_WINDOW)  # read as the calibration reads the simulations
 
     def simulate(noise: Noise | None) -> list[torch.Tensor]:
         out = []

@@ -72,6 +72,9 @@ class Measured:
     #: The captures' step-edge spread (:class:`~camdegrade.fitting.unpaired.steps.edges.EdgeSpread`), measured when
     #: first asked for.
     edge_spread: Any = None
+    #: The captures' flat-pixel noise read at the noise stage's scale
+    #: (:func:`~camdegrade.fitting.unpaired.steps.noise.captures_noise`), measured when first asked for.
+    fine_noise: NoiseSums | None = None
 
 
 class UnpairedFit:

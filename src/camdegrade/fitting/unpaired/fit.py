@@ -58,7 +58,7 @@ from camdegrade.fitting.unpaired.judges import band_spread, self_check_critic, s
 from camdegrade.fitting.unpaired.steps.color_tone import ColorToneMatch
 from camdegrade.fitting.unpaired.steps.jpeg import JpegQuality
 from camdegrade.fitting.unpaired.steps.local_tone import LocalToneMatch
-from camdegrade.fitting.unpaired.steps.noise import NoiseMatch, flat_sums
+from camdegrade.fitting.unpaired.steps.noise import NoiseMatch, flat_sums, own_check_noise
 from camdegrade.fitting.unpaired.steps.response_refit import DetailResponseRefit
 from camdegrade.fitting.unpaired.steps.spectrum import (
     SPECTRUM_SIDE,
@@ -324,9 +324,8 @@ def set_fidelity(fit: UnpairedFit, profile: CameraProfile | None = None) -> dict
     (:data:`~camdegrade.measures.fidelity.BAND_EDGES`), the spectrum mismatch and, with a clean set, a fresh
     image-only critic (:func:`~camdegrade.fitting.unpaired.judges.self_check_critic`)."""
     chain = fit.chain() if profile is None else profile
-    noisy = flat_sums(fit.simulate(chain, fit.sets.noise_crops, "unpaired-check"))
-    real_std = fit.sets.real_noise.pooled_std()
-    ratio = noisy.pooled_std() / real_std if real_std > 0 else math.nan
+    noisy_std, real_std = own_check_noise(fit, fit.simulate(chain, fit.sets.noise_crops, "unpaired-check"))
+    ratio = noisy_std / real_std if real_std > 0 else math.nan
     sims = fit.simulate(chain, fit.sets.spectrum_crops, "unpaired-check")
     sim_bands = torch.stack([band_power(image)[0] for image in sims]).clamp_min(1e-8).log2()
     real_crops = [centre_crop(image, SPECTRUM_SIDE) for image in fit.captures.images]

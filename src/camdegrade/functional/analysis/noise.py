@@ -73,20 +73,26 @@ class NoiseSums:
         )
 
     @classmethod
-    def measure(cls, image: Tensor, clean: Tensor, mask: Tensor, *, clipping: Tensor | None = None) -> NoiseSums:
+    def measure(
+        cls, image: Tensor, clean: Tensor, mask: Tensor, *, clipping: Tensor | None = None, window: int = HIGH_PASS
+    ) -> NoiseSums:
         """The sums of ``image`` ``(3, H, W)`` (float, [0, 1] units) on ``mask``, binned by ``clean``'s value.
 
         Pixels where ``clipping`` (default: ``image``) is at 0 or 1 in any channel are left out: clipped noise is
         not the camera's noise level. Pass the capture as ``clipping`` to measure a difference of two images.
+        ``window``: the side of the local mean the level, correlation and channel sums take off (odd; a smaller one
+        keeps less of the smooth content that flat pixels still hold, and less of a correlated noise); the line sums
+        always take off :data:`HIGH_PASS` (a line's offset is kept in the share the banding fit divides by).
         """
         image = image.to(torch.float32)  # sums below are taken in float64
         residual = (image - box_mean(image, HIGH_PASS)) * 255.0
+        fine = residual if window == HIGH_PASS else (image - box_mean(image, window)) * 255.0
         clipping = image if clipping is None else clipping
         usable = mask & ((clipping > _CLIP) & (clipping < 1 - _CLIP)).all(0)
         return cls(
-            *_level_sums(residual, clean, usable),
-            _lag_sums(residual, usable),
-            *_cross_sums(residual, usable),
+            *_level_sums(fine, clean, usable),
+            _lag_sums(fine, usable),
+            *_cross_sums(fine, usable),
             _line_sums(residual, usable),
         )
 
@@ -197,9 +203,12 @@ def _line_sums(residual: Tensor, usable: Tensor) -> Tensor:
     return out
 
 
-def measure_set(images: list[Tensor], cleans: list[Tensor], masks: list[Tensor]) -> NoiseSums:
-    """The pooled sums of a set of images measured against their clean images' masks."""
+def measure_set(
+    images: list[Tensor], cleans: list[Tensor], masks: list[Tensor], *, window: int = HIGH_PASS
+) -> NoiseSums:
+    """The pooled sums of a set of images measured against their clean images' masks (``window``: see
+    :meth:`NoiseSums.measure`)."""
     total = NoiseSums.zeros()
     for image, clean, mask in zip(images, cleans, masks, strict=True):
-        total = total + NoiseSums.measure(image, clean, mask)
+        total = total + NoiseSums.measure(image, clean, mask, window=window)
     return total

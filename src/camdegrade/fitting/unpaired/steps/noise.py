@@ -7,11 +7,30 @@ binned by that local mean (:class:`~camdegrade.functional.analysis.noise.NoiseSu
 intensity bin, lag-1/2 and channel correlation, row and column line means). The same measurement of the clean set, run
 through the rest of the fitted chain, is the base (what the clean images carry already); the noise stage then
 follows by simulated moments (:func:`~camdegrade.effects.sensor._noise_fit.calibrate`), so clipping, the tone curve,
-sharpening and the codec after the noise are absorbed. The simulations are measured on the pixels where the
+sharpening and the codec after the noise are absorbed. That calibration reads the captures and every simulation
+alike at the finest scale the stage models (:data:`FINE_WINDOW`, below), where a scene's texture cannot pass for
+noise. The simulations are measured on the pixels where the
 noiseless simulation is flat (:func:`on_noiseless_pixels`), and after each round the level table is a curve smooth
 in the signal level (:func:`smooth_levels`), at most :data:`RAISE_LIMIT` times the captures' own noise
 (:class:`LevelsRule`): a bin of texture in the captures no longer becomes speckle (docs/results.md, "Unpaired fit
 on real PolyU captures").
+
+**The noise read at the stage's own scale.** The calibration makes the simulation's reading match the captures',
+so whatever the flat pixels of the two sets hold besides noise enters the stage: the noise added is what the
+captures' flat pixels read beyond what the clean set's read, and a clean set of other scenes holds other texture.
+Flat pixels are flat only to a gradient threshold; what they still hold is smooth content (shading, a curved
+surface, cloth under the threshold), and its residual from a local mean grows with the window's area (a smooth
+field's ``x − mean_w(x)`` is about its curvature times ``w²``), while the noise's stops growing once the window is
+wider than the noise is correlated. At 17×17 (:data:`~camdegrade.functional.analysis.noise.HIGH_PASS`) the 10 PolyU
+crops' own mean frames read 3.12 levels on the captures' flat pixels, their real noise 2.90; at 5×5, 1.21 and 2.36
+(texture's share of the variance 54 % → 21 %). So the level, correlation and channel sums of the calibration are
+taken off a 5×5 local mean (:data:`FINE_WINDOW`: the footprint of the stage's 5-tap kernel, the noise it can
+make), on the captures and on every simulation alike (the same statistic on both sides, so the share of a
+correlated noise it leaves out is left out of the simulated noise too). On that case the noise stage alone,
+calibrated on the other scenes' mean frames, reads 2.77 levels at mid grey, on the captures' own 2.62; at 17×17 it
+read 1.66 and 1.75, with channels between 0.6 and 3.6 where the scenes' texture fell (docs/results.md, "The PolyU
+unpaired noise read at the stage's scale"; ``experiments/unpaired_noise_window.py``). The captures-only noise
+(below) is read at 17×17: there the reading is the stage, with no simulation to leave the same share out.
 
 **Captures only, nothing after the noise** (``direct=True``): the stage is the captures' own measured moments, per
 channel and intensity bin, with no base taken off and no simulated correction (banding is still fitted). There the
@@ -63,6 +82,7 @@ from camdegrade.functional.analysis.noise import HIGH_PASS, NoiseSums, measure_s
 
 __all__ = [
     "CURVATURE",
+    "FINE_WINDOW",
     "FLOOR_LEVELS",
     "HALF_SUPPORT",
     "NOISE_FLOOR",
@@ -74,10 +94,12 @@ __all__ = [
     "LevelsRule",
     "NoiseMatch",
     "NoiseProposal",
+    "captures_noise",
     "fit_noise_unpaired",
     "flat_sums",
     "judge_noise",
     "on_noiseless_pixels",
+    "own_check_noise",
     "propose_noise",
     "smooth_levels",
     "without_moments",
@@ -96,46 +118,75 @@ NOISE_SHARE = 1.1
 #: the level 4× more: 64× in three rounds, past the stage's range (a level of 510 of 255 from 30 levels of white
 #: noise behind a simulated quality-10 JPEG), and the profile could not be saved.
 RAISE_LIMIT = 4.0
+#: The side of the local mean the calibrated noise reading takes off (see the module): the footprint of the stage's
+#: 5-tap kernel.
+FINE_WINDOW = 5
 
 
-def flat_sums(images: Sequence[Tensor]) -> NoiseSums:
+def flat_sums(images: Sequence[Tensor], window: int = HIGH_PASS) -> NoiseSums:
     """The noise sums of each image on its own flat pixels
-    (:func:`~camdegrade.functional.analysis.images.noisy_flat_mask`), binned by its own local mean."""
+    (:func:`~camdegrade.functional.analysis.images.noisy_flat_mask`), binned by its own local mean; ``window``:
+    the local mean's side taken off (:meth:`~camdegrade.functional.analysis.noise.NoiseSums.measure`)."""
     total = NoiseSums.zeros()
     for image in images:
-        total = total + NoiseSums.measure(image, box_mean(image, HIGH_PASS), noisy_flat_mask(image))
+        total = total + NoiseSums.measure(image, box_mean(image, HIGH_PASS), noisy_flat_mask(image), window=window)
     return total
 
 
-def on_noiseless_pixels(noiseless: Sequence[Tensor]) -> Callable[[Sequence[Tensor]], NoiseSums]:
+def captures_noise(fit: UnpairedFit, direct: bool) -> NoiseSums:
+    """The captures' :func:`flat_sums` the noise step matches: read at :data:`FINE_WINDOW` for the calibration
+    (measured when first asked for), at 17×17 (``fit.sets.real_noise``) where the stage is read straight."""
+    if direct:
+        return fit.sets.real_noise
+    if fit.sets.fine_noise is None:
+        fit.sets.fine_noise = flat_sums(fit.captures.images, FINE_WINDOW)
+    return fit.sets.fine_noise
+
+
+def own_check_noise(fit: UnpairedFit, simulated: Sequence[Tensor]) -> tuple[float, float]:
+    """The own check's flat-pixel noise (pooled std, levels) of the simulated clean set and of the captures: read as
+    the calibration reads them, at :data:`FINE_WINDOW`, where there is a clean set (other scenes, whose texture at
+    17×17 the check read as the stage's error: on the PolyU case the clean set with no stage read 0.44 of the
+    captures, their own mean frames 0.75; at 5×5 the fitted profile reads 0.76 with either); at 17×17 without one
+    (the stand-ins are the captures smoothed, and the captures-only stage is that reading)."""
+    if fit.cleans is None:
+        return flat_sums(simulated).pooled_std(), fit.sets.real_noise.pooled_std()
+    return flat_sums(simulated, FINE_WINDOW).pooled_std(), captures_noise(fit, direct=False).pooled_std()
+
+
+def on_noiseless_pixels(
+    noiseless: Sequence[Tensor], window: int = HIGH_PASS
+) -> Callable[[Sequence[Tensor]], NoiseSums]:
     """A measure of the clean set simulated with noise (one image per ``noiseless`` image, in order): the noise sums
     on the pixels where the simulation *without* noise is flat, binned by its local mean, the same pixels every
     call. Measured on each simulation's own noise-adapted mask (:func:`flat_sums`), the pixels changed with the
     noise added: more noise admitted more texture, and the excess over the noiseless base was not the stage's
     noise (10 PolyU crops: 0.0–5.2 levels for stage levels of 0.5–7, falling while the levels rose), which the
-    calibration, a factor up to 4 per bin and round, then chased."""
+    calibration, a factor up to 4 per bin and round, then chased. ``window``: as in :func:`flat_sums`."""
     means = [box_mean(image, HIGH_PASS) for image in noiseless]
     masks = [noisy_flat_mask(image) for image in noiseless]
-    return lambda images: measure_set(list(images), means, masks)
+    return lambda images: measure_set(list(images), means, masks, window=window)
 
 
 def fit_noise_unpaired(
     real: NoiseSums, simulate: Callable[[Noise | None], list[Tensor]], **options: Any
 ) -> tuple[Noise | None, dict]:
-    """The noise stage whose simulation on the clean set matches ``real`` (the captures' :func:`flat_sums`), or
-    ``None`` below :data:`NOISE_FLOOR` or :data:`NOISE_SHARE`; and notes for the metadata: :func:`propose_noise`
-    (``options`` are its keywords), then :func:`judge_noise`."""
+    """The noise stage whose simulation on the clean set matches ``real`` (the captures' :func:`flat_sums`, read as
+    :func:`propose_noise` says), or ``None`` below :data:`NOISE_FLOOR` or :data:`NOISE_SHARE`; and notes for the
+    metadata: :func:`propose_noise` (``options`` are its keywords), then :func:`judge_noise`."""
     proposal = propose_noise(real, simulate, **options)
     return judge_noise(proposal, real), proposal.notes
 
 
 @dataclass(frozen=True)
 class NoiseProposal:
-    """A noise stage fitted to the captures, the clean set's flat-pixel noise without it, and the notes."""
+    """A noise stage fitted to the captures, the clean set's flat-pixel noise without it, the notes, and the
+    captures' reading it matched."""
 
     noise: Noise
     base: NoiseSums
     notes: dict
+    real: NoiseSums
 
 
 def propose_noise(
@@ -146,8 +197,11 @@ def propose_noise(
     banding: bool = True,
     rounds: int = 2,
     direct: bool = False,
+    window: int = FINE_WINDOW,
 ) -> NoiseProposal:
-    """The noise stage whose simulation on the clean set matches ``real`` (the captures' :func:`flat_sums`).
+    """The noise stage whose simulation on the clean set matches ``real``: the captures' :func:`flat_sums` read at
+    ``window`` (calibrated, the simulations read the same way), or at its default 17×17 with ``direct`` (the stage
+    is that reading; :func:`captures_noise`).
 
     ``simulate(noise)`` runs the clean set through the fitted chain with ``noise`` in place (``None``: without
     noise; fixed seeds).
@@ -159,7 +213,7 @@ def propose_noise(
     """
     check_measurable(real)
     noiseless = simulate(None)
-    measure = flat_sums if direct else on_noiseless_pixels(noiseless)
+    measure = flat_sums if direct else on_noiseless_pixels(noiseless, window)
     base = measure(noiseless)
     source = without_moments(real) if direct else base
     start = initial_noise(Noise, real, source, taps)
@@ -175,12 +229,13 @@ def propose_noise(
         "captures_std_levels": _rounded(real.pooled_std()),
         "clean_std_levels": _rounded(base.pooled_std()),
         "direct": direct,
+        "reading_window": HIGH_PASS if direct else window,
         "levels": [[round(float(v) * 255, 2) for v in row] for row in noise.levels],
     }
     capped = (noise.levels.double() >= rule.limit * (1 - 1e-6)) & (noise.levels.double() > 0)
     if bool(capped.any()):
         notes["capped_knots"] = capped.nonzero().tolist()
-    return NoiseProposal(noise, base, notes)
+    return NoiseProposal(noise, base, notes, real)
 
 
 def judge_noise(proposal: NoiseProposal, real: NoiseSums) -> Noise | None:
@@ -209,10 +264,10 @@ class NoiseMatch(UnpairedStep):
             return fit.simulate(fit.chain(noise=noise), fit.sets.noise_crops, "unpaired-noise")
 
         direct = fit.cleans is None and not fit.stages_after(Noise)
-        return propose_noise(fit.sets.real_noise, simulate, direct=direct)
+        return propose_noise(captures_noise(fit, direct), simulate, direct=direct)
 
     def judge(self, fit: UnpairedFit, proposal: NoiseProposal) -> dict:
-        noise = judge_noise(proposal, fit.sets.real_noise)
+        noise = judge_noise(proposal, proposal.real)
         fit.keep(noise, Noise)
         fit.say(f"noise: {proposal.notes['std_mid_grey_levels']} levels at mid-grey{'' if noise else ' (not kept)'}")
         return proposal.notes
