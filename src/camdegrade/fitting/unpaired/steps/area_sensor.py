@@ -157,13 +157,14 @@ def descend(score: Callable[[SensorCandidate], float], grid: Sequence[tuple[str,
 
 @dataclass(frozen=True)
 class SensorProposal:
-    """The captures' widths, the chain's without a sensor, every candidate simulated, and the one found on each half
-    and on the whole sets."""
+    """The captures' widths, the chain's without a sensor, the candidate found on each half of the sets, and
+    ``widths(candidate)`` (its simulation's :class:`SetWidths`, each candidate simulated once: ``simulated``)."""
 
     real: SetWidths
     without: SetWidths
-    simulated: dict[SensorCandidate, SetWidths]
     found: dict[str, SensorCandidate]
+    widths: Callable[[SensorCandidate], SetWidths]
+    simulated: dict[SensorCandidate, SetWidths]
 
 
 @dataclass(frozen=True)
@@ -179,14 +180,18 @@ class AreaSensorMatch(UnpairedStep):
         return fit.stages.get(Resolution.name) is None and not fit.records.get(Resolution.name, {}).get("given")
 
     def propose(self, fit: UnpairedFit) -> SensorProposal | Verdict:
+        """No search where a side has too few steps or lines, or where the chain without a sensor is already within
+        :data:`KEEP_FLOOR` of the captures on a half (no sensor could be kept: the judge's rule)."""
         crops = fit.sets.spectrum_crops
         real = set_widths(fit.captures.images)
         without = set_widths(fit.simulate(fit.chain(), crops, "unpaired-sensor"))
         counts = {name: min(len(torch.cat(getattr(s, name))) for s in (real, without)) for name in ("steps", "lines")}
         if min(counts.values()) < MIN_COUNT:
-            return Verdict(
-                {"kept": False, "why": f"too few steps or lines to measure (fewer than {MIN_COUNT})", **counts}
-            )
+            return Verdict({"kept": False, "why": f"fewer than {MIN_COUNT} steps or lines on a side", **counts})
+        befores = [distance(without, real, part)[0] for part in HALVES]
+        if min(befores) <= KEEP_FLOOR:
+            why = f"the chain without a sensor is within {KEEP_FLOOR} of the captures on a half"
+            return Verdict({"kept": False, "why": why, "halves": [_rounded(value) for value in befores]})
         simulated: dict[SensorCandidate, SetWidths] = {}
 
         def widths(candidate: SensorCandidate) -> SetWidths:
@@ -195,39 +200,41 @@ class AreaSensorMatch(UnpairedStep):
                 simulated[candidate] = set_widths(images)
             return simulated[candidate]
 
-        grid = _grid(fit)
         found = {
-            label: descend(lambda candidate, part=part: distance(widths(candidate), real, part)[0], grid)
-            for label, part in (("half A", HALVES[0]), ("half B", HALVES[1]), ("all", slice(None)))
+            label: descend(lambda candidate, part=part: distance(widths(candidate), real, part)[0], _grid(fit))
+            for label, part in (("half A", HALVES[0]), ("half B", HALVES[1]))
         }
-        return SensorProposal(real, without, simulated, found)
+        return SensorProposal(real, without, found, widths, simulated)
 
     def judge(self, fit: UnpairedFit, proposal: SensorProposal) -> dict[str, Any]:
-        checks = []
+        """Kept where each half's sensor takes the other half's distance below :data:`KEEP_GAIN` of the chain's
+        without it (above :data:`KEEP_FLOOR`); then found on the whole sets."""
+        real, checks = proposal.real, []
         for fitted_on, checked_on in (("half A", HALVES[1]), ("half B", HALVES[0])):
-            before = distance(proposal.without, proposal.real, checked_on)[0]
-            after = distance(proposal.simulated[proposal.found[fitted_on]], proposal.real, checked_on)[0]
-            checks.append((before, after))
+            before = distance(proposal.without, real, checked_on)[0]
+            checks.append((before, distance(proposal.widths(proposal.found[fitted_on]), real, checked_on)[0]))
         kept = all(before > KEEP_FLOOR and after < KEEP_GAIN * before for before, after in checks)
-        chosen = proposal.found["all"]
-        record = {
+        record: dict[str, Any] = {
             "kept": kept,
             "halves": [[_rounded(before), _rounded(after)] for before, after in checks],
-            "without": _finite(distance(proposal.without, proposal.real)[1]),
-            "chosen": {
-                **asdict(chosen),
-                "differences": _finite(distance(proposal.simulated[chosen], proposal.real)[1]),
-            },
-            "found_on_halves": [asdict(proposal.found[label]) for label in ("half A", "half B")],
-            "captures": {name: _rounded(_median(getattr(proposal.real, name))[0]) for name in ("steps", "lines")},
-            "simulations": len(proposal.simulated),
+            "without": _finite(distance(proposal.without, real)[1]),
+            "found_on_halves": [_described(proposal, proposal.found[label]) for label in ("half A", "half B")],
+            "captures": {name: _rounded(_median(getattr(real, name))[0]) for name in ("steps", "lines")},
         }
         if kept:
+            chosen = descend(lambda candidate: distance(proposal.widths(candidate), real)[0], _grid(fit))
+            record["chosen"] = _described(proposal, chosen)
             fit.keep(None, Blur, Sharpen)
             for stage in chosen.stages().values():
                 fit.keep(stage)
+        record["simulations"] = len(proposal.simulated)
         fit.say(f"area sensor: {record}")
         return record
+
+
+def _described(proposal: SensorProposal, candidate: SensorCandidate) -> dict[str, Any]:
+    """``candidate``'s fields and its simulation's differences from the captures on the whole sets."""
+    return {**asdict(candidate), "differences": _finite(distance(proposal.widths(candidate), proposal.real)[1])}
 
 
 def _rounded(value: float) -> float | None:
