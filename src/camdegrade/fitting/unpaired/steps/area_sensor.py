@@ -11,7 +11,9 @@ width of strong steps (:func:`~camdegrade.functional.analysis.edges.step_widths`
 (:func:`~camdegrade.functional.analysis.edges.line_widths`) of the simulated clean set against the captures', and
 the spectrum's bands below :data:`SHAPE_TOP` cycles/pixel (above it the captures hold the texture later stages make).
 A sensor found on each half of the sets must bring the *other* half's statistics closer than the chain without it
-(:data:`KEEP_GAIN`): a difference of scenes between random halves does not carry over."""
+(:data:`KEEP_GAIN`): a difference of scenes between random halves does not carry over. City100's iPhone X is refused:
+its best sensor brings the lines close but leaves the steps too wide (docs/results.md, *An area-sampling sensor in
+the unpaired fit*)."""
 
 from __future__ import annotations
 
