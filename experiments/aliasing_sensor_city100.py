@@ -3,8 +3,9 @@ upscaled? Hand-made chains on the 16 held-out clean images, not fits: a Gaussian
 pixel (no prefilter, so fine detail aliases), a bicubic upscale back, a Gaussian blur (σ ``post``), an unsharp mask
 (radius ``radius``, ``amount``), then the tone stage of an unpaired profile (``--profile``). Printed beside the
 captures and the profile itself: the median step width (:func:`~camdegrade.functional.analysis.edges.step_widths`),
-the median thin-line width (``edge_spread_city100.line_widths``), band log2 power, flat-noise ratio and PSNR; and a
-side-by-side PNG (clean | capture | profile | each chain; the most textured window of 062, 098 and 060 at 2×).
+the median thin-line width (:func:`~camdegrade.functional.analysis.edges.line_widths`), band log2 power,
+flat-noise ratio and PSNR; and a side-by-side PNG (clean | capture | profile | each chain; the most textured window
+of 062, 098 and 060 at 2×).
 Run from the repo root::
 
     OMP_NUM_THREADS=1 .venv/bin/python experiments/aliasing_sensor_city100.py --profile PROFILE [--png PATH]
@@ -17,7 +18,6 @@ from pathlib import Path
 
 import torch
 import torch.nn.functional as F
-from edge_spread_city100 import line_widths
 from fidelity_report import best_window, labelled_grid, save_png
 from fit_city100_unpaired import DEFAULT_DATA, HELD_OUT, TILE, city100
 from PIL import Image
@@ -25,7 +25,7 @@ from torch import Tensor
 
 from camdegrade import CameraProfile, load_profile
 from camdegrade._support.pixels import as_unit, unit_to_bytes
-from camdegrade.functional.analysis.edges import step_widths
+from camdegrade.functional.analysis.edges import line_widths, step_widths
 from camdegrade.functional.analysis.images import gradient_energy
 from camdegrade.functional.optics.blur import blur_image
 from camdegrade.measures.fidelity import measure_fidelity

@@ -118,7 +118,7 @@ def test_a_default_fit_runs_it_and_resumes_after_its_first_part_to_the_same_byte
     short_trainings_kept, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """8 grainy captures of 96², every default stage: the learned step runs in its three parts, the stage kept;
-    interrupted in its second part (step 16 of 17), resumed, it gives the uninterrupted fit's bytes without
+    interrupted in its second part (step 17 of 18), resumed, it gives the uninterrupted fit's bytes without
     training half A again."""
     captures, cleans = _sides(8, 96)
     whole = fit_unpaired(captures, cleans)
@@ -136,7 +136,7 @@ def test_a_default_fit_runs_it_and_resumes_after_its_first_part_to_the_same_byte
 
     monkeypatch.setattr(LearnedTextureMatch, "propose", stop_in_half_b)
     checkpoint = tmp_path / "fit.ckpt.safetensors"
-    with pytest.raises(FitInterrupted, match=r"during step 16 of 17 \(learned texture: trained on half B, judged"):
+    with pytest.raises(FitInterrupted, match=r"during step 17 of 18 \(learned texture: trained on half B, judged"):
         fit_unpaired(captures, cleans, checkpoint=checkpoint)
     resumed = fit_unpaired(captures, cleans, checkpoint=checkpoint, resume=True)
     assert calls == ["half A", "half B", "half B", "all"]

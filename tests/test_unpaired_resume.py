@@ -83,7 +83,7 @@ def _interrupt(patch: pytest.MonkeyPatch, step: type, error: type[BaseException]
 
 @pytest.fixture(scope="module")
 def interrupted_once(sides, tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, str]:
-    """The checkpoint of the fast fit (seed 0) interrupted in its second noise step ("noise again", step 11 of 17:
+    """The checkpoint of the fast fit (seed 0) interrupted in its second noise step ("noise again", step 12 of 18:
     vignetting and noise kept, the noise to be fitted again through the vignetting), and the interruption's text."""
     checkpoint = tmp_path_factory.mktemp("interrupted") / "fit.ckpt.safetensors"
     with pytest.MonkeyPatch.context() as patch:
@@ -105,10 +105,10 @@ def test_an_interrupted_fit_resumed_gives_the_bytes_of_an_uninterrupted_one(
     sides, whole: tuple[bytes, Path], interrupted_once: tuple[Path, str], written: Path, tmp_path: Path
 ) -> None:
     assert interrupted_once[1].endswith(
-        f"during step 11 of 17 (noise again); checkpoint {str(interrupted_once[0])!r} holds the 10 steps before it"
+        f"during step 12 of 18 (noise again); checkpoint {str(interrupted_once[0])!r} holds the 11 steps before it"
     )
     saved = load_profile(written)
-    assert saved.effect_names == ["vignetting", "noise"] and saved.fitted[CHECKPOINT_KEY]["steps_done"] == 10
+    assert saved.effect_names == ["vignetting", "noise"] and saved.fitted[CHECKPOINT_KEY]["steps_done"] == 11
     resumed = fit_unpaired(*sides, effects=FEW, name="cam", checkpoint=written, resume=True)
     assert _bytes(resumed, tmp_path / "resumed.safetensors") == whole[0]
 
@@ -130,7 +130,7 @@ def test_the_default_stages_resumed_after_the_blur_give_the_same_bytes(sides, tm
     checkpoint = tmp_path / "fit.ckpt.safetensors"
     with pytest.MonkeyPatch.context() as patch:
         _interrupt(patch, TransferMatch)
-        with pytest.raises(FitInterrupted, match=r"during step 7 of 17 \(blur and sharpening\)"):
+        with pytest.raises(FitInterrupted, match=r"during step 7 of 18 \(blur and sharpening\)"):
             fit_unpaired(*sides, checkpoint=checkpoint)
     resumed = fit_unpaired(*sides, checkpoint=checkpoint, resume=True)
     assert "blur" in uninterrupted.effect_names and len(uninterrupted.effect_names) >= 4, uninterrupted.fitted["kept"]
@@ -142,7 +142,7 @@ def test_a_finished_checkpoint_resumes_to_the_same_profile_without_running_a_ste
 ) -> None:
     """The library leaves the checkpoint after the fit (the caller removes it once the profile is saved)."""
     finished = whole[1]
-    assert load_profile(finished).fitted[CHECKPOINT_KEY]["steps_done"] == 17
+    assert load_profile(finished).fitted[CHECKPOINT_KEY]["steps_done"] == 18
     _interrupt(monkeypatch, NoiseMatch, RuntimeError)  # a step that ran would fail
     resumed = fit_unpaired(*sides, effects=FEW, name="cam", checkpoint=finished, resume=True)
     assert _bytes(resumed, tmp_path / "resumed.safetensors") == whole[0]
@@ -191,7 +191,7 @@ def _rewritten_state(path: Path, **changes) -> None:
         ("a profile", "(a profile without 'unpaired_checkpoint' in 'fitted')"),
         ("not safetensors", "is not a camdegrade unpaired fit's checkpoint (profile "),
         ("records", "(damaged: 'records' is [1, 2])"),
-        ("steps_done", "counts 18 of 17 steps done"),
+        ("steps_done", "counts 19 of 18 steps done"),
         ("version", "of layout version 1 (found 2"),
     ],
 )
@@ -205,7 +205,7 @@ def test_a_damaged_or_foreign_checkpoint_is_refused_naming_the_file(
     elif damage == "not safetensors":
         written.write_text(json.dumps({"camdegrade_checkpoint": 1}))
     else:
-        _rewritten_state(written, **{damage: {"records": [1, 2], "steps_done": 18, "version": 2}[damage]})
+        _rewritten_state(written, **{damage: {"records": [1, 2], "steps_done": 19, "version": 2}[damage]})
     with pytest.raises(CheckpointError) as raised:
         fit_unpaired(*sides, effects=FEW, checkpoint=written, resume=True)
     assert str(written) in str(raised.value) and named in str(raised.value), raised.value
@@ -236,7 +236,7 @@ def test_an_interrupted_write_leaves_the_last_whole_checkpoint(
         return original(self, path)
 
     monkeypatch.setattr(CameraProfile, "save", interrupted_sixth)
-    with pytest.raises(FitInterrupted, match=r"during step 6 of 17 .* holds the 5 steps before it"):
+    with pytest.raises(FitInterrupted, match=r"during step 6 of 18 .* holds the 5 steps before it"):
         fit_unpaired(*sides, effects=FEW, checkpoint=checkpoint)
     monkeypatch.setattr(CameraProfile, "save", original)
     assert load_profile(checkpoint).fitted[CHECKPOINT_KEY]["steps_done"] == 5
@@ -262,11 +262,11 @@ def test_the_cli_says_to_resume_on_ctrl_c_resumes_and_removes_the_checkpoint(
         _interrupt(patch, NoiseMatch)
         code, _, err = run_cli(command, capsys)
     line = one_line_error(err)
-    assert code == 130 and "during step 6 of 17 (noise)" in line and line.endswith("; run again with --resume"), err
+    assert code == 130 and "during step 6 of 18 (noise)" in line and line.endswith("; run again with --resume"), err
     assert checkpoint.is_file() and not output.exists()
     code, out, err = run_cli([*command, "--resume"], capsys)
     assert code == 0, err
-    assert "resumed from" in out and "after step 5 of 17 (vignetting again)" in out, out
+    assert "resumed from" in out and "after step 5 of 18 (vignetting again)" in out, out
     assert output.is_file() and not checkpoint.exists()
     assert _bytes(load_profile(output), tmp_path / "cli.safetensors") == whole[0]
 

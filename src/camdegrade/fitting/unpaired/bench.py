@@ -28,7 +28,7 @@ from camdegrade.fitting.unpaired.images import ImageSet
 from camdegrade.functional.analysis.noise import NoiseSums
 from camdegrade.profile import CameraProfile
 
-__all__ = ["CHAIN_ORDER", "NEEDS_CLEAN", "Log", "Measured", "UnpairedFit", "UnpairedStep"]
+__all__ = ["AREA_ORDER", "CHAIN_ORDER", "NEEDS_CLEAN", "Log", "Measured", "UnpairedFit", "UnpairedStep"]
 
 #: The stages' order in the fitted chain (physical: optics, sensor, ISP, codec; the ISP's upscale last before the
 #: codec, so the sensor's noise and the ISP's sharpening are upsampled with the image; the learned texture after
@@ -36,6 +36,14 @@ __all__ = ["CHAIN_ORDER", "NEEDS_CLEAN", "Log", "Measured", "UnpairedFit", "Unpa
 CHAIN_ORDER = tuple(
     kind.name
     for kind in (Blur, Vignetting, Noise, Color, Tone, Sharpen, FrequencyResponse, Resolution, JPEG, LearnedTexture)
+)
+#: The order with a sensor that reads its pixels' areas (:mod:`~camdegrade.fitting.unpaired.steps.area_sensor`): the
+#: ISP sharpens the image it upscaled, so the sharpening and the detail response come after the upscale.
+AREA_ORDER = tuple(name for name in CHAIN_ORDER if name != Resolution.name)
+AREA_ORDER = (
+    *AREA_ORDER[: AREA_ORDER.index(Sharpen.name)],
+    Resolution.name,
+    *AREA_ORDER[AREA_ORDER.index(Sharpen.name) :],
 )
 #: Why a step that needs the clean set is not fitted without one.
 NEEDS_CLEAN = "needs a clean set (--clean)"
@@ -91,9 +99,11 @@ class UnpairedFit:
         self.warnings: list[str] = []
 
     def chain(self, **replaced: Effect | None) -> list[Effect]:
-        """The kept stages in the chain's order, with ``replaced`` ones in place (``None``: left out)."""
+        """The kept stages in the chain's order (:data:`AREA_ORDER` with an area-sampling sensor), with ``replaced``
+        ones in place (``None``: left out)."""
         stages = {**self.stages, **replaced}
-        return [stages[key] for key in CHAIN_ORDER if stages.get(key) is not None]
+        area = getattr(stages.get(Resolution.name), "sample", None) == "area"
+        return [stages[key] for key in (AREA_ORDER if area else CHAIN_ORDER) if stages.get(key) is not None]
 
     def deterministic(self, *, optics_only: bool = False, **replaced: Effect | None) -> list[Effect]:
         """The chain's deterministic centre without its codec (what the set statistics of colour, tone and

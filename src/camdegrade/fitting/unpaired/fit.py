@@ -51,10 +51,11 @@ from camdegrade.fitting.record import machine_record
 from camdegrade.fitting.steps.base import Verdict, run_steps
 from camdegrade.fitting.steps.resolution import sensor_trace, sensor_verdict
 from camdegrade.fitting.two_sample.step import LearnedTextureMatch
-from camdegrade.fitting.unpaired.bench import Measured, UnpairedFit, UnpairedStep
+from camdegrade.fitting.unpaired.bench import Log, Measured, UnpairedFit, UnpairedStep
 from camdegrade.fitting.unpaired.checkpoint import StepCheckpoint, check_checkpoint, fit_fingerprint
 from camdegrade.fitting.unpaired.images import MIN_IMAGES, ImageSet, Source, check_count, load_images, load_sides
 from camdegrade.fitting.unpaired.judges import band_spread, self_check_critic, self_check_warnings, unmeasured_bands
+from camdegrade.fitting.unpaired.steps.area_sensor import AreaSensorMatch
 from camdegrade.fitting.unpaired.steps.color_tone import ColorToneMatch
 from camdegrade.fitting.unpaired.steps.jpeg import JpegQuality
 from camdegrade.fitting.unpaired.steps.local_tone import LocalToneMatch
@@ -91,8 +92,7 @@ UNPAIRED_EFFECTS: tuple[str, ...] = (
     "resolution", "jpeg", "color", "tone", "vignetting", "noise", "blur", "sharpen", "frequency_response",
     LearnedTexture.name,
 )  # fmt: skip
-#: Stages :func:`fit_unpaired` fits only when asked for (``effects``): none since the learned texture stage is a
-#: default (issue 43).
+#: Stages :func:`fit_unpaired` fits only when asked for (``effects``): none since the learned texture stage is one.
 UNPAIRED_OPTIONAL: tuple[str, ...] = ()
 #: Stages that need to know where each clean pixel landed in the capture: an unpaired set cannot show them.
 NOT_IDENTIFIABLE: dict[str, str] = {
@@ -110,8 +110,6 @@ SPECTRUM_IMAGES = 24
 SMALL_SIDE = 256
 #: Without a clean set the noise is simulated on the captures smoothed by a Gaussian of this sigma (px).
 STAND_IN_SIGMA = 2.0
-
-Log = Callable[[str], None]
 
 
 @dataclass(frozen=True)
@@ -147,6 +145,7 @@ UNPAIRED_STEPS: tuple[tuple[str, UnpairedStep], ...] = (
     ("vignetting again", VignettingMatch(simulated=True)),
     ("noise", NoiseMatch()),
     ("blur and sharpening", TransferMatch()),
+    ("area sensor, its upscale and sharpening", AreaSensorMatch()),
     ("colour and tone through the blur", ColorToneMatch()),
     ("local tone", LocalToneMatch()),
     ("vignetting through the blur", VignettingMatch(simulated=True)),

@@ -72,7 +72,12 @@ def resolution_image(
 
     def kernel(x: torch.Tensor) -> torch.Tensor:
         flat = x.reshape(-1, *x.shape[-3:])
-        if sample == "area":
+        if sample == "area" and (height % low[0] or width % low[1]):
+            # not F.interpolate's "area" here: at a non-integer factor its bins overlap, a wider aperture
+            rows = resample_matrix(height, low[0], "box", x.dtype).to(x.device)
+            columns = resample_matrix(width, low[1], "box", x.dtype).to(x.device)
+            sampled = rows @ flat @ columns.T
+        elif sample == "area":  # an integer factor: each bin is one sensor pixel's area exactly
             sampled = F.interpolate(flat, size=low, mode="area")
         else:
             sampled = F.interpolate(flat, size=low, mode="bilinear", antialias=True, align_corners=False)
