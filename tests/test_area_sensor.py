@@ -18,7 +18,16 @@ from scipy.ndimage import gaussian_filter
 from camdegrade.effects import Blur, Resolution, Sharpen
 from camdegrade.fitting.unpaired import fit_unpaired
 from camdegrade.fitting.unpaired.bench import AREA_ORDER
-from camdegrade.fitting.unpaired.steps.area_sensor import MIN_COUNT, SetWidths, descend, distance, set_widths
+from camdegrade.fitting.unpaired.fit import UNPAIRED_STEPS
+from camdegrade.fitting.unpaired.sensor import check_area_sensor, with_sensor
+from camdegrade.fitting.unpaired.steps.area_sensor import (
+    MIN_COUNT,
+    AreaSensorMatch,
+    SetWidths,
+    descend,
+    distance,
+    set_widths,
+)
 from camdegrade.functional.analysis.edges import line_widths
 from camdegrade.functional.sensor.resolution import resolution_image
 
@@ -141,7 +150,7 @@ def test_a_sensor_read_by_area_upscaled_and_sharpened_is_found() -> None:
     the steps 0.23 px, the low bands 1.08 (mean squared log2) off. Now: a sensor of 0.4, sharpened after its upscale."""
     captures = [_sensor_camera(scene) for scene in _strokes(2)]
     clean = [_tensor(scene) for scene in _strokes(1)]
-    profile = fit_unpaired(captures, clean, effects=("resolution", "blur", "sharpen"))
+    profile = fit_unpaired(captures, clean, effects=("resolution", "blur", "sharpen"), area_sensor=True)
     record = profile.fitted["effects"]["area_sensor"]
     sensor = next(effect for effect in profile.effects if effect.name == "resolution")
     assert record["kept"] and sensor.sample == "area" and float(sensor.scale) == pytest.approx(0.4), record
@@ -156,7 +165,27 @@ def test_a_sensor_read_by_area_upscaled_and_sharpened_is_found() -> None:
 def test_a_gaussian_blur_camera_gets_no_sensor() -> None:
     captures = [_gaussian_camera(scene) for scene in _strokes(2)]
     clean = [_tensor(scene) for scene in _strokes(1)]
-    profile = fit_unpaired(captures, clean, effects=("resolution", "blur", "sharpen"))
+    profile = fit_unpaired(captures, clean, effects=("resolution", "blur", "sharpen"), area_sensor=True)
     record = profile.fitted["effects"]["area_sensor"]
     assert not record["kept"], record
     assert [effect.name for effect in profile.effects] == ["blur"]
+
+
+def test_the_area_sensor_is_searched_only_when_asked_for() -> None:
+    """Off by default (its module says why): the step is configured by ``fit_unpaired``'s ``area_sensor``, a bool."""
+    steps = with_sensor(UNPAIRED_STEPS, None, False)
+    searching = [step.search for _, step in steps if isinstance(step, AreaSensorMatch)]
+    assert searching == [False]
+    assert [
+        step.search for _, step in with_sensor(UNPAIRED_STEPS, None, True) if isinstance(step, AreaSensorMatch)
+    ] == [True]
+    with pytest.raises(TypeError, match=r"area_sensor must be a bool, got area_sensor='yes' \(str\)"):
+        check_area_sensor("yes")
+
+
+def test_a_default_fit_of_the_sensor_camera_records_no_area_sensor() -> None:
+    captures = [_sensor_camera(scene) for scene in _strokes(2, count=8)]
+    clean = [_tensor(scene) for scene in _strokes(1, count=8)]
+    profile = fit_unpaired(captures, clean, effects=("resolution", "blur"))
+    assert "area_sensor" not in profile.fitted["effects"]
+    assert all(getattr(effect, "sample", None) != "area" for effect in profile.effects)

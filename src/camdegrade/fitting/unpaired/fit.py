@@ -35,26 +35,25 @@ import math
 import os
 import time
 from collections.abc import Callable, Iterator, Sequence
-from dataclasses import dataclass, replace
-from typing import Any, ClassVar
+from typing import Any
 
 import torch
 from tqdm.auto import tqdm
 
 from camdegrade._support.checks import check_seed
 from camdegrade._support.files import check_writable
-from camdegrade.effects import Effect, LearnedTexture, Resolution
+from camdegrade.effects import LearnedTexture
 from camdegrade.effects._fitting import downscale
 from camdegrade.effects.base import evenly_spaced
 from camdegrade.errors import CamdegradeError, FitInterrupted
 from camdegrade.fitting.record import machine_record
-from camdegrade.fitting.steps.base import Verdict, run_steps
-from camdegrade.fitting.steps.resolution import sensor_trace, sensor_verdict
+from camdegrade.fitting.steps.base import run_steps
 from camdegrade.fitting.two_sample.step import LearnedTextureMatch
 from camdegrade.fitting.unpaired.bench import Log, Measured, UnpairedFit, UnpairedStep
 from camdegrade.fitting.unpaired.checkpoint import StepCheckpoint, check_checkpoint, fit_fingerprint
 from camdegrade.fitting.unpaired.images import MIN_IMAGES, ImageSet, Source, check_count, load_images, load_sides
 from camdegrade.fitting.unpaired.judges import band_spread, self_check_critic, self_check_warnings, unmeasured_bands
+from camdegrade.fitting.unpaired.sensor import SensorStep, check_area_sensor, check_sensor_scale, with_sensor
 from camdegrade.fitting.unpaired.steps.area_sensor import AreaSensorMatch
 from camdegrade.fitting.unpaired.steps.color_tone import ColorToneMatch
 from camdegrade.fitting.unpaired.steps.jpeg import JpegQuality
@@ -72,7 +71,6 @@ from camdegrade.fitting.unpaired.steps.spectrum import (
 from camdegrade.fitting.unpaired.steps.vignetting import RINGS, VignettingMatch, ring_profiles
 from camdegrade.functional.optics.blur import blur_image
 from camdegrade.measures.fidelity import BAND_EDGES, band_power
-from camdegrade.measures.traces.resampling import ResamplingTrace
 from camdegrade.profile import CameraProfile
 
 __all__ = [
@@ -110,29 +108,6 @@ SPECTRUM_IMAGES = 24
 SMALL_SIDE = 256
 #: Without a clean set the noise is simulated on the captures smoothed by a Gaussian of this sigma (px).
 STAND_IN_SIGMA = 2.0
-
-
-@dataclass(frozen=True)
-class SensorStep(UnpairedStep):
-    """The resolution step, first so every later stage is fitted through it: an upscale the captures show and the
-    clean set does not (:func:`~camdegrade.fitting.steps.resolution.sensor_trace`; without a clean set, the
-    captures' trace alone), judged against the trace's null and the codec's grid; or the ``scale`` given."""
-
-    name: ClassVar[str] = "resolution"
-    kinds: ClassVar[tuple[type[Effect], ...]] = (Resolution,)
-    scale: float | None = None
-
-    def propose(self, fit: UnpairedFit) -> ResamplingTrace | Verdict:
-        if self.scale is not None:  # given: kept as it is, below 1
-            fit.keep(Resolution(self.scale) if self.scale < 1 else None)
-            return Verdict({"kept": self.scale < 1, "scale": self.scale, "given": True})
-        return sensor_trace(fit.cleans.images if fit.cleans else None, fit.captures.images)
-
-    def judge(self, fit: UnpairedFit, trace: ResamplingTrace) -> dict[str, Any]:
-        then = "every later stage is fitted through it (the profile has no network)"
-        stage, record = sensor_verdict(trace, fit.say, then=then)
-        fit.keep(stage)
-        return record
 
 
 #: The unpaired fit's steps in the order they run, each with the label a progress bar shows: the chain before a
@@ -178,6 +153,7 @@ def fit_unpaired(
     effects: Sequence[str] = UNPAIRED_EFFECTS,
     seed: int = 0,
     sensor_scale: float | str = "auto",
+    area_sensor: bool = False,
     max_images: int | None = None,
     strict: bool = False,
     progress: bool = False,
@@ -197,6 +173,9 @@ def fit_unpaired(
         seed: the simulations' seed (same seed, same profile).
         sensor_scale: ``"auto"``: an upscale found from the captures (:func:`~camdegrade.fitting.steps.resolution.
             sensor_trace`); a number from 0.125 to 1: the sensor's resolution relative to the output, given (1: none).
+        area_sensor: where ``sensor_scale`` is ``"auto"`` and no upscale shows, also search a sensor that reads its
+            pixels' areas (:mod:`~camdegrade.fitting.unpaired.steps.area_sensor`; off by default: it read a blur in
+            gamma as a sensor, and costs about a quarter more time).
         max_images: read at most this many images of each side.
         strict: refuse instead of warning: an unreadable file (before any fitting), or a result with a warning.
         progress: a progress bar over the steps.
@@ -222,7 +201,7 @@ def fit_unpaired(
     """
     say = log or (lambda message: None)
     wanted = check_unpaired_effects(effects)
-    steps = _with_sensor(UNPAIRED_STEPS, check_sensor_scale(sensor_scale))
+    steps = with_sensor(UNPAIRED_STEPS, check_sensor_scale(sensor_scale), check_area_sensor(area_sensor))
     for label, text in (("name", name), ("description", description)):
         if not isinstance(text, str):
             raise TypeError(f"{label} must be a str, got {label}={text!r} ({type(text).__name__})")
@@ -272,23 +251,6 @@ def _run(
         if saved.path is None:
             raise
         raise FitInterrupted(saved.interrupted()) from None
-
-
-def check_sensor_scale(value: Any) -> float | None:
-    """``sensor_scale`` as a number, or ``None`` for ``"auto"``; a ``ValueError`` for anything else."""
-    number = not isinstance(value, bool) and isinstance(value, (int, float))
-    if value == "auto":
-        return None
-    if not (number and Resolution.MIN_SCALE <= value <= 1):
-        raise ValueError(
-            f"sensor_scale must be 'auto' or a number from {Resolution.MIN_SCALE} to 1, got sensor_scale={value!r}"
-        )
-    return float(value)
-
-
-def _with_sensor(steps: Sequence[tuple[str, UnpairedStep]], scale: float | None) -> list[tuple[str, UnpairedStep]]:
-    """``steps`` with the resolution step's ``scale`` (``None``: found from the captures)."""
-    return [(label, replace(step, scale=scale) if isinstance(step, SensorStep) else step) for label, step in steps]
 
 
 #: Where a profile's simulation of the clean set agrees with the captures in the statistics the fit matches: the

@@ -171,15 +171,19 @@ class SensorProposal:
 
 @dataclass(frozen=True)
 class AreaSensorMatch(UnpairedStep):
-    """The area-sensor step (it needs the clean set; it runs where the resolution step kept no sensor and was given
-    no scale): see the module's docstring."""
+    """The area-sensor step (it needs the clean set; it runs where ``search`` asks for it and the resolution step
+    kept no sensor and was given no scale): see the module's docstring. Off by default (``fit_unpaired``'s
+    ``area_sensor``): on City100 it is refused, a Gaussian blur of gamma-encoded values read as a sensor of a third
+    of the pixels, and it costs the 100-capture bench about a quarter more CPU time."""
 
     name: ClassVar[str] = "area_sensor"
     kinds: ClassVar[tuple[type[Effect], ...]] = (Resolution,)
     needs_clean: ClassVar[bool] = True
+    search: bool = False
 
     def applies(self, fit: UnpairedFit) -> bool:
-        return fit.stages.get(Resolution.name) is None and not fit.records.get(Resolution.name, {}).get("given")
+        given = fit.records.get(Resolution.name, {}).get("given")
+        return self.search and fit.stages.get(Resolution.name) is None and not given
 
     def propose(self, fit: UnpairedFit) -> SensorProposal | Verdict:
         """No search where a side has too few steps or lines, or where the chain without a sensor is already within
