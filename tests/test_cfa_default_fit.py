@@ -95,15 +95,15 @@ def test_the_mosaic_trace_reads_a_layout_and_not_a_pattern_every_channel_shares(
 
 def test_behind_a_jpeg_the_luma_route_reads_the_mosaic_and_not_an_upscale() -> None:
     """JPEG 75 with 4:2:0 chroma averages the colour route's trace away (0.9-1.1 for every layout); luma keeps the
-    least energy where GRBG samples blue (over 24 images a bootstrap bound at most 0.85; over 12, 0.87). The upscaling
-    camera, written as JPEG 75 too, reads neither."""
+    least energy where GRBG samples blue, in a mosaic's form (test_mosaic_form.py; over 24 images its bootstrap bound
+    is above 0). The upscaling camera, written as JPEG 75 too, reads neither."""
     bayer_jpeg = BAYER.inserted(Jpeg(75), name="bayer-jpeg")
     generator = torch.Generator().manual_seed(0)
     pairs = _pairs(bayer_jpeg, 24, 6)
     reading = read_mosaic([c for c, _ in pairs], [t for _, t in pairs], generator)
     assert all(0.9 < mosaic_trace([t for _, t in pairs], p) < 1.1 for p in ("RGGB", "GRBG", "GBRG", "BGGR"))
     assert reading.route == "luma" and reading.pattern == "GRBG" and reading.proposed(), reading
-    assert reading.bound is not None and reading.bound <= MAX_TRACE < 1 < reading.cleans_trace + 0.05, reading
+    assert reading.form is not None and reading.form.bound > 0 and reading.trace < 1 < reading.cleans_trace + 0.05
     pairs = _pairs(UPSCALE.inserted(Jpeg(75), name="upscale-jpeg"), 24, 6)
     reading = read_mosaic([c for c, _ in pairs], [t for _, t in pairs], generator)
     assert reading.route == "luma" and not reading.proposed(), reading
@@ -138,7 +138,7 @@ def test_a_camera_without_a_mosaic_gets_no_cfa_stage() -> None:
     note = record["cfa"]
     assert "cfa" not in profile.effect_names and note["kept"] is False, note
     assert note["captures_trace"] > MAX_TRACE and "amount" not in note, note
-    assert any(line.startswith("effect cfa: not fitted: no mosaic in the validation captures") for line in lines), lines
+    assert any(line.startswith("effect cfa: not fitted: no mosaic in the training captures") for line in lines), lines
 
 
 def test_clean_images_with_a_mosaic_of_their_own_get_no_second_one() -> None:
@@ -170,14 +170,14 @@ def _real_pairs(folder: Path, subset: str, count: int, side: int = 256) -> list[
 @pytest.mark.parametrize(
     ("subset", "reason"),
     [
-        ("city100_iPhoneX", "no mosaic in the validation captures"),
-        ("polyu_real_noise", "no mosaic in the validation captures"),
-        ("cc15_nam_real_noise", "the clean images' luma holds a RGGB mosaic's order"),
+        ("city100_iPhoneX", "no mosaic in the training captures"),
+        ("polyu_real_noise", "no mosaic in the training captures"),
+        ("cc15_nam_real_noise", "the clean images' luma holds a RGGB mosaic's form"),
     ],
 )
 def test_real_cameras_get_no_cfa_stage(real_pairs_dir: Path, subset: str, reason: str) -> None:
     """Real captures were demosaiced too, but registered (City100) or written as JPEG (PolyU) by edge-aware
-    demosaics: no layout reads a mosaic in them. CC15's captures' luma holds an RGGB order (0.75), but so does its
+    demosaics: no layout reads a mosaic in them. CC15's captures' luma holds an RGGB mosaic's form, but so does its
     clean images' (the mean of many frames demosaiced alike)."""
     pairs = _real_pairs(real_pairs_dir, subset, 10)
     profile, record = run_step(EffectStages(names=("cfa",)), CameraProfile(None, []), pairs[:6], pairs[6:])
