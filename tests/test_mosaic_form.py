@@ -157,3 +157,30 @@ def test_the_judgement_reads_every_noise_draw_it_is_asked_for() -> None:
     assert not torch.equal(draws[0], draws[3])
     again = judge_by_statistic(fit, stage, statistic, stream="test", eight_bit=False, tolerance=0.0, share=0.5, draws=4)
     assert (first.without, first.within) == (again.without, again.within)
+
+
+def test_a_dropped_cfa_stage_is_judged_again_once_the_later_stages_stand() -> None:
+    """The recipe's ``mosaic`` step (after the response step) puts back the cfa stage the effects step proposed and
+    dropped, judges it in the profile as it then stands and keeps it where it now closes the trace's gap; it records
+    nothing where the effects step left no stage to judge again."""
+    from camdegrade import CameraProfile
+    from camdegrade.fitting import FitConfig
+    from camdegrade.fitting.evidence.mosaic_step import MosaicRejudged
+    from foreign_cameras import Camera
+    from foreign_cameras.stages import Decode, Demosaic, Encode, Lens, Mosaic, ShotNoise
+    from steps_for_tests import paired_fit
+
+    assert [step.name for step in FitConfig.recipe("fast").steps][-2:] == ["response", "mosaic"]
+    bayer = Camera(
+        "bayer", (Decode(), Lens(0.6), Mosaic("GRBG"), ShotNoise(3000.0, 0.002), Demosaic("bilinear", "GRBG"), Encode())
+    )
+    pairs = [(_unit(clean), _unit(bayer(clean, seed=(71, i)))) for i, clean in enumerate(scenes(8, 64, seed=71))]
+    fit = paired_fit(CameraProfile(None, []), pairs[:4], pairs[4:])
+    assert MosaicRejudged().run(fit) is None and not fit.profile.effects
+    dropped = {"kept": False, "pattern": "GRBG", "route": "colour", "amount": 1.0, "demosaic": "bilinear"}
+    fit.records["effects"] = {"cfa": dropped}
+    record = MosaicRejudged().run(fit)
+    assert record is not None and record["kept"] is True and fit.profile.effect_names == ["cfa"], record
+    assert record["trace_with"] < record["trace_without"] and record["after"] == [], record
+    fit.records["effects"] = {"cfa": {**dropped, "kept": True}}
+    assert MosaicRejudged().run(fit) is None
