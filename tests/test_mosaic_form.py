@@ -5,74 +5,20 @@ shares) none. One camera here is not of the foreign bench: BGGR, OpenCV's edge-a
 
 from __future__ import annotations
 
-import io
-
-import cv2
 import numpy as np
 import pytest
 import torch
-from PIL import Image
 
 from camdegrade.measures.traces.mosaic import read_mosaic
 from camdegrade.measures.traces.mosaic_form import FORM_RATIO, form_margin, phase_contrasts
 from foreign_cameras import camera, scenes
+from mosaic_cameras import aligned_upscale, bggr_camera, jpeg
 
 torch.set_num_threads(1)
 
 
 def _unit(image: np.ndarray) -> torch.Tensor:
     return torch.from_numpy(np.ascontiguousarray(image.transpose(2, 0, 1))).float() / 255.0
-
-
-def _jpeg(image: np.ndarray, quality: int) -> np.ndarray:
-    buffer = io.BytesIO()
-    Image.fromarray(image).save(buffer, format="JPEG", quality=quality, subsampling=2)
-    return np.asarray(Image.open(io.BytesIO(buffer.getvalue())).convert("RGB"))
-
-
-def _aligned_upscale(image: np.ndarray) -> np.ndarray:
-    """Every second row and column of ``image`` kept, the others the mean of their two neighbours (a 2× bilinear
-    upscale whose output grid holds the input's samples)."""
-    small = image[::2, ::2].astype(np.float64)
-    rows = np.repeat(small, 2, axis=0)
-    rows[1::2] = (small + np.roll(small, -1, axis=0)) / 2
-    both = np.repeat(rows, 2, axis=1)
-    both[:, 1::2] = (rows + np.roll(rows, -1, axis=1)) / 2
-    return np.round(both).clip(0, 255).astype(np.uint8)
-
-
-def _linear(x: np.ndarray) -> np.ndarray:
-    return np.where(x <= 0.04045, x / 12.92, ((x + 0.055) / 1.055) ** 2.4)
-
-
-def _encoded(x: np.ndarray) -> np.ndarray:
-    x = np.clip(x, 0.0, 1.0)
-    return np.where(x <= 0.0031308, 12.92 * x, 1.055 * x ** (1 / 2.4) - 0.055)
-
-
-#: The BGGR camera's filter overlap and sensitivities (red and blue less sensitive than green).
-_MIX = np.array([[0.8, 0.15, 0.05], [0.1, 0.8, 0.1], [0.03, 0.2, 0.77]])
-_GAINS = np.array([0.55, 1.0, 0.7])
-
-
-def _bggr_camera(image: np.ndarray, seed: tuple[int, int]) -> np.ndarray:
-    """A Bayer camera not in the foreign bench: linear light, Gaussian lens σ 0.6, filter overlap, BGGR sites,
-    Poisson-Gaussian noise (1,800 e⁻, read 0.2 %), white balance on the mosaic, OpenCV's edge-aware demosaic of the
-    16-bit plane, the inverse overlap, sRGB, 8 bits, PIL JPEG 88 with 4:2:0 chroma."""
-    from scipy import ndimage
-
-    rng = np.random.default_rng(seed)
-    x = ndimage.gaussian_filter(_linear(image / 255.0), (0.6, 0.6, 0), mode="mirror")
-    x = (x @ _MIX.T) * _GAINS
-    plane = np.zeros(x.shape[:2])
-    for row, column, colour in ((0, 0, 2), (0, 1, 1), (1, 0, 1), (1, 1, 0)):
-        plane[row::2, column::2] = x[row::2, column::2, colour] / _GAINS[colour]
-    plane = rng.poisson(np.clip(plane * _GAINS.mean(), 0, None) * 1800) / 1800 / _GAINS.mean()
-    plane = plane + rng.normal(0, 0.002, plane.shape)
-    raw = np.round(np.clip(plane, 0, 1) * 65535).astype(np.uint16)
-    # OpenCV names a layout by its second row's first two sites: BGGR is its "RG".
-    rgb = cv2.cvtColor(raw, cv2.COLOR_BayerRG2RGB_EA).astype(np.float64) / 65535
-    return _jpeg(np.round(_encoded(rgb @ np.linalg.inv(_MIX).T) * 255).astype(np.uint8), 88)
 
 
 def _read(cleans: list[np.ndarray], captures: list[np.ndarray]):
@@ -98,7 +44,7 @@ def test_a_sample_aligned_upscale_gets_no_mosaic_though_its_blue_site_reads_leas
     every channel: luma's least energy at the site interpolated twice (the ratio 0.31, far under the old bar of 0.85,
     which proposed RGGB), but as a product of rows and columns."""
     cleans = scenes(24, 96, seed=11)
-    reading = _read(cleans, [_jpeg(_aligned_upscale(c), 75) for c in cleans])
+    reading = _read(cleans, [jpeg(aligned_upscale(c), 75) for c in cleans])
     assert reading.route == "luma" and reading.trace < 0.6 and not reading.proposed(), reading.to_dict()
     assert reading.form is not None and reading.form.ratio < FORM_RATIO, reading.to_dict()
 
@@ -119,7 +65,7 @@ def test_a_bayer_camera_not_in_the_bench_is_proposed_its_layout() -> None:
     """BGGR demosaiced by OpenCV (edge-aware), JPEG 88: proposed BGGR by the luma route on 24 images; its clean
     images hold no form."""
     cleans = scenes(24, 128, seed=41)
-    reading = _read(cleans, [_bggr_camera(clean, (41, i)) for i, clean in enumerate(cleans)])
+    reading = _read(cleans, [bggr_camera(clean, (41, i)) for i, clean in enumerate(cleans)])
     assert reading.route == "luma" and reading.pattern == "BGGR" and reading.proposed(), reading.to_dict()
     assert reading.form is not None and reading.form.ratio > 2 * FORM_RATIO, reading.to_dict()
 
