@@ -126,8 +126,7 @@ def test_a_bayer_camera_keeps_a_cfa_stage_after_its_noise_of_its_layout_and_demo
     assert 0.5 <= note["amount"] <= 1.0 and note["demosaic"] == demosaic, note
     gains = {name: fitted["relative_mse_gain"] for name, fitted in note["demosaics"].items()}
     assert gains[demosaic] == max(gains.values()), note
-    left = abs(note["trace_real"] - note["trace_with"])
-    assert left <= 0.5 * abs(note["trace_real"] - note["trace_without"]), note
+    assert note["distance_real"] == 0 and note["distance_with"] <= 0.5 * note["distance_without"], note
     assert note["cleans_trace"] > MAX_TRACE and "noise_refitted" in note, note
     assert any(line.startswith("effect noise: ") and "before the cfa stage" in line for line in lines), lines
     assert isinstance(profile.effects[0], Noise)

@@ -99,3 +99,10 @@ def read_form(images: Sequence[Tensor], generator: torch.Generator) -> MosaicFor
     margins = torch.tensor([form_margin(phases[draw].mean(0)) for draw in draws])
     ratio = abs(chi) / max((rho * rho + kappa * kappa) ** 0.5, 1e-12)
     return MosaicForm(form_margin(phases.mean(0)), float(torch.quantile(margins, 0.025)), ratio)
+
+
+def form_vector(images: Sequence[Tensor]) -> Tensor:
+    """``(ρ, κ, χ)`` (:func:`phase_contrasts`) of the mean luma phases of ``images``: the whole 2×2 form, by which a
+    simulated mosaic is compared with the captures' (a stage can match blue's site over red's and still overshoot the
+    diagonal contrast threefold: docs/results.md, *The cfa stage proposed by the mosaic's form*)."""
+    return torch.tensor(phase_contrasts(torch.stack([luma_phases(image) for image in images]).mean(0)))
