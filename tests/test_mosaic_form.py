@@ -127,6 +127,6 @@ def test_a_dropped_cfa_stage_is_judged_again_once_the_later_stages_stand() -> No
     fit.records["effects"] = {"cfa": dropped}
     record = MosaicRejudged().run(fit)
     assert record is not None and record["kept"] is True and fit.profile.effect_names == ["cfa"], record
-    assert record["distance_with"] < record["distance_without"] and record["after"] == [], record
+    assert record["distance_with"] < record["distance_without"] and record["refitted"] == [], record
     fit.records["effects"] = {"cfa": {**dropped, "kept": True}}
     assert MosaicRejudged().run(fit) is None

@@ -1,16 +1,17 @@
 """The colour filter array judged again once the later stages stand: a stage the effects step proposed and dropped is
-put back after the noise of the finished profile and judged there by the same trace, over the same noise draws.
+put back after the noise of the finished profile, the noise refitted before it as the effects step does and the
+stages of the texture, denoise and response steps fitted again through it (their steps rerun); that profile is judged
+against the finished one by the same distance to the captures' trace (the luma route: its whole form), over the same
+noise draws, and replaces it where it closes at least :data:`~camdegrade.fitting.evidence.cfa.MIN_CLOSED` of it.
 
 Why a second judgement: the effects step judges the stage in a profile of network, noise and codec; the stages fitted
 after it change the very trace it is judged by. Behind a JPEG with 4:2:0 chroma the mosaic shows only in luma, and a
 sharpen fitted by the texture step raises the phase contrast the codec dilutes: on bayer-jpeg's validation pairs the
 stage closed 14-48 % of the luma trace's gap in the effects step's profile and 49-63 % in the finished one (four noise
-draws; docs/results.md, *bayer-jpeg: why its held-out critic reads 0.71*). The stage is judged first where the stages
-after it can be fitted through it (the phone's is kept there), and once more where they all stand; the bar is the
-same (:data:`~camdegrade.fitting.evidence.cfa.MIN_CLOSED`). Kept there, the stages the texture, denoise and
-response steps kept are fitted again through it (their steps rerun, their records replaced): a stage fitted to the
-captures' spectrum without the demosaic's softening would leave the simulation's top bands short by up to 1 log2
-(bayer-jpeg's validation pairs).
+draws; docs/results.md, *bayer-jpeg: why its held-out critic reads 0.71*). Why the later stages are fitted through it
+before it is judged: a sharpen fitted to the captures' spectrum without the demosaic's softening leaves the
+simulation's top bands short by up to 1 log2, and the one fitted through it sharpens the phase pattern as the
+camera's chain does (docs/results.md, *The cfa stage proposed by the mosaic's form*).
 """
 
 from __future__ import annotations
@@ -19,11 +20,12 @@ from dataclasses import dataclass
 from typing import Any, ClassVar
 
 from camdegrade.effects import Blur, ColorFilterArray, Denoise, FrequencyResponse, Sharpen
-from camdegrade.fitting.evidence.cfa import judge_cfa, noise_before_mosaic
-from camdegrade.fitting.steps.base import FitStep, PairedFit, keep_and_refit_noise
+from camdegrade.fitting.evidence.cfa import JUDGE_DRAWS, MIN_CLOSED, READS, TOLERANCES, distance_to, noise_before_mosaic
+from camdegrade.fitting.steps.base import FitStep, PairedFit, closes_gap
 from camdegrade.fitting.steps.denoise import DenoiseMatch
 from camdegrade.fitting.steps.response import ResponseMatch
 from camdegrade.fitting.steps.texture import TextureMatch
+from camdegrade.profile import CameraProfile
 
 #: The steps fitted after the effects step to the captures' spectrum and detail, and the stages they add.
 LATER_STEPS: tuple[type[FitStep], ...] = (TextureMatch, DenoiseMatch, ResponseMatch)
@@ -58,14 +60,45 @@ class MosaicRejudged(FitStep):
 
     def judge(self, fit: PairedFit, proposal: tuple[ColorFilterArray, str]) -> dict[str, Any]:
         stage, route = proposal
-        note = {"pattern": stage.pattern, "route": route, "after": [effect.name for effect in fit.profile.effects]}
-        judged = judge_cfa(fit, stage, route)
-        record = keep_and_refit_noise(
-            fit, f"{ColorFilterArray.name} (judged again)", judged, note, noise_before_mosaic, "refitted before"
+        finished, records = fit.profile, {name: fit.records.get(name) for name in _later_names()}
+        fit.profile = fit.profile.with_effects(stage)
+        noise_line = noise_before_mosaic(fit)
+        refitted = refit_later_stages(fit)
+        without, within = (_distance(fit, profile, stage, route) for profile in (finished, fit.profile))
+        kept = closes_gap(0.0, without, within, TOLERANCES[route], MIN_CLOSED)
+        line = (
+            f"effect cfa (judged again, {', '.join(refitted) or 'no later step'} refitted through it): "
+            f"{stage.pattern} {stage.demosaic} at {float(stage.amount):.3f}: {READS[route]} distance to the "
+            f"captures' {without:.3f} in the finished profile, {within:.3f} with the stage -> "
+            f"{'kept' if kept else 'dropped'}"
         )
-        if judged[0] is not None:
-            record["refitted"] = refit_later_stages(fit)
-        return record
+        fit.say(line)
+        if not kept:
+            fit.profile = finished
+            fit.records.update({name: record for name, record in records.items() if record is not None})
+        elif noise_line is not None:
+            fit.say(noise_line)
+        record = {"kept": kept, "pattern": stage.pattern, "route": route, "demosaic": stage.demosaic}
+        record |= {"amount": round(float(stage.amount), 3), "distance_without": round(without, 4)}
+        record |= {"distance_with": round(within, 4), "refitted": refitted, "evidence": fit.evidence_pairs[1]}
+        return record | ({"noise": noise_line} if kept and noise_line else {})
+
+
+def _later_names() -> list[str]:
+    return [step.name for step in LATER_STEPS]
+
+
+def _distance(fit: PairedFit, profile: CameraProfile, stage: ColorFilterArray, route: str) -> float:
+    """``profile``'s distance to the judged captures' trace (:func:`~camdegrade.fitting.evidence.cfa.distance_to`),
+    its simulation drawn :data:`~camdegrade.fitting.evidence.cfa.JUDGE_DRAWS` times."""
+    pairs, _ = fit.evidence_pairs
+    cleans, captures = (list(side) for side in zip(*pairs, strict=True))
+    simulated = [
+        image
+        for seed in range(JUDGE_DRAWS)
+        for image in profile.simulate(cleans, seed, stream="cfa-evidence", eight_bit=fit.eight_bit)
+    ]
+    return distance_to(captures, stage.pattern, route)(simulated)
 
 
 def refit_later_stages(fit: PairedFit) -> list[str]:
