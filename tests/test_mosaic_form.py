@@ -49,7 +49,6 @@ def test_a_sample_aligned_upscale_gets_no_mosaic_though_its_blue_site_reads_leas
     assert reading.form is not None and reading.form.ratio < FORM_RATIO, reading.to_dict()
 
 
-@pytest.mark.slow
 def test_the_jpeg_bayer_camera_of_the_bench_is_proposed_a_grbg_stage() -> None:
     """bayer-jpeg (GRBG, bilinear, colour matrix, JPEG 75 4:2:0): its luma ratio 0.80-0.87 never met the old bound
     of 0.85; its form does on 48 images (the fit reads its training pairs), at its own layout."""
@@ -60,7 +59,6 @@ def test_the_jpeg_bayer_camera_of_the_bench_is_proposed_a_grbg_stage() -> None:
     assert reading.cleans_form is False, reading.to_dict()
 
 
-@pytest.mark.slow
 def test_a_bayer_camera_not_in_the_bench_is_proposed_its_layout() -> None:
     """BGGR demosaiced by OpenCV (edge-aware), JPEG 88: proposed BGGR by the luma route on 24 images; its clean
     images hold no form."""
