@@ -12,7 +12,10 @@ The layout is the one the validation captures show; the amount is fitted on the 
 (of :data:`AMOUNTS` and the squared error's amount, the one whose sampled simulation's trace is nearest the
 captures'), for a bilinear and an edge-directed demosaic, and the one of the two that leaves the smaller squared error
 is chosen (:func:`fit_stage`); the stage is kept where it closes at least :data:`MIN_CLOSED` of the validation
-trace's gap, or leaves less than :data:`TRACE_TOLERANCE`. It sits last of the sensor's stages, after the noise: each
+trace's gap, or leaves less than :data:`TRACE_TOLERANCE`, and a fresh image-only critic on the validation pairs
+finds the simulation with it no easier to tell from the captures
+(:func:`~camdegrade.fitting.evidence.mosaic_guard.critic_guard`: a trace matched by a demosaic that is not the
+camera's can still be seen). It sits last of the sensor's stages, after the noise: each
 site's noise is interpolated into its neighbours, as a camera's is; a noise stage fitted before it is refitted before
 it, through it, where the flat-noise ratio comes closer to 1. It is judged after the codec's stage (the effects step
 runs it last), so the luma route reads the simulation through the profile's JPEG as the captures were written.
@@ -34,6 +37,7 @@ from torch import Tensor
 from camdegrade._support.seeds import derived_generator
 from camdegrade.effects import ColorFilterArray, Effect, Noise
 from camdegrade.effects.base import evenly_spaced
+from camdegrade.fitting.evidence.mosaic_guard import guard_kept
 from camdegrade.fitting.evidence.statistic import judge_by_statistic
 from camdegrade.fitting.in_chain import CALIBRATION_PAIRS, fit_stage_in_chain
 from camdegrade.fitting.steps.base import FitStep, PairedFit, Verdict, keep_and_refit_noise
@@ -90,7 +94,9 @@ class CfaProposal:
 @dataclass(frozen=True)
 class CfaStage(FitStep):
     """The effects step's ``cfa`` stage: proposed by :func:`propose_cfa`, judged by :func:`judge_cfa`; where it is
-    kept after a noise stage, that noise is refitted before it (:func:`noise_before_mosaic`)."""
+    kept after a noise stage, that noise is refitted before it (:func:`noise_before_mosaic`), and the profile so
+    made is kept where the fresh critic finds it no easier than the one before
+    (:func:`~camdegrade.fitting.evidence.mosaic_guard.guard_kept`)."""
 
     name: ClassVar[str] = ColorFilterArray.name
 
@@ -98,8 +104,9 @@ class CfaStage(FitStep):
         return propose_cfa(fit)
 
     def judge(self, fit: PairedFit, proposal: CfaProposal) -> dict[str, Any]:
-        judged = judge_cfa(fit, proposal.stage, proposal.route)
-        return keep_and_refit_noise(fit, self.name, judged, proposal.note, noise_before_mosaic, "refitted before")
+        before, judged = fit.profile, judge_cfa(fit, proposal.stage, proposal.route)
+        record = keep_and_refit_noise(fit, self.name, judged, proposal.note, noise_before_mosaic, "refitted before")
+        return guard_kept(fit, before, record, "effect cfa: ") if record["kept"] else record
 
 
 def propose_cfa(fit: PairedFit) -> CfaProposal | Verdict:

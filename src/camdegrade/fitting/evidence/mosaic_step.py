@@ -2,7 +2,9 @@
 put back after the noise of the finished profile, the noise refitted before it as the effects step does and the
 stages of the texture, denoise and response steps fitted again through it (their steps rerun); that profile is judged
 against the finished one by the same distance to the captures' trace (the luma route: its whole form), over the same
-noise draws, and replaces it where it closes at least :data:`~camdegrade.fitting.evidence.cfa.MIN_CLOSED` of it.
+noise draws, and replaces it where it closes at least :data:`~camdegrade.fitting.evidence.cfa.MIN_CLOSED` of it and
+a fresh image-only critic on the validation pairs finds it no easier to tell from the captures
+(:func:`~camdegrade.fitting.evidence.mosaic_guard.critic_guard`).
 
 Why a second judgement: the effects step judges the stage in a profile of network, noise and codec; the stages fitted
 after it change the very trace it is judged by. Behind a JPEG with 4:2:0 chroma the mosaic shows only in luma, and a
@@ -21,6 +23,7 @@ from typing import Any, ClassVar
 
 from camdegrade.effects import Blur, ColorFilterArray, Denoise, FrequencyResponse, Sharpen
 from camdegrade.fitting.evidence.cfa import JUDGE_DRAWS, MIN_CLOSED, READS, TOLERANCES, distance_to, noise_before_mosaic
+from camdegrade.fitting.evidence.mosaic_guard import critic_guard, guard_line
 from camdegrade.fitting.steps.base import FitStep, PairedFit, closes_gap
 from camdegrade.fitting.steps.denoise import DenoiseMatch
 from camdegrade.fitting.steps.response import ResponseMatch
@@ -65,12 +68,14 @@ class MosaicRejudged(FitStep):
         noise_line = noise_before_mosaic(fit)
         refitted = refit_later_stages(fit)
         without, within = (_distance(fit, profile, stage, route) for profile in (finished, fit.profile))
-        kept = closes_gap(0.0, without, within, TOLERANCES[route], MIN_CLOSED)
+        closes = closes_gap(0.0, without, within, TOLERANCES[route], MIN_CLOSED)
+        guard = critic_guard(fit, finished, fit.profile) if closes else None
+        kept = closes and guard is not None and guard["not_easier"]
         line = (
             f"effect cfa (judged again, {', '.join(refitted) or 'no later step'} refitted through it): "
             f"{stage.pattern} {stage.demosaic} at {float(stage.amount):.3f}: {READS[route]} distance to the "
-            f"captures' {without:.3f} in the finished profile, {within:.3f} with the stage -> "
-            f"{'kept' if kept else 'dropped'}"
+            f"captures' {without:.3f} in the finished profile, {within:.3f} with the stage"
+            f"{'; ' + guard_line(guard) if guard else ''} -> {'kept' if kept else 'dropped'}"
         )
         fit.say(line)
         if not kept:
@@ -81,6 +86,7 @@ class MosaicRejudged(FitStep):
         record = {"kept": kept, "pattern": stage.pattern, "route": route, "demosaic": stage.demosaic}
         record |= {"amount": round(float(stage.amount), 3), "distance_without": round(without, 4)}
         record |= {"distance_with": round(within, 4), "refitted": refitted, "evidence": fit.evidence_pairs[1]}
+        record |= {"closes": closes, "critic": guard}
         return record | ({"noise": noise_line} if kept and noise_line else {})
 
 
