@@ -1,8 +1,10 @@
 """A Bayer mosaic's trace (:mod:`camdegrade.measures.traces.mosaic`) in the foreign cameras' captures and in the real
 pairs of ../shared/data/real-pairs, captures and clean images: per set, the colour route's least trace and its layout,
-the clean images' trace there, then the luma route's least trace, its bootstrap bound, whether the captures' and the
-clean images' luma phases come in a mosaic's order, and whether :func:`~camdegrade.measures.traces.mosaic.read_mosaic`
-proposes a stage. The rows of docs/results.md's "A colour filter array among the default stages". Run from the repo
+the clean images' trace there, then the luma route's least trace, its form's bootstrap bound (since the seventh stop:
+:mod:`camdegrade.measures.traces.mosaic_form`; the table of docs/results.md's "A colour filter array among the default
+stages" was printed with the old bound of the ratio), whether the captures' luma phases come in a mosaic's order and
+the clean images' hold its form, and whether :func:`~camdegrade.measures.traces.mosaic.read_mosaic` proposes a stage.
+Run from the repo
 root (about a minute on one core)::
 
     OMP_NUM_THREADS=1 PYTHONPATH=src:tests .venv/bin/python experiments/cfa_trace.py
@@ -39,9 +41,9 @@ def _row(name: str, cleans: list[torch.Tensor], captures: list[torch.Tensor]) ->
     reading = read_mosaic(cleans, captures, torch.Generator().manual_seed(0))
     luma = reading if reading.route == "luma" else None
     luma_cells = (
-        f"{luma.pattern} {luma.trace:.2f} / {luma.bound:.2f} / {luma.ordered} / {luma.cleans_trace:.2f}, "
-        f"{luma.cleans_ordered}"
-        if luma is not None
+        f"{luma.pattern} {luma.trace:.2f} / {luma.form.bound:+.3f} / {luma.ordered} / {luma.cleans_trace:.2f}, "
+        f"{luma.cleans_form}"
+        if luma is not None and luma.form is not None
         else "–"
     )
     return (
@@ -67,8 +69,8 @@ def _real(subset: str, count: int = 16, side: int = 256) -> tuple[list[torch.Ten
 def main() -> None:
     torch.set_num_threads(1)
     print(
-        "| set | images | colour: layout, captures / cleans | luma: layout, trace / bound / ordered / cleans, "
-        "ordered | proposed |"
+        "| set | images | colour: layout, captures / cleans | luma: layout, trace / form bound / ordered / cleans, "
+        "form | proposed |"
     )
     print("|---|---:|---|---|---|")
     originals = scenes(16, 128, seed=9)

@@ -44,6 +44,7 @@ FAST: dict[str, Any] = {
         ("texture", {}),
         ("denoise", {}),
         ("response", {}),
+        ("mosaic", {}),
     ),
 }
 #: The paper's schedule (Hegde et al.): 100 epochs, Adam at lr 0.01 halved every 30 epochs, batch 32, no early stop;

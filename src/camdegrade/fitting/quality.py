@@ -14,6 +14,7 @@ from camdegrade.fitting.network.training import EpochResult
 from camdegrade.fitting.recipe import FitConfig
 from camdegrade.fitting.steps.noise_evidence import as_stored
 from camdegrade.measures.critic import repeated_critic_test
+from camdegrade.measures.critic.easier import FIT_CRITIC_SEEDS, MIN_CRITIC_SCENES
 from camdegrade.measures.fidelity import measure_fidelity
 from camdegrade.measures.metrics import psnr
 from camdegrade.pairs.pairset import PairSet
@@ -23,13 +24,6 @@ __all__ = ["fit_warnings", "quality_warnings", "still_rising", "validation_quali
 
 Log = Callable[[str], None]
 
-#: The critic at the end of a fit trains on half the validation scenes and is scored on the other half; with fewer
-#: than this many scenes one side would hold a single scene, whose bootstrap interval says nothing.
-MIN_CRITIC_SCENES = 4
-#: Critic seeds at the end of a fit, each training one critic per half of the validation scenes (4 critics in all):
-#: single critics of the City100 built-in's image-only test range from 0.70 to 0.83 (docs/results.md). On City100's 8
-#: validation frames the 8 critics of both modes take 21 s, one per mode took 4 s (AMD EPYC Zen 3, 2 threads).
-FIT_CRITIC_SEEDS = 2
 #: A network within this much of the baseline's validation PSNR is not warned about (float and crop noise).
 BASELINE_TOLERANCE_DB = 0.05
 #: A last epoch that adds at least this much validation PSNR (dB) to the best before it says the fit stopped rising

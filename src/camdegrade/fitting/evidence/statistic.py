@@ -60,15 +60,22 @@ def judge_by_statistic(
     eight_bit: bool,
     tolerance: float,
     share: float,
+    draws: int = 1,
 ) -> StatisticJudgement:
-    """``stage`` judged on ``fit``'s evidence pairs by ``statistic``: the profile sampled (seed 0, ``stream``,
-    rounded to 8 bits where ``eight_bit``) without and with it; kept where what it leaves of the captures' gap is
-    below ``tolerance`` or at most ``1 − share`` of it."""
+    """``stage`` judged on ``fit``'s evidence pairs by ``statistic``: the profile sampled (seeds 0 to ``draws`` − 1,
+    ``stream``, rounded to 8 bits where ``eight_bit``; the statistic of all draws together) without and with it; kept
+    where what it leaves of the captures' gap is below ``tolerance`` or at most ``1 − share`` of it."""
     pairs, label = fit.evidence_pairs
     cleans, captures = (list(side) for side in zip(*pairs, strict=True))
     real = statistic(captures)
     without, within = (
-        statistic(profile.simulate(cleans, 0, stream=stream, eight_bit=eight_bit))
+        statistic(
+            [
+                image
+                for seed in range(draws)
+                for image in profile.simulate(cleans, seed, stream=stream, eight_bit=eight_bit)
+            ]
+        )
         for profile in (fit.profile, fit.profile.with_effects(stage))
     )
     kept = closes_gap(real, without, within, tolerance, share)

@@ -40,6 +40,7 @@ from camdegrade.fitting.unpaired.steps.noise import flat_sums
 from camdegrade.fitting.unpaired.steps.spectrum import SPECTRUM_SIDE, centre_crop
 from camdegrade.functional.analysis.noise import NoiseSums
 from camdegrade.measures.critic import repeated_critic_test
+from camdegrade.measures.critic.easier import CRITIC_SLACK, critic_not_easier
 from camdegrade.measures.fidelity import band_power
 from camdegrade.profile import CameraProfile
 
@@ -50,6 +51,7 @@ __all__ = [
     "ImageStatistics",
     "Judgement",
     "StageTraining",
+    "critic_not_easier",
     "fit_learned_stage",
     "judge_half",
     "judge_halves",
@@ -60,9 +62,6 @@ __all__ = [
     "statistics_distance",
 ]
 
-#: How much easier the fresh critic may find the simulation with the stage (accuracy; two critics on 8–10 held-out
-#: images spread by about 0.05, docs/results.md).
-CRITIC_SLACK = 0.02
 #: A judgement uses at most this many held-out clean images and as many captures (evenly spaced): its critics are
 #: most of its time, and 16 City100 scenes already separate the rows of docs/results.md.
 JUDGE_IMAGES = 20
@@ -102,7 +101,7 @@ class Judgement:
         change = self.with_stage["distance"] - self.without["distance"]
         critic_change = self.with_stage["critic"] - self.without["critic"]
         self.not_farther = change <= SIGNIFICANCE * self.change_error
-        self.not_easier = critic_change <= CRITIC_SLACK
+        self.not_easier = critic_not_easier(self.without["critic"], self.with_stage["critic"])
         self.better = critic_change < 0 or change < -SIGNIFICANCE * self.change_error
         self.keep = self.not_farther and self.not_easier and self.better
 

@@ -9,8 +9,9 @@ each 2×2 tile and leaves only luma's trace (:func:`luma_trace`: the **luma** ro
 colour at blue's site, 0.299 at red's, 0.587 at green's, so a mosaic leaves the least energy at blue's site (red's
 and green's order varies with the demosaic and the colour matrix). A pattern common to all channels can do so too
 (real cameras' captures and clean images alike: CC15 0.71 and 0.80; a noisy bilinear upscale 0.94), so the luma route
-asks more than the colour route's bar: blue's site the least, the bootstrap bound over images at most
-:data:`MAX_TRACE`, and clean images without that order below 1.
+proposes by the phases' form, not by that ratio's size (:mod:`camdegrade.measures.traces.mosaic_form`: a diagonal
+contrast a pattern of rows times columns has not, the two green sites alike), with blue's site the least, and the
+clean images without that form.
 
 Both read clean images and captures alike: clean images with a mosaic of their own get no second one
 (:func:`read_mosaic`). Values on cameras and real pairs: docs/results.md, *A colour filter array among the default
@@ -37,14 +38,13 @@ from camdegrade.functional.sensor.cfa import (
     interpolation_phases,
     luma_phases,
 )
+from camdegrade.measures.traces.mosaic_form import MosaicForm, form_margin, greens_alike, read_form
 
 __all__ = ["MAX_TRACE", "ROUTES", "MosaicReading", "luma_order", "luma_trace", "mosaic_trace", "read_mosaic"]
 
 #: The colour route proposes a layout whose captures' trace is at most this, where the clean images' is above it (a
 #: phone's Hamilton–Adams mosaic 0.4; cameras without one and real pairs 0.95–1.0).
 MAX_TRACE = 0.85
-#: Bootstrap rounds (over images) of the luma route's bound.
-BOOTSTRAP_ROUNDS = 200
 
 
 def mosaic_trace(images: Sequence[Tensor], pattern: str) -> float:
@@ -74,7 +74,7 @@ def luma_trace(images: Sequence[Tensor], pattern: str) -> float:
 
 def luma_order(images: Sequence[Tensor], pattern: str) -> bool:
     """Whether the luma phases of ``images`` are ordered as a mosaic of ``pattern`` leaves them: least where it samples
-    blue."""
+    blue, the two green sites nearer each other than red's and blue's."""
     return _ordered(_mean_luma(images), pattern)
 
 
@@ -85,16 +85,17 @@ ROUTES: dict[str, Callable[[Sequence[Tensor], str], float]] = {"colour": mosaic_
 @dataclass(frozen=True)
 class MosaicReading:
     """What a set of pairs shows of a mosaic, by one route: the layout whose trace in the captures is least, every
-    layout's trace there, the clean images' trace at that layout, and (luma) the captures' bootstrap bound and
-    whether the captures' and the clean images' phases come in a mosaic's order."""
+    layout's trace there, the clean images' trace at that layout, and (luma) the captures' mosaic form
+    (:class:`~camdegrade.measures.traces.mosaic_form.MosaicForm`), whether their phases come in a mosaic's order
+    (blue's site the least, the green sites alike) and whether the clean images' phases hold that form."""
 
     route: str
     pattern: str
     traces: dict[str, float]
     cleans_trace: float
-    bound: float | None = None
+    form: MosaicForm | None = None
     ordered: bool | None = None
-    cleans_ordered: bool | None = None
+    cleans_form: bool | None = None
 
     @property
     def trace(self) -> float:
@@ -102,12 +103,10 @@ class MosaicReading:
 
     def proposed(self) -> bool:
         """Colour: the captures' trace at most :data:`MAX_TRACE`, the clean images' above it. Luma: the captures'
-        phases in a mosaic's order, their bound at most :data:`MAX_TRACE`, and the clean images' not in that order
-        below 1."""
+        phases in a mosaic's order and form (its bootstrap bound above 0), the clean images' without that form."""
         if self.route == "colour":
             return self.trace <= MAX_TRACE < self.cleans_trace
-        held_by_cleans = bool(self.cleans_ordered) and self.cleans_trace < 1
-        return bool(self.ordered) and self.bound is not None and self.bound <= MAX_TRACE and not held_by_cleans
+        return bool(self.ordered) and self.form is not None and self.form.held and not self.cleans_form
 
     def to_dict(self) -> dict[str, Any]:
         note = {
@@ -117,11 +116,13 @@ class MosaicReading:
             "captures_traces": {layout: round(value, 3) for layout, value in self.traces.items()},
             "cleans_trace": round(self.cleans_trace, 3),
         }
-        if self.route == "luma":
+        if self.route == "luma" and self.form is not None:
             note |= {
-                "bound": round(self.bound or 0.0, 3),
+                "form_margin": round(self.form.margin, 4),
+                "form_bound": round(self.form.bound, 4),
+                "form_ratio": round(self.form.ratio, 3),
                 "ordered": self.ordered,
-                "cleans_ordered": self.cleans_ordered,
+                "cleans_form": self.cleans_form,
             }
         return note
 
@@ -139,17 +140,16 @@ def read_mosaic(cleans: Sequence[Tensor], captures: Sequence[Tensor], generator:
 
 def _luma_reading(cleans: Sequence[Tensor], captures: Sequence[Tensor], generator: torch.Generator) -> MosaicReading:
     """The luma route's reading: the layout of least trace among those whose order the captures' phases have (all,
-    where none has), the bound over images drawn with replacement."""
-    phases = torch.stack([luma_phases(image) for image in captures])
-    traces = {pattern: _ratio(phases.mean(0), pattern) for pattern in PATTERNS}
-    ordered = [pattern for pattern in PATTERNS if _ordered(phases.mean(0), pattern)]
+    where none has), the captures' form (its bound over images drawn with replacement by ``generator``) and whether
+    the clean images' mean phases hold that form."""
+    phases = torch.stack([luma_phases(image) for image in captures]).mean(0)
+    traces = {pattern: _ratio(phases, pattern) for pattern in PATTERNS}
+    ordered = [pattern for pattern in PATTERNS if _ordered(phases, pattern)]
     pattern = min(ordered or PATTERNS, key=traces.__getitem__)
-    draws = torch.randint(0, len(captures), (BOOTSTRAP_ROUNDS, len(captures)), generator=generator)
-    bound = float(torch.quantile(torch.tensor([_ratio(phases[draw].mean(0), pattern) for draw in draws]), 0.975))
     clean = _mean_luma(cleans)
-    return MosaicReading(
-        "luma", pattern, traces, _ratio(clean, pattern), bound, bool(ordered), _ordered(clean, pattern)
-    )
+    cleans_form = form_margin(clean) > 0 and _ordered(clean, pattern)
+    form = read_form(captures, generator)
+    return MosaicReading("luma", pattern, traces, _ratio(clean, pattern), form, bool(ordered), cleans_form)
 
 
 def _ratio(phases: Tensor, pattern: str) -> float:
@@ -159,4 +159,4 @@ def _ratio(phases: Tensor, pattern: str) -> float:
 
 def _ordered(phases: Tensor, pattern: str) -> bool:
     blue, red, green = _luma_sites(phases, pattern)
-    return blue < min(red, green)
+    return blue < min(red, green) and greens_alike(phases, pattern)
