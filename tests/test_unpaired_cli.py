@@ -41,6 +41,7 @@ SAMPLES: dict[str, list[str]] = {
     "--texture": ["none"],
     "--learned-texture": ["none"],
     "--sensor-scale": ["0.5"],
+    "--area-sensor": [],
     "--no-effects": [],
     "--device": ["cpu"],
     "--threads": ["2"],
@@ -63,6 +64,7 @@ PASSED: dict[str, tuple[str, Any]] = {
     "--effects": ("effects", ["noise", "jpeg"]),
     "--learned-texture": ("effects", [name for name in UNPAIRED_EFFECTS if name != "learned_texture"]),
     "--sensor-scale": ("sensor_scale", 0.5),
+    "--area-sensor": ("area_sensor", True),
     "--max-pairs": ("max_images", 9),
     "--strict": ("strict", True),
     "--threads": ("threads", 2),
@@ -147,6 +149,7 @@ def test_left_out_the_options_keep_the_unpaired_defaults(
     assert code == 0, err
     call = recorded[0]
     assert call["effects"] == UNPAIRED_EFFECTS and call["seed"] == 0 and call["sensor_scale"] == "auto"
+    assert call["area_sensor"] is False
     assert call["max_images"] is None and call["strict"] is False and call["name"] == "p"
     assert call["checkpoint"] == tmp_path / "p.ckpt.safetensors" and call["resume"] is False
 
@@ -198,3 +201,15 @@ def test_strict_refuses_an_unreadable_file_before_fitting_and_writes_nothing(
     line = one_line_error(err)
     assert code == 1 and "captured: 1 file(s) could not be used (strict" in line, line
     assert "broken.png" in out and not output.exists()
+
+
+@pytest.mark.parametrize(("option", "value"), [("--area-sensor", []), ("--clean", ["clean"])])
+def test_an_unpaired_only_option_with_pairs_is_refused_in_one_line(
+    option: str, value: list[str], tmp_path: Path, capsys: pytest.CaptureFixture
+) -> None:
+    code, _, err = run_cli(
+        ["fit", str(tmp_path / "pairs"), "-o", str(tmp_path / "p.safetensors"), option, *value], capsys
+    )
+    line = one_line_error(err)
+    assert code == 1 and f"{option} goes with --unpaired" in line, line
+    assert not (tmp_path / "p.safetensors").exists()

@@ -36,6 +36,7 @@ __all__ = ["add_parser", "run"]
 UNPAIRED_USES: tuple[str, ...] = (
     "unpaired",
     "clean",
+    "area_sensor",
     "output",
     "seed",
     "effects",
@@ -88,6 +89,12 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         "(docs/fitting.md, 'Unpaired fitting'); with --clean, a folder of clean images of other scenes",
     )
     fit.add_argument("--clean", type=Path, default=None, metavar="CLEAN", help="clean images for --unpaired")
+    fit.add_argument(
+        "--area-sensor",
+        action="store_true",
+        help="--unpaired: also search a sensor that reads its pixels' areas where no upscale shows (off by default; "
+        "docs/results.md, 'An area-sampling sensor in the unpaired fit')",
+    )
     fit.add_argument("-o", "--output", type=Path, required=True, help="profile to write (.safetensors)")
     add_recipe_options(fit)
     fit.add_argument(
@@ -126,6 +133,8 @@ def run(args: argparse.Namespace) -> int:
         return _run_unpaired(args)
     if args.clean is not None:
         raise ValueError(f"--clean goes with --unpaired, got --clean {printable(args.clean)} and PAIRS")
+    if args.area_sensor:
+        raise ValueError("--area-sensor goes with --unpaired, got --area-sensor and PAIRS")
     recipe = FitConfig.recipe(args.recipe, **recipe_changes(args))
     check_schedule_options(args, recipe.schedule)
     checkpoint = _checkpoint(args)
@@ -186,6 +195,7 @@ def _run_unpaired(args: argparse.Namespace) -> int:
             effects=_unpaired_effects(UNPAIRED_EFFECTS if args.effects is None else args.effects, args.learned_texture),
             seed=args.seed if args.seed is not None else 0,
             sensor_scale=args.sensor_scale if args.sensor_scale is not None else "auto",
+            area_sensor=args.area_sensor,
             max_images=args.max_pairs,
             strict=args.strict,
             progress=not args.quiet,
