@@ -110,9 +110,9 @@ def row(name: str, captures: list[np.ndarray], cleans: list[np.ndarray]) -> str:
     for count in (10, 32, COUNT):
         count = min(count, len(captures))
         shots = [unit(image) for image in captures[:count]]
-        phases = torch.stack([luma_phases(image) for image in shots]).mean(0)
-        rho, kappa, chi = phase_contrasts(phases)
-        form = read_form(shots, torch.Generator().manual_seed(0))
+        per_image = torch.stack([luma_phases(image) for image in shots])
+        rho, kappa, chi = phase_contrasts(per_image.mean(0))
+        form = read_form(per_image, torch.Generator().manual_seed(0))
         reading = read_mosaic([unit(c) for c in cleans[:count]], shots, torch.Generator().manual_seed(0))
         proposed = f"{reading.route} {reading.pattern}" if reading.proposed() else "no"
         cells.append(f"{chi:+.3f} / {np.hypot(rho, kappa):.3f} / {form.ratio:.2f} / {form.bound:+.3f} / {proposed}")

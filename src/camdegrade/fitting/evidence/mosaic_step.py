@@ -18,12 +18,14 @@ camera's chain does (docs/results.md, *The cfa stage proposed by the mosaic's fo
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
 from camdegrade.effects import Blur, ColorFilterArray, Denoise, FrequencyResponse, Sharpen
 from camdegrade.fitting.evidence.cfa import JUDGE_DRAWS, MIN_CLOSED, READS, TOLERANCES, distance_to, noise_before_mosaic
 from camdegrade.fitting.evidence.mosaic_guard import critic_guard, guard_line
+from camdegrade.fitting.evidence.statistic import simulated_draws
 from camdegrade.fitting.steps.base import FitStep, PairedFit, closes_gap
 from camdegrade.fitting.steps.denoise import DenoiseMatch
 from camdegrade.fitting.steps.response import ResponseMatch
@@ -67,7 +69,8 @@ class MosaicRejudged(FitStep):
         fit.profile = fit.profile.with_effects(stage)
         noise_line = noise_before_mosaic(fit)
         refitted = refit_later_stages(fit)
-        without, within = (_distance(fit, profile, stage, route) for profile in (finished, fit.profile))
+        distance = _distance_of(fit, stage, route)
+        without, within = distance(finished), distance(fit.profile)
         closes = closes_gap(0.0, without, within, TOLERANCES[route], MIN_CLOSED)
         guard = critic_guard(fit, finished, fit.profile) if closes else None
         kept = closes and guard is not None and guard["not_easier"]
@@ -94,17 +97,15 @@ def _later_names() -> list[str]:
     return [step.name for step in LATER_STEPS]
 
 
-def _distance(fit: PairedFit, profile: CameraProfile, stage: ColorFilterArray, route: str) -> float:
-    """``profile``'s distance to the judged captures' trace (:func:`~camdegrade.fitting.evidence.cfa.distance_to`),
-    its simulation drawn :data:`~camdegrade.fitting.evidence.cfa.JUDGE_DRAWS` times."""
+def _distance_of(fit: PairedFit, stage: ColorFilterArray, route: str) -> Callable[[CameraProfile], float]:
+    """A profile's distance to the judged captures' trace (:func:`~camdegrade.fitting.evidence.cfa.distance_to`, the
+    captures read once), its simulation drawn :data:`~camdegrade.fitting.evidence.cfa.JUDGE_DRAWS` times."""
     pairs, _ = fit.evidence_pairs
     cleans, captures = (list(side) for side in zip(*pairs, strict=True))
-    simulated = [
-        image
-        for seed in range(JUDGE_DRAWS)
-        for image in profile.simulate(cleans, seed, stream="cfa-evidence", eight_bit=fit.eight_bit)
-    ]
-    return distance_to(captures, stage.pattern, route)(simulated)
+    to_captures = distance_to(captures, stage.pattern, route)
+    return lambda profile: to_captures(
+        simulated_draws(profile, cleans, JUDGE_DRAWS, stream="cfa-evidence", eight_bit=fit.eight_bit)
+    )
 
 
 def refit_later_stages(fit: PairedFit) -> list[str]:

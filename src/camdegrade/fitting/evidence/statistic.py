@@ -14,8 +14,9 @@ from torch import Tensor
 from camdegrade.effects import Effect
 from camdegrade.fitting.steps.base import PairedFit, closes_gap
 from camdegrade.fitting.steps.noise_evidence import relative_gain
+from camdegrade.profile import CameraProfile
 
-__all__ = ["StatisticJudgement", "judge_by_statistic"]
+__all__ = ["StatisticJudgement", "judge_by_statistic", "simulated_draws"]
 
 Statistic = Callable[[Sequence[Tensor]], float]
 
@@ -69,15 +70,19 @@ def judge_by_statistic(
     cleans, captures = (list(side) for side in zip(*pairs, strict=True))
     real = statistic(captures)
     without, within = (
-        statistic(
-            [
-                image
-                for seed in range(draws)
-                for image in profile.simulate(cleans, seed, stream=stream, eight_bit=eight_bit)
-            ]
-        )
+        statistic(simulated_draws(profile, cleans, draws, stream=stream, eight_bit=eight_bit))
         for profile in (fit.profile, fit.profile.with_effects(stage))
     )
     kept = closes_gap(real, without, within, tolerance, share)
     gain = relative_gain(fit.profile, stage, cleans, captures)
     return StatisticJudgement(real, without, within, kept, gain, len(pairs), label)
+
+
+def simulated_draws(
+    profile: CameraProfile, cleans: Sequence[Tensor], draws: int, *, stream: str, eight_bit: bool
+) -> list[Tensor]:
+    """``profile``'s simulations of ``cleans`` with seeds 0 to ``draws`` − 1 (``stream``; rounded to 8 bits where
+    ``eight_bit``), the draws one after the other."""
+    return [
+        image for seed in range(draws) for image in profile.simulate(cleans, seed, stream=stream, eight_bit=eight_bit)
+    ]

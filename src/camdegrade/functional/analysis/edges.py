@@ -25,7 +25,7 @@ from torch import Tensor
 
 from camdegrade.functional.analysis.images import luma
 
-__all__ = ["LINE_HEIGHT", "MIN_CONTRAST", "line_widths", "median_step_width", "step_widths"]
+__all__ = ["LINE_HEIGHT", "MIN_CONTRAST", "line_widths", "median_step_width", "pooled_median", "step_widths"]
 
 #: The profile read across a step: ``HALF`` samples either side of it; the plateaus are ``PLATEAU`` samples from the
 #: step (the pixels 4–7 from it), flat within :data:`PLATEAU_SPREAD` of the step's contrast, at least
@@ -103,8 +103,12 @@ def step_widths(image: Tensor) -> Tensor:
 
 def median_step_width(images: Sequence[Tensor]) -> tuple[float, int]:
     """The median of :func:`step_widths` over all steps of ``images`` (NaN where none) and how many there are."""
-    widths = [step_widths(image) for image in images]
-    pooled = torch.cat(widths) if widths else torch.zeros(0, dtype=torch.float64)
+    return pooled_median([step_widths(image) for image in images])
+
+
+def pooled_median(widths: Sequence[Tensor]) -> tuple[float, int]:
+    """The median of ``widths`` (one tensor per image) pooled, and how many there are; NaN where there are none."""
+    pooled = torch.cat(list(widths)) if widths else torch.zeros(0, dtype=torch.float64)
     return (float(pooled.median()) if len(pooled) else float("nan")), len(pooled)
 
 

@@ -142,13 +142,14 @@ def _luma_reading(cleans: Sequence[Tensor], captures: Sequence[Tensor], generato
     """The luma route's reading: the layout of least trace among those whose order the captures' phases have (all,
     where none has), the captures' form (its bound over images drawn with replacement by ``generator``) and whether
     the clean images' mean phases hold that form."""
-    phases = torch.stack([luma_phases(image) for image in captures]).mean(0)
+    per_image = torch.stack([luma_phases(image) for image in captures])
+    phases = per_image.mean(0)
     traces = {pattern: _ratio(phases, pattern) for pattern in PATTERNS}
     ordered = [pattern for pattern in PATTERNS if _ordered(phases, pattern)]
     pattern = min(ordered or PATTERNS, key=traces.__getitem__)
     clean = _mean_luma(cleans)
     cleans_form = form_margin(clean) > 0 and _ordered(clean, pattern)
-    form = read_form(captures, generator)
+    form = read_form(per_image, generator)
     return MosaicReading("luma", pattern, traces, _ratio(clean, pattern), form, bool(ordered), cleans_form)
 
 

@@ -39,6 +39,7 @@ __all__ = [
     "FORM_ROUNDS",
     "MosaicForm",
     "form_margin",
+    "form_vector",
     "greens_alike",
     "phase_contrasts",
     "read_form",
@@ -91,11 +92,11 @@ class MosaicForm:
         return self.bound > 0
 
 
-def read_form(images: Sequence[Tensor], generator: torch.Generator) -> MosaicForm:
-    """:class:`MosaicForm` of ``images`` (``(3, H, W)`` each; ``generator`` draws the bootstrap)."""
-    phases = torch.stack([luma_phases(image) for image in images])
+def read_form(phases: Tensor, generator: torch.Generator) -> MosaicForm:
+    """:class:`MosaicForm` of a set of images' luma phases (``(N, 2, 2)``, one per image:
+    :func:`~camdegrade.functional.sensor.cfa.luma_phases`; ``generator`` draws the bootstrap)."""
     rho, kappa, chi = phase_contrasts(phases.mean(0))
-    draws = torch.randint(0, len(images), (FORM_ROUNDS, len(images)), generator=generator)
+    draws = torch.randint(0, len(phases), (FORM_ROUNDS, len(phases)), generator=generator)
     margins = torch.tensor([form_margin(phases[draw].mean(0)) for draw in draws])
     ratio = abs(chi) / max((rho * rho + kappa * kappa) ** 0.5, 1e-12)
     return MosaicForm(form_margin(phases.mean(0)), float(torch.quantile(margins, 0.025)), ratio)

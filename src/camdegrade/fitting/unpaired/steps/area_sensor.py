@@ -38,7 +38,7 @@ from camdegrade.fitting.unpaired.steps.spectrum import (
     centre_crop,
     log_spectrum,
 )
-from camdegrade.functional.analysis.edges import line_widths, step_widths
+from camdegrade.functional.analysis.edges import line_widths, pooled_median, step_widths
 
 __all__ = ["AreaSensorMatch", "SensorCandidate", "SetWidths", "distance", "set_widths"]
 
@@ -101,11 +101,6 @@ def set_widths(images: Sequence[Tensor]) -> SetWidths:
     return SetWidths([step_widths(image) for image in images], [line_widths(image) for image in images], spectra)
 
 
-def _median(widths: Sequence[Tensor]) -> tuple[float, int]:
-    pooled = torch.cat(list(widths)) if widths else torch.zeros(0, dtype=torch.float64)
-    return (float(pooled.median()) if len(pooled) else math.nan), len(pooled)
-
-
 def _shape_bands() -> int:
     """How many of :func:`log_spectrum`'s bands lie below :data:`SHAPE_TOP`."""
     return sum(1 for top in SPECTRUM_EDGES[REFERENCE_BANDS + 1 :] if top <= SHAPE_TOP)
@@ -118,7 +113,7 @@ def distance(simulated: SetWidths, real: SetWidths, part: slice = slice(None)) -
     parts: dict[str, float] = {}
     total = 0.0
     for name in ("steps", "lines"):
-        (sim, count), (want, _) = _median(getattr(simulated, name)[part]), _median(getattr(real, name)[part])
+        (sim, count), (want, _) = (pooled_median(getattr(widths, name)[part]) for widths in (simulated, real))
         parts[name] = round(sim - want, 3) if count >= MIN_COUNT and math.isfinite(sim - want) else math.inf
         total += (parts[name] / WIDTH_UNIT) ** 2
     bands = _shape_bands()
@@ -225,7 +220,7 @@ class AreaSensorMatch(UnpairedStep):
             "halves": [[_rounded(before), _rounded(after)] for before, after in checks],
             "without": _finite(distance(proposal.without, real)[1]),
             "found_on_halves": [_described(proposal, proposal.found[label]) for label in ("half A", "half B")],
-            "captures": {name: _rounded(_median(getattr(real, name))[0]) for name in ("steps", "lines")},
+            "captures": {name: _rounded(pooled_median(getattr(real, name))[0]) for name in ("steps", "lines")},
         }
         if kept:
             chosen = descend(lambda candidate: distance(proposal.widths(candidate), real)[0], _grid(fit))
