@@ -16,9 +16,9 @@ content met a codec, but the noise stage adds what no clean image holds, and the
 codec. On the flat pixels of 10 PolyU captures (Canon 5D Mk II; the dataset's JPEG q75, then q85) against their own
 scenes' mean frames, 98 % of the luma DCT coefficients at ``u + v ≥ 6`` of the flat 8×8 blocks are zero (under 0.75)
 and the luma differences across block edges carry 3.5× the energy of those inside; the noise stage added after the
-clean images' codec read 57 % and 0.99×, and the fit's own image-only critic told the simulation from the captures
+clean images' codec read 57–69 % and 0.99×, and the fit's own image-only critic told the simulation from the captures
 at 0.85 (docs/results.md, "The PolyU unpaired self-check: the codec the camera's noise went through"). Compressing
-those q75 frames again at q85 moves their flat pixels by 0.3 levels rms. So where the noise stage is asked for and
+those q75 frames again at q85 moves their flat pixels by a std of 0.3 levels. So where the noise stage is asked for and
 the captures' flat pixels vary :data:`~camdegrade.fitting.unpaired.steps.noise.NOISE_SHARE` times more than the
 clean set's (there is noise for the chain to add), the codec stage is kept, after the noise.
 """
