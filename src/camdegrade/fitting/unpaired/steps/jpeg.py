@@ -10,6 +10,17 @@ quality. The 8×8 block-edge energy is not used: a resize leaves as much of it (
 The stage is the captures' qualities (a :class:`~camdegrade.effects.JPEG` mixture with each quality's share of the
 images when they differ, compressing the share of images that were compressed), kept only when the captures are
 compressed more than the clean images: clean images of the same quality compressed again would lose twice.
+
+**Kept for the noise the chain adds** (:func:`noise_to_code`), where the clean images are compressed as much: their
+content met a codec, but the noise stage adds what no clean image holds, and the camera's noise went through its
+codec. On the flat pixels of 10 PolyU captures (Canon 5D Mk II; the dataset's JPEG q75, then q85) against their own
+scenes' mean frames, 98 % of the luma DCT coefficients at ``u + v ≥ 6`` of the flat 8×8 blocks are zero (under 0.75)
+and the luma differences across block edges carry 3.5× the energy of those inside; the noise stage added after the
+clean images' codec read 57–69 % and 0.99×, and the fit's own image-only critic told the simulation from the captures
+at 0.85 (docs/results.md, "The PolyU unpaired self-check: the codec the camera's noise went through"). Compressing
+those q75 frames again at q85 moves their flat pixels by a std of 0.3 levels. So where the noise stage is asked for and
+the captures' flat pixels vary :data:`~camdegrade.fitting.unpaired.steps.noise.NOISE_SHARE` times more than the
+clean set's (there is noise for the chain to add), the codec stage is kept, after the noise.
 """
 
 from __future__ import annotations
@@ -22,10 +33,11 @@ from dataclasses import dataclass
 from functools import lru_cache
 from typing import Any, ClassVar
 
-from camdegrade.effects import JPEG, Effect
+from camdegrade.effects import JPEG, Effect, Noise
 from camdegrade.fitting.steps.base import Verdict
 from camdegrade.fitting.unpaired.bench import UnpairedFit, UnpairedStep
 from camdegrade.fitting.unpaired.images import ImageSet
+from camdegrade.fitting.unpaired.steps.noise import FINE_WINDOW, NOISE_SHARE, captures_noise, flat_sums
 from camdegrade.measures.traces.quantisation import FREQUENCIES, read_lattice
 
 __all__ = [
@@ -33,6 +45,7 @@ __all__ = [
     "JpegQuality",
     "SideQualities",
     "codec_stage",
+    "noise_to_code",
     "quality_from_steps",
     "quality_from_tables",
     "side_qualities",
@@ -70,7 +83,8 @@ class SideQualities:
 class JpegQuality(UnpairedStep):
     """The JPEG step, before every stage fitted through the chain (its quality is read, not fitted): ``propose``
     reads each capture's quality (:func:`side_qualities`), ``judge`` keeps the stage they give (:func:`codec_stage`)
-    unless the clean images are compressed as much."""
+    unless the clean images are compressed as much and there is no noise for the chain to add
+    (:func:`noise_to_code`)."""
 
     name: ClassVar[str] = "jpeg"
     kinds: ClassVar[tuple[type[Effect], ...]] = (JPEG,)
@@ -89,11 +103,18 @@ class JpegQuality(UnpairedStep):
             clean = side_qualities(fit.cleans).median()
             note["clean_median_quality"] = clean
             if clean is not None and found.median() >= clean:
-                reason = (
-                    f"the captures (median quality {found.median()}) are compressed no more than the clean images "
-                    f"({clean}), which a codec stage would compress again"
+                noise = noise_to_code(fit)
+                if noise is None:
+                    reason = (
+                        f"the captures (median quality {found.median()}) are compressed no more than the clean images "
+                        f"({clean}), which a codec stage would compress again"
+                    )
+                    return self._not_fitted(fit, note, reason).record
+                note["for_the_noise"] = noise
+                fit.say(
+                    f"jpeg: the clean images are compressed as much ({clean}), but the captures' flat pixels vary "
+                    f"{noise['captures_std_levels']} levels against {noise['clean_std_levels']}: kept for the noise"
                 )
-                return self._not_fitted(fit, note, reason).record
         counts = Counter(found.compressed)
         stage = codec_stage(counts, len(found.qualities))
         fit.keep(stage)
@@ -201,3 +222,17 @@ def quality_from_tables(tables: dict[int, Sequence[int]]) -> tuple[int, bool]:
 
     best = min(range(1, 101), key=distance)
     return best, distance(best) == 0.0
+
+
+def noise_to_code(fit: UnpairedFit) -> dict[str, Any] | None:
+    """The captures' and the clean set's flat-pixel noise (pooled std, levels, read at
+    :data:`~camdegrade.fitting.unpaired.steps.noise.FINE_WINDOW` as the noise step reads them) where the noise stage
+    is asked for and the captures' is at least :data:`~camdegrade.fitting.unpaired.steps.noise.NOISE_SHARE` times the
+    clean set's; ``None`` otherwise (no clean set, no noise asked for, or none for the chain to add)."""
+    if fit.cleans is None or not fit.wants(Noise):
+        return None
+    captures = captures_noise(fit, direct=False).pooled_std()
+    clean = flat_sums(fit.sets.noise_crops, FINE_WINDOW).pooled_std()
+    if not captures >= NOISE_SHARE * clean:  # NaN (too few flat pixels) keeps no codec
+        return None
+    return {"captures_std_levels": round(captures, 3), "clean_std_levels": round(clean, 3)}
