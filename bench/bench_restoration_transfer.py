@@ -50,7 +50,7 @@ from machine import run_facts, write_json
 from noise_gap_evidence import write_panel
 from residual_cnn import train_network
 from restoration_evidence import BANDS, added, band_profile, crop_2x, format_bands, textured_window
-from restoration_rows import HELD_OUT, ROWS, TRAINING, Row, load_city100, make_rows, missing_scenes
+from restoration_rows import BUILT_IN, HELD_OUT, ROWS, TRAINING, Row, load_city100, make_rows, missing_scenes
 from restorer import Restorer, restore, score
 
 REPOSITORY = Path(__file__).resolve().parents[1]
@@ -279,6 +279,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--compare", type=int, default=55, help="training scenes whose inputs are compared")
     parser.add_argument("--quick", action="store_true", help="one seed, 150 steps, the 3 shown held-out scenes")
     parser.add_argument("--unpaired", type=Path, default=DEFAULT_UNPAIRED, help="the unpaired profile's file")
+    parser.add_argument("--built-in", default=BUILT_IN, help="the built_in row's profile: a built-in's name or a file")
     parser.add_argument("--workers", type=int, default=2, help="processes (one thread each)")
     parser.add_argument("--json", type=Path, default=Path("out/bench/restoration_transfer.json"))
     parser.add_argument("--png", type=Path, default=Path("out/bench/restoration_transfer.png"))
@@ -308,7 +309,7 @@ def main(argv: list[str] | None = None) -> int:
     names = sorted(set(args.rows) | {"real", "colour_map"}, key=ROWS.index)
     config = replace(Restorer(), steps=args.steps, patch=args.patch)
     started, cpu_started = time.perf_counter(), time.process_time()
-    rows, fitted = make_rows(root.resolve(), names, args.unpaired)
+    rows, fitted = make_rows(root.resolve(), names, args.unpaired, args.built_in)
     outcome = run(root.resolve(), held_out, rows, config, args.seeds, args)
     wall = time.perf_counter() - started
     cpu = time.process_time() - cpu_started + outcome["reference"]["cpu"]

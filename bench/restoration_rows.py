@@ -173,8 +173,11 @@ def unpaired_profile(root: Path, path: Path, log=print) -> CameraProfile:
     return profile
 
 
-def make_rows(root: Path, names: Sequence[str], unpaired_path: Path) -> tuple[dict[str, Row], dict[str, object]]:
-    """The rows ``names``, fitted on the training scenes, and what was fitted (with the CPU seconds)."""
+def make_rows(
+    root: Path, names: Sequence[str], unpaired_path: Path, built_in: str | Path = BUILT_IN
+) -> tuple[dict[str, Row], dict[str, object]]:
+    """The rows ``names``, fitted on the training scenes (``built_in``: the built-in row's profile, a name or a
+    file), and what was fitted (with the CPU seconds)."""
     cpu = time.process_time()
     data = load_city100(root)
     colour_map = fit_colour_map(data.train_clean, data.train_captured)
@@ -182,10 +185,11 @@ def make_rows(root: Path, names: Sequence[str], unpaired_path: Path) -> tuple[di
         "colour_map_sigma": round(colour_map.sigma, 3),
         "colour_map": [[round(v, 4) for v in row] for row in colour_map.matrix.tolist()],
         "colour_map_fit_cpu_seconds": round(time.process_time() - cpu, 1),
+        "built_in_profile": str(built_in),
     }
     rows = {
         "real": Row("real", source="captured"),
-        "built_in": Row("built_in", profile=load_profile(BUILT_IN)),
+        "built_in": Row("built_in", profile=load_profile(built_in)),
         "colour_map": Row("colour_map", colour_map=colour_map),
         "clean": Row("clean", source="clean"),
     }

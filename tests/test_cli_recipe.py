@@ -47,10 +47,11 @@ def test_the_recipe_table_has_one_entry_per_fit_config_field_or_step_option() ->
 def test_the_cli_options_of_the_switches_map_onto_the_steps() -> None:
     """``--effects``, ``--texture`` and ``--sensor-scale`` set the options of the recipe's steps (or which run)."""
     fast = FitConfig.recipe("fast")
-    names = ["resolution", "effects", "resampler", "texture", "denoise", "response", "mosaic"]
+    names = ["resolution", "effects", "resampler", "texture", "denoise", "response", "mosaic", "jitter"]
     assert [step.name for step in fast.steps] == names
     none = fast.replace(texture="none", effects=(), sensor_scale=0.5)
-    assert [step.name for step in none.steps] == ["resolution", "effects", "resampler", "mosaic"]
+    assert [step.name for step in none.steps] == ["resolution", "effects", "resampler", "mosaic", "jitter"]
+    assert [step.name for step in fast.replace(jitter="none").steps] == names[:-1]
     assert none.option("effects") == () and none.option("sensor_scale") == 0.5 and none.option("texture") == "none"
     assert none.left_out() == {
         **{name: "texture='none'" for name in ("texture", "denoise", "response")},

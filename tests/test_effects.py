@@ -22,6 +22,7 @@ from camdegrade.effects import (
     Distortion,
     Effect,
     FrequencyResponse,
+    Jitter,
     LearnedTexture,
     Misalignment,
     Noise,
@@ -69,6 +70,7 @@ STRONG = {
     "cfa": lambda: ColorFilterArray("GRBG", 1.0),
     "color": lambda: Color(_MATRIX, gain_jitter=0.1),
     "distortion": lambda: Distortion(0.1, 0.02),
+    "jitter": lambda: Jitter(1.0, 8.0),
     "jpeg": lambda: JPEG(40, quality_jitter=10, probability=0.7, mixture={40: 0.5, 70: 0.3, 90: 0.2}),
     "learned_texture": _learned_texture,
     "misalignment": lambda: Misalignment(0.5, -0.3, 0.4, shift_std=0.5, angle_std=0.2),
@@ -296,7 +298,9 @@ def test_a_stated_linear_filter_is_the_stage(name: str) -> None:
 
 def test_the_linear_stages_state_their_filters_and_the_others_none() -> None:
     stating = {name for name in REGISTERED if any(e.linear_filter() is not None for e in _linear_candidates(name))}
-    assert stating == {"blur", "sharpen", "denoise", "frequency_response"}
+    # jitter's centre (its mean over the field) is a Gaussian blur: that states a filter, the jitter itself does not
+    assert stating == {"blur", "sharpen", "denoise", "frequency_response", "jitter"}
+    assert strong("jitter").linear_filter() is None
     assert strong("sharpen").linear_filter() is None and strong("denoise").linear_filter() is None  # coring
     assert strong("blur").linear_filter() is None  # a PSF of its own for every sample
 
@@ -385,7 +389,7 @@ def test_every_effect_moves_positions_as_it_moves_the_image(name: str) -> None:
 
 
 def test_moving_effects_are_the_warps() -> None:
-    assert {name for name in REGISTERED if EFFECTS[name].moves_pixels} == {"distortion", "misalignment"}
+    assert {name for name in REGISTERED if EFFECTS[name].moves_pixels} == {"distortion", "jitter", "misalignment"}
 
 
 def test_the_dot_check_can_fail() -> None:

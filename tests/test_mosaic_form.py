@@ -117,7 +117,7 @@ def test_a_dropped_cfa_stage_is_judged_again_once_the_later_stages_stand() -> No
     from foreign_cameras.stages import Decode, Demosaic, Encode, Lens, Mosaic, ShotNoise
     from steps_for_tests import paired_fit
 
-    assert [step.name for step in FitConfig.recipe("fast").steps][-2:] == ["response", "mosaic"]
+    assert [step.name for step in FitConfig.recipe("fast").steps][-3:] == ["response", "mosaic", "jitter"]
     bayer = Camera(
         "bayer", (Decode(), Lens(0.6), Mosaic("GRBG"), ShotNoise(3000.0, 0.002), Demosaic("bilinear", "GRBG"), Encode())
     )

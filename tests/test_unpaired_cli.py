@@ -40,6 +40,7 @@ SAMPLES: dict[str, list[str]] = {
     "--effects": ["noise", "jpeg"],
     "--texture": ["none"],
     "--learned-texture": ["none"],
+    "--jitter": ["none"],
     "--sensor-scale": ["0.5"],
     "--area-sensor": [],
     "--no-effects": [],

@@ -45,6 +45,7 @@ FAST: dict[str, Any] = {
         ("denoise", {}),
         ("response", {}),
         ("mosaic", {}),
+        ("jitter", {}),
     ),
 }
 #: The paper's schedule (Hegde et al.): 100 epochs, Adam at lr 0.01 halved every 30 epochs, batch 32, no early stop;
@@ -109,6 +110,8 @@ TEXTURES: tuple[str, ...] = ("match", "none")
 #: ``critic``: a learned texture stage last, trained against a critic (:mod:`camdegrade.fitting.two_sample`), kept
 #: where held-out data confirm it; ``none``: not (every recipe's default; ``fit --unpaired`` fits it by default).
 LEARNED_TEXTURES: tuple[str, ...] = ("critic", "none")
+#: Whether a fit reads a random displacement of the captures' detail (:mod:`camdegrade.fitting.evidence.jitter_step`).
+JITTERS: tuple[str, ...] = ("match", "none")
 #: The smallest sensor scale a recipe accepts (``camdegrade.effects.Resolution.MIN_SCALE``; a test keeps them equal).
 MIN_SENSOR_SCALE = 0.125
 
@@ -185,6 +188,14 @@ FIELDS: tuple[RecipeField, ...] = (
         "where each half of the sets holds enough patches and the halves say so); minutes more",
         LEARNED_TEXTURES,
         toggles=("learned_texture",),
+    ),
+    RecipeField(
+        "jitter",
+        "choice",
+        "match: last, a random sub-pixel displacement where the captures' detail is less coherent with the clean "
+        "image than the profile's by what a displacement explains, kept where validation confirms it",
+        JITTERS,
+        toggles=("jitter",),
     ),
 )
 FIELD: dict[str, RecipeField] = {field.name: field for field in FIELDS}

@@ -64,6 +64,7 @@ UNPAIRED_REFUSES: dict[str, str] = {
     "clean_suffix": "the unpaired fit reads two folders (CAPTURED and --clean), not pairs",
     "captured_suffix": "the unpaired fit reads two folders (CAPTURED and --clean), not pairs",
     "align": "there are no pairs to register",
+    "jitter": "a displacement is read from the coherence of pairs",
     "size_mismatch": "there are no pairs to match: images of any sizes are read as they are",
     "init_from": _NO_NETWORK,
 }

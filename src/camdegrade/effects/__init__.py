@@ -30,6 +30,7 @@ from camdegrade.effects.isp.response import FrequencyResponse
 from camdegrade.effects.isp.sharpen import Sharpen
 from camdegrade.effects.sensor.cfa import ColorFilterArray
 from camdegrade.effects.isp.quantization import Quantization
+from camdegrade.effects.optics.jitter import Jitter
 # isort: on
 
 __all__ = [
@@ -44,6 +45,7 @@ __all__ = [
     "Distortion",
     "Effect",
     "FrequencyResponse",
+    "Jitter",
     "LearnedTexture",
     "Misalignment",
     "Noise",

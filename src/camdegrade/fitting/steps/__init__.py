@@ -4,6 +4,7 @@ that leaves it out. Adding a step: its module (options as dataclass fields, :met
 :meth:`FitStep.judge`), one line here and its test. The network step (:mod:`camdegrade.fitting.steps.network`) is
 every paired fit's, placed by the recipe after the steps it is trained through."""
 
+from camdegrade.fitting.evidence.jitter_step import JitterMatch
 from camdegrade.fitting.evidence.mosaic_step import MosaicRejudged
 from camdegrade.fitting.steps.base import FitStep, PairedFit, Verdict, run_steps
 from camdegrade.fitting.steps.denoise import DenoiseMatch
@@ -22,6 +23,7 @@ STEPS: dict[str, type[FitStep]] = {
     DenoiseMatch.name: DenoiseMatch,
     ResponseMatch.name: ResponseMatch,
     MosaicRejudged.name: MosaicRejudged,
+    JitterMatch.name: JitterMatch,
     LearnedTexturePaired.name: LearnedTexturePaired,
 }
 
