@@ -31,8 +31,13 @@ def main() -> None:
     parser.add_argument("--data", type=Path, default=DEFAULT_DATA)
     parser.add_argument("--profile", default="city100-iphonex", help="a built-in's name or a profile's path")
     parser.add_argument("--out", type=Path, required=True)
+    parser.add_argument(
+        "--copy-from", default=None, help="a distilled profile's teacher: its jitter stage copied first, no step run"
+    )
     args = parser.parse_args()
     profile = load_profile(args.profile)
+    if args.copy_from is not None:
+        return copy_jitter(profile, load_profile(args.copy_from), args)
     pairs = filter_pairs(discover_pairs(args.data / "pairs.csv").pairs, subset="city100_iPhoneX")
     validating = set(profile.fitted["validation_scenes"])
     fitted = [pair for pair in pairs if pair.scene <= LAST_FITTED_SCENE]
@@ -49,6 +54,23 @@ def main() -> None:
     args.out.parent.mkdir(parents=True, exist_ok=True)
     out.save(args.out)
     print(json.dumps({key: value for key, value in out.quality.items() if key != "validation"}, indent=1))
+    print(f"wrote {args.out}")
+
+
+def copy_jitter(profile, teacher, args) -> None:
+    """``profile`` (distilled from ``teacher``, whose stages it copied) with the teacher's jitter first, as a
+    distillation now copies it; the held-out quality measured again."""
+    from camdegrade.effects import Jitter
+    from camdegrade.fitting.evidence.jitter_step import with_jitter
+
+    stage = next(effect for effect in teacher.effects if isinstance(effect, Jitter))
+    pairs = filter_pairs(discover_pairs(args.data / "pairs.csv").pairs, subset="city100_iPhoneX")
+    out = with_jitter(profile, stage)
+    out.fitted = {**profile.fitted, "jitter": {"copied_from": teacher.name, **teacher.fitted.get("jitter", {})}}
+    measured = held_out_quality(out, [pair for pair in pairs if pair.scene > LAST_FITTED_SCENE])
+    out.quality = {**profile.quality, **measured, "profile_psnr_sampled_db": measured["profile_psnr_db"]}
+    out.save(args.out)
+    print(json.dumps(out.quality, indent=1))
     print(f"wrote {args.out}")
 
 

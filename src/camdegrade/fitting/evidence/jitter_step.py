@@ -21,7 +21,7 @@ from camdegrade.effects import Jitter
 from camdegrade.fitting.steps.base import FitStep, PairedFit, Verdict
 from camdegrade.fitting.steps.denoise import eight_bit
 from camdegrade.fitting.steps.texture import MAX_PSNR_LOSS_DB
-from camdegrade.functional.analysis.coherence import bin_centres, coherence, displacement_sigma
+from camdegrade.functional.analysis.coherence import DETAIL_ABOVE, bin_centres, coherence, displacement_sigma
 from camdegrade.measures.metrics import psnr
 from camdegrade.profile import CameraProfile
 
@@ -57,8 +57,9 @@ def with_jitter(profile: CameraProfile, stage: Jitter) -> CameraProfile:
 
 
 def _distance(simulated: Tensor, real: Tensor) -> float:
-    """RMS difference of two coherence curves over the bins from 0.03 cycles/pixel where ``real`` is measurable."""
-    usable = (bin_centres() > 0.03) & (real >= MEASURABLE)
+    """RMS difference of two coherence curves over the bins above
+    :data:`~camdegrade.functional.analysis.coherence.DETAIL_ABOVE` where ``real`` is measurable."""
+    usable = (bin_centres() > DETAIL_ABOVE) & (real >= MEASURABLE)
     return float((simulated - real)[usable].pow(2).mean().sqrt()) if bool(usable.any()) else 0.0
 
 

@@ -22,10 +22,12 @@ from torch import Tensor
 
 from camdegrade.functional.analysis.images import hann2d, luma
 
-__all__ = ["BIN", "HIGH_COHERENCE", "bin_centres", "coherence", "cross_spectra", "displacement_sigma"]
+__all__ = ["BIN", "DETAIL_ABOVE", "HIGH_COHERENCE", "bin_centres", "coherence", "cross_spectra", "displacement_sigma"]
 
 #: Width of the radial frequency bins (cycles/pixel).
 BIN = 0.02
+#: The bins below this (cycles/pixel) hold the frames' shading and tone, not their detail: never read.
+DETAIL_ABOVE = 2 * BIN
 #: Bins where the coherence to explain is at least this read the displacement: there a loss is first order in the
 #: displacement's variance and the texture's share of the power is small (City100: the captures' coherence with
 #: the network's output falls from 0.99 to 0.83 over 0.02–0.16 cycles/pixel as a displacement of 0.58 px would,
@@ -74,10 +76,10 @@ def coherence(first: Sequence[Tensor], second: Sequence[Tensor]) -> Tensor:
 def displacement_sigma(explained: Tensor, observed: Tensor, floor: float = HIGH_COHERENCE) -> float | None:
     """The displacement (pixels per axis) that takes the coherence ``explained`` per bin (what a model already
     gives) to ``observed`` (the captures'): least squares of ``−ln(observed / explained) = 2π² f² σ²`` through 0
-    over the bins from 0.03 cycles/pixel where both are at least ``floor``; 0 where the captures are not less
+    over the bins above :data:`DETAIL_ABOVE` where both are at least ``floor``; 0 where the captures are not less
     coherent, ``None`` where fewer than 3 bins qualify."""
     centres = bin_centres()
-    usable = (centres > 0.03) & (explained >= floor) & (observed >= floor)
+    usable = (centres > DETAIL_ABOVE) & (explained >= floor) & (observed >= floor)
     if int(usable.sum()) < 3:
         return None
     x = 2 * math.pi**2 * centres[usable] ** 2
