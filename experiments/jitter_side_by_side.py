@@ -71,9 +71,8 @@ def main() -> None:
     canvas = torch.cat([F.pad(row, (0, width - row.shape[-1]), value=1.0) for row in rows], -2)
     args.png.parent.mkdir(parents=True, exist_ok=True)
     Image.fromarray((canvas.permute(1, 2, 0) * 255).round().byte().numpy()).save(args.png)
-    print(
-        f"wrote {args.png} (columns: clean | capture | before | now; per scene {', '.join(SHOWN)}: flat 1:1, texture 2x)"
-    )
+    shown = ", ".join(SHOWN)
+    print(f"wrote {args.png} (columns: clean | capture | before | now; per scene {shown}: flat 1:1, texture 2x)")
 
 
 if __name__ == "__main__":
