@@ -18,6 +18,7 @@ import torch
 from torch import Tensor
 
 from camdegrade.effects import Jitter
+from camdegrade.fitting.evidence.mosaic_guard import critic_guard, guard_line
 from camdegrade.fitting.steps.base import FitStep, PairedFit, Verdict
 from camdegrade.fitting.steps.denoise import eight_bit
 from camdegrade.fitting.steps.texture import MAX_PSNR_LOSS_DB
@@ -85,8 +86,10 @@ def judge_jitter(profile: CameraProfile, stage: Jitter, pairs: Pairs, seed: int)
 @dataclass(frozen=True)
 class JitterMatch(FitStep):
     """The jitter step: a :class:`~camdegrade.effects.Jitter` of the displacement read on the training pairs
-    (:func:`read_sigma`), kept where the validation pairs confirm it (:func:`judge_jitter`); recorded in
-    ``fitted['jitter']``."""
+    (:func:`read_sigma`), kept where the validation pairs confirm it (:func:`judge_jitter`) and a fresh image-only
+    critic does not find the profile easier to tell from the captures with it (the cfa stage's guard,
+    :func:`~camdegrade.fitting.evidence.mosaic_guard.critic_guard`: a coherence loss read as a shift may be the
+    camera's texture); recorded in ``fitted['jitter']``."""
 
     name: ClassVar[str] = "jitter"
     needs_network: ClassVar[bool] = True
@@ -97,9 +100,13 @@ class JitterMatch(FitStep):
         with torch.no_grad():
             sigma = read_sigma(fit.profile, list(fit.train_pairs)[:JITTER_PAIRS], fit.seed)
         if sigma is None or sigma < MIN_SIGMA:
-            read = "not readable (too few coherent frequencies)" if sigma is None else f"{sigma:.2f} px"
-            fit.say(f"jitter: displacement {read}, under {MIN_SIGMA} px: not fitted")
-            return Verdict({"kept": False, "sigma": sigma, "reason": f"displacement {read}"})
+            why = (
+                "displacement not readable (fewer than 3 frequencies coherent enough)"
+                if sigma is None
+                else f"displacement {sigma:.2f} px, under {MIN_SIGMA} px"
+            )
+            fit.say(f"jitter: {why}: not fitted")
+            return Verdict({"kept": False, "sigma": sigma, "reason": why})
         return Jitter(min(sigma, Jitter.MAX_SIGMA))
 
     def judge(self, fit: PairedFit, stage: Jitter) -> dict:
@@ -107,12 +114,16 @@ class JitterMatch(FitStep):
             evidence = judge_jitter(fit.profile, stage, fit.judge_pairs(JITTER_PAIRS), fit.seed)
         note = {"sigma": round(float(stage.sigma), 4), "scale": float(stage.scale)}
         note.update({key: round(value, 4) if isinstance(value, float) else value for key, value in evidence.items()})
-        fit.say(
-            f"jitter: {note['sigma']:.2f} px RMS per axis -> {'kept' if note['kept'] else 'dropped'} (validation "
-            f"coherence distance {note['val_coherence_distance_before']:.3f} -> "
-            f"{note['val_coherence_distance_after']:.3f}, PSNR {note['val_psnr_before']:.2f} -> "
-            f"{note['val_psnr_after']:.2f} dB)"
+        line = (
+            f"jitter: {note['sigma']:.2f} px RMS per axis (validation coherence distance "
+            f"{note['val_coherence_distance_before']:.3f} -> {note['val_coherence_distance_after']:.3f}, PSNR "
+            f"{note['val_psnr_before']:.2f} -> {note['val_psnr_after']:.2f} dB)"
         )
+        if note["kept"]:  # the coherence says a displacement; a fresh critic must not find the images easier to tell
+            note["critic"] = critic_guard(fit, fit.profile, with_jitter(fit.profile, stage))
+            note["kept"] = note["critic"]["not_easier"]
+            line += f"; {guard_line(note['critic'])}"
+        fit.say(f"{line} -> {'kept' if note['kept'] else 'dropped'}")
         if note["kept"]:
             fit.profile = with_jitter(fit.profile, stage)
         return note
