@@ -90,10 +90,10 @@ def main() -> None:
 
 
 def held_out_quality(profile, held) -> dict:
-    """PSNR of the clean image, the network and the sampled profile (seed = scene index, as training sees it)
-    against the held-out captures, and the fidelity of the sampled profile with 8 critics (4 seeds, each trained on
-    half the held-out scenes and scored on the other half, and back)."""
-    sims, reals, cleans, identity, sampled, network = [], [], [], [], [], []
+    """PSNR of the clean image, the network, the sampled profile (seed = scene index, as training sees it) and its
+    deterministic output against the held-out captures, and the fidelity of the sampled profile with 8 critics (4
+    seeds, each trained on half the held-out scenes and scored on the other half, and back)."""
+    sims, reals, cleans, identity, sampled, network, means = [], [], [], [], [], [], []
     for index, pair in enumerate(held):
         clean, real = (as_unit(image) for image in load_pair(pair))
         sim = as_unit(CameraDegrade(profile, seed=index)(load_pair(pair)[0]))
@@ -101,6 +101,7 @@ def held_out_quality(profile, held) -> dict:
         identity.append(psnr(clean, real)), sampled.append(psnr(sim, real))
         with torch.no_grad():
             network.append(psnr(profile.network(clean[None])[0], real))
+            means.append(psnr(profile.simulate([clean], index, deterministic=True)[0], real))
     fidelity = measure_fidelity(sims, reals, cleans).to_dict(digits=3)
     fidelity.pop("psnr")  # profile_psnr_db
     scenes = [pair.scene for pair in held]
@@ -114,6 +115,7 @@ def held_out_quality(profile, held) -> dict:
         "identity_psnr_db": mean(identity),
         "network_psnr_db": mean(network),
         "profile_psnr_db": mean(sampled),
+        "profile_psnr_mean_db": mean(means),  # the deterministic output: the conditional mean
         "fidelity": fidelity,
     }
 

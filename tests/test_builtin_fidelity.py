@@ -17,6 +17,7 @@ from camdegrade import CameraDegrade, load_profile
 from camdegrade._support.pixels import as_unit
 from camdegrade.fitting import discover_pairs, filter_pairs, load_pair
 from camdegrade.measures.fidelity import FidelityReport, measure_fidelity
+from camdegrade.measures.metrics import psnr
 from conftest import PAPER_BUILT_IN, REPOSITORY
 
 pytestmark = [pytest.mark.realdata, pytest.mark.slow]
@@ -44,7 +45,12 @@ def test_the_built_in_has_no_grid_and_the_cameras_flat_noise(held_out: list) -> 
     assert report.grid_ratio is not None and report.grid_ratio <= 1.5, report  # 1.20 measured (1.36 without response)
     assert report.noise_ratio is not None and 0.8 <= report.noise_ratio <= 1.25, report
     assert report.banding_ratio is not None and report.banding_ratio <= 1.5, report
-    assert report.psnr >= 30.5, report  # 30.81 measured
+    assert report.psnr >= 27.5, report  # a sample: 27.94 measured (30.81 before its jitter, which moves detail)
+    with torch.no_grad():
+        profile = load_profile("city100-iphonex")
+        means = [profile.simulate([as_unit(clean)], i, deterministic=True)[0] for i, (clean, _) in enumerate(held_out)]
+    mean_psnr = sum(psnr(m, as_unit(real)) for m, (_, real) in zip(means, held_out, strict=True)) / len(held_out)
+    assert mean_psnr >= 30.9, mean_psnr  # the conditional mean: 31.09 measured (30.82 before the jitter)
     # every band within ±0.3 log2 of the camera's (within 0.1 measured; −0.50 and −1.14 at 0.16–0.35 without the
     # frequency-response stage)
     assert all(band is not None and abs(band) <= 0.3 for band in report.bands), report.bands
@@ -61,9 +67,10 @@ def test_the_built_ins_record_what_they_were_fitted_with() -> None:
     assert full.metadata()["network"]["arch"] == fast.metadata()["network"]["arch"] == "LocalAffineNet"
     assert (full.network.width, fast.network.width) == (64, 32)
     assert full.network.curves and fast.network.curves  # the fast recipe's pointwise curves
-    chain = ["blur", "sharpen", "denoise", "frequency_response"]
+    chain = ["jitter", "blur", "sharpen", "denoise", "frequency_response"]
     assert [e.name for e in full.effects] == [e.name for e in fast.effects] == chain
-    assert full.fitted["response"]["kept"] is True
+    assert full.fitted["response"]["kept"] is True and full.fitted["jitter"]["kept"] is True
+    assert torch.equal(full.effects[0].sigma, fast.effects[0].sigma)  # the distilled profile copies its teacher's
     # recorded when the script lived in examples/ (the profile's bytes are kept); it lives in experiments/ now
     assert full.fitted["command"].startswith("python examples/fit_city100_default.py")
     assert (REPOSITORY / "experiments" / "fit_city100_default.py").is_file()

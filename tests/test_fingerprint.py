@@ -23,5 +23,5 @@ def test_the_fingerprint_changes_with_an_in_place_edit_or_a_swap():
         profile.network.decode2.bias.add_(0.0)
     edited = tensors_fingerprint(module_tensors(profile))
     assert edited != before
-    profile.effects[0].sigma_x = profile.effects[0].sigma_x.clone()
+    profile.effects[1].sigma_x = profile.effects[1].sigma_x.clone()  # the blur (after the jitter)
     assert tensors_fingerprint(module_tensors(profile)) != edited

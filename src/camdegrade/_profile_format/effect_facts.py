@@ -375,4 +375,12 @@ BUILT_IN: dict[str, EffectFacts] = {
         value_rules=(_white_above_black,),
     ),
     "vignetting": EffectFacts("optics", {}, _scalars(Bound(-10.0, 10.0), "k1", "k2")),
+    "jitter": EffectFacts(
+        "optics",
+        {},
+        {  # Jitter.MAX_SIGMA, Jitter.MAX_SCALE
+            "sigma": Buffer(bound=Bound(0.0, 1.5)),
+            "scale": Buffer(bound=Bound(1.0, 64.0)),
+        },
+    ),
 }

@@ -217,7 +217,12 @@ def _where(quality: Mapping[str, Any]) -> tuple[str, str]:
 def _psnr(quality: Mapping[str, Any]) -> str | None:
     """``identity 23.79 dB -> profile 30.81 dB (network 30.80 dB)``; a distilled profile's against its teacher."""
     profile = next((key for key in ("profile_psnr_db", "profile_psnr_mean_db") if key in quality), None)
-    if "identity_psnr_db" in quality and profile is not None:
+    sampled, mean = quality.get("profile_psnr_db"), quality.get("profile_psnr_mean_db")
+    if _is_number(sampled) and _is_number(mean) and f"{sampled:.2f}" != f"{mean:.2f}":  # a stage that draws
+        main = f"profile {_db(mean)} mean, {_db(sampled)} sampled"
+        if "identity_psnr_db" in quality:
+            main = f"identity {_db(quality['identity_psnr_db'])} -> {main}"
+    elif "identity_psnr_db" in quality and profile is not None:
         main = f"identity {_db(quality['identity_psnr_db'])} -> profile {_db(quality[profile])}"
     elif profile is not None:
         main = f"profile {_db(quality[profile])}"
