@@ -49,7 +49,8 @@ def main() -> None:
     run_steps([step for step in FitConfig.recipe("fast").steps if step.name in REFITTED], fit)
     print(f"steps {', '.join(REFITTED)}: {time.perf_counter() - started:.0f} s")
     out = fit.profile
-    out.fitted = {**profile.fitted, **fit.records, "command": f"python experiments/jitter_city100.py --out {args.out}"}
+    command = f"python experiments/jitter_city100.py --profile {args.profile} --out {args.out}"
+    out.fitted = {**profile.fitted, **fit.records, "jitter_command": command}  # "command" stays the fit's
     out.quality = {**held_out_quality(out, held), "validation": profile.quality.get("validation")}
     args.out.parent.mkdir(parents=True, exist_ok=True)
     out.save(args.out)

@@ -73,6 +73,10 @@ def test_the_built_ins_record_what_they_were_fitted_with() -> None:
     assert torch.equal(full.effects[0].sigma, fast.effects[0].sigma)  # the distilled profile copies its teacher's
     # recorded when the script lived in examples/ (the profile's bytes are kept); it lives in experiments/ now
     assert full.fitted["command"].startswith("python examples/fit_city100_default.py")
+    assert (
+        "experiments/jitter_city100.py" in full.fitted["jitter_command"]
+        and "--copy-from" in fast.fitted["jitter_command"]
+    )
     assert (REPOSITORY / "experiments" / "fit_city100_default.py").is_file()
     assert full.fitted["effects"]["noise"]["kept"] is False
     assert full.quality["held_out_pairs"] == 16 and full.quality["fidelity"]["grid_ratio"] <= 2.0
