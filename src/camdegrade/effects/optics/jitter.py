@@ -95,14 +95,13 @@ class Jitter(Effect):
     def forward(self, image: Tensor, params: Mapping[str, Tensor] | None = None) -> Tensor:
         if float(self.sigma) == 0:
             return image.clone()
-        drawn = resolve_params(self, image, params)
-        size = image.shape[-2:]
-        field = displacement_field(
-            drawn["normal"].to(image.dtype), self.sigma.to(image.device), float(self.scale), size
-        )
+        field = self._field(tuple(image.shape[-2:]), resolve_params(self, image, params), image.dtype)
+        if field is None:
+            raise ValueError(f"params must hold the field's 'normal' draw for sigma={float(self.sigma):g}, got none")
         return jitter_image(image, field, float(self.sigma)).clamp(0.0, 1.0)
 
     def _field(self, size: tuple[int, int], params: Mapping[str, Tensor], dtype: torch.dtype) -> Tensor | None:
+        """The drawn field over a frame of ``size``, or None where nothing moves (``sigma`` 0, nothing drawn)."""
         if float(self.sigma) == 0 or "normal" not in params:
             return None
         normal = params["normal"].to(dtype)

@@ -64,16 +64,17 @@ def _distance(simulated: Tensor, real: Tensor) -> float:
     return float((simulated - real)[usable].pow(2).mean().sqrt()) if bool(usable.any()) else 0.0
 
 
-def judge_jitter(profile: CameraProfile, stage: Jitter, pairs: Pairs, seed: int) -> dict:
-    """The evidence of ``pairs`` (the validation pairs) for adding ``stage``: the sample's coherence with the clean
-    image per radial bin against the captures', without and with it (kept where the RMS distance falls by
+def judge_jitter(profile: CameraProfile, jittered: CameraProfile, pairs: Pairs, seed: int) -> dict:
+    """The evidence of ``pairs`` (the validation pairs) for ``jittered``, ``profile`` with a jitter stage
+    (:func:`with_jitter`): the sample's coherence with the clean image per radial bin against the captures', without
+    and with it (kept where the RMS distance falls by
     :data:`MIN_GAIN`), and the deterministic output's PSNR (at most
     :data:`~camdegrade.fitting.steps.texture.MAX_PSNR_LOSS_DB` lost)."""
     cleans = [clean for clean, _ in pairs]
     captures = [captured for _, captured in pairs]
     real = coherence(cleans, captures)
     evidence: dict[str, float] = {}
-    for when, candidate in (("before", profile), ("after", with_jitter(profile, stage))):
+    for when, candidate in (("before", profile), ("after", jittered)):
         samples = [eight_bit(image) for image in candidate.simulate(cleans, seed, stream="jitter-check")]
         means = candidate.simulate(cleans, seed, deterministic=True)
         evidence[f"val_coherence_distance_{when}"] = _distance(coherence(cleans, samples), real)
@@ -110,8 +111,9 @@ class JitterMatch(FitStep):
         return Jitter(min(sigma, Jitter.MAX_SIGMA))
 
     def judge(self, fit: PairedFit, stage: Jitter) -> dict:
+        jittered = with_jitter(fit.profile, stage)
         with torch.no_grad():
-            evidence = judge_jitter(fit.profile, stage, fit.judge_pairs(JITTER_PAIRS), fit.seed)
+            evidence = judge_jitter(fit.profile, jittered, fit.judge_pairs(JITTER_PAIRS), fit.seed)
         note = {"sigma": round(float(stage.sigma), 4), "scale": float(stage.scale)}
         note.update({key: round(value, 4) if isinstance(value, float) else value for key, value in evidence.items()})
         line = (
@@ -120,10 +122,10 @@ class JitterMatch(FitStep):
             f"{note['val_psnr_before']:.2f} -> {note['val_psnr_after']:.2f} dB)"
         )
         if note["kept"]:  # the coherence says a displacement; a fresh critic must not find the images easier to tell
-            note["critic"] = critic_guard(fit, fit.profile, with_jitter(fit.profile, stage))
+            note["critic"] = critic_guard(fit, fit.profile, jittered)
             note["kept"] = note["critic"]["not_easier"]
             line += f"; {guard_line(note['critic'])}"
         fit.say(f"{line} -> {'kept' if note['kept'] else 'dropped'}")
         if note["kept"]:
-            fit.profile = with_jitter(fit.profile, stage)
+            fit.profile = jittered
         return note
