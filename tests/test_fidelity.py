@@ -8,6 +8,7 @@ import math
 import pytest
 import torch
 
+from camdegrade.functional.analysis.images import radial_frequency
 from camdegrade.functional.optics.blur import blur_image
 from camdegrade.measures.critic import critic_test
 from camdegrade.measures.fidelity import (
@@ -51,6 +52,22 @@ def test_grid_rms_sees_a_grid_under_noise():
     noise = torch.randn(1, 3, 256, 256, generator=torch.Generator().manual_seed(1)) * (3 / 255)
     with_grid = (0.5 + noise + _grid_pattern(1.0)).clamp(0, 1)
     assert grid_rms(with_grid) == pytest.approx(1.0, abs=0.1)
+
+
+@pytest.mark.parametrize("height,width", [(8, 8), (7, 10)])
+def test_the_radial_frequency_of_an_rfft_grid(height: int, width: int):
+    """DC is 0, a row's last coefficient of an even width is Nyquist (0.5), and every coefficient of the rfft grid
+    is ``sqrt(fy² + fx²)`` in cycles/pixel, whatever the frame's parity."""
+    radius = radial_frequency(height, width)
+    assert radius.shape == (height, width // 2 + 1)
+    assert radius[0, 0] == 0
+    fy = [min(i, height - i) / height for i in range(height)]
+    fx = [j / width for j in range(width // 2 + 1)]
+    expected = torch.tensor([[math.hypot(y, x) for x in fx] for y in fy])
+    torch.testing.assert_close(radius, expected, rtol=0, atol=1e-6)
+    if width % 2 == 0:
+        assert radius[0, -1] == 0.5
+    assert radial_frequency(height, width, torch.float64).dtype == torch.float64
 
 
 def test_band_ratios_of_an_image_with_itself_are_zero():

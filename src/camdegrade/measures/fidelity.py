@@ -31,7 +31,7 @@ from dataclasses import asdict, dataclass
 import torch
 from torch import Tensor
 
-from camdegrade.functional.analysis.images import box_mean, flat_mask, hann2d, luma
+from camdegrade.functional.analysis.images import box_mean, flat_mask, hann2d, luma, radial_frequency
 from camdegrade.functional.analysis.noise import NoiseSums
 
 __all__ = [
@@ -105,7 +105,7 @@ def luma_spectrum(image: Tensor) -> tuple[Tensor, Tensor]:
     gray = luma(image.to(torch.float32)) * 255.0
     gray = gray - gray.mean((-2, -1), keepdim=True)
     power = torch.fft.rfft2(gray * hann2d(height, width)).abs().pow(2).double() / float(height * width)
-    radius = torch.sqrt(torch.fft.fftfreq(height)[:, None] ** 2 + torch.fft.rfftfreq(width)[None, :] ** 2)
+    radius = radial_frequency(height, width)
     return power, radius
 
 

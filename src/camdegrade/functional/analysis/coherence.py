@@ -20,7 +20,7 @@ from collections.abc import Sequence
 import torch
 from torch import Tensor
 
-from camdegrade.functional.analysis.images import hann2d, luma
+from camdegrade.functional.analysis.images import hann2d, luma, radial_frequency
 
 __all__ = ["BIN", "DETAIL_ABOVE", "HIGH_COHERENCE", "bin_centres", "coherence", "cross_spectra", "displacement_sigma"]
 
@@ -54,9 +54,7 @@ def cross_spectra(first: Sequence[Tensor], second: Sequence[Tensor]) -> Tensor:
         for image in (a, b):
             y = luma(image.detach().double().cpu())
             spectra.append(torch.fft.rfft2((y - y.mean()) * window))
-        fy = torch.fft.fftfreq(height, dtype=torch.float64).abs()[:, None]
-        fx = torch.fft.rfftfreq(width, dtype=torch.float64)[None, :]
-        index = ((fy**2 + fx**2).sqrt() / BIN).floor().long().flatten()
+        index = (radial_frequency(height, width, torch.float64) / BIN).floor().long().flatten()
         inside = index < BINS
         first_spectrum, second_spectrum = (s.flatten()[inside] for s in spectra)
         values = torch.stack(

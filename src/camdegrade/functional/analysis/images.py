@@ -33,6 +33,7 @@ __all__ = [
     "high_pass",
     "luma",
     "noisy_flat_mask",
+    "radial_frequency",
     "relative_flat_mask",
 ]
 
@@ -51,6 +52,13 @@ def hann2d(height: int, width: int, dtype: torch.dtype = torch.float32, device: 
     rows = torch.hann_window(height, periodic=False, dtype=dtype, device=device)
     cols = torch.hann_window(width, periodic=False, dtype=dtype, device=device)
     return rows[:, None] * cols[None, :]
+
+
+def radial_frequency(height: int, width: int, dtype: torch.dtype = torch.float32) -> Tensor:
+    """``(H, W // 2 + 1)`` radial frequency (cycles/pixel) of each ``rfft2`` coefficient of an ``H × W`` frame."""
+    rows = torch.fft.fftfreq(height, dtype=dtype)[:, None]
+    cols = torch.fft.rfftfreq(width, dtype=dtype)[None, :]
+    return torch.sqrt(rows**2 + cols**2)
 
 
 def box_mean(image: Tensor, size: int) -> Tensor:

@@ -7,7 +7,7 @@ from typing import TYPE_CHECKING
 import torch
 from torch import Tensor
 
-from camdegrade.functional.analysis.images import hann2d, luma
+from camdegrade.functional.analysis.images import hann2d, luma, radial_frequency
 from camdegrade.measures._common import ratio
 from camdegrade.measures.base import MeasuredPair, PairedFamily, register_family
 
@@ -24,9 +24,7 @@ MIN_POWER = 1e-8
 
 def band_index(height: int, width: int) -> Tensor:
     """``(H, W // 2 + 1)`` radial band (of :data:`BANDS`) of each ``rfft2`` frequency; −1 for the lowest ones."""
-    fy = torch.fft.fftfreq(height)[:, None]
-    fx = torch.fft.rfftfreq(width)[None, :]
-    radius = torch.sqrt(fy**2 + fx**2)
+    radius = radial_frequency(height, width)
     band = (radius / 0.5 * BANDS).long().clamp(max=BANDS - 1)
     return torch.where(radius < 1.0 / max(height, width), torch.full_like(band, -1), band)
 

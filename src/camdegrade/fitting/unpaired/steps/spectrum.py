@@ -24,7 +24,7 @@ from camdegrade.fitting.unpaired.steps.edges import (
     sharpens_away,
     simulated_width,
 )
-from camdegrade.functional.analysis.images import hann2d, luma
+from camdegrade.functional.analysis.images import hann2d, luma, radial_frequency
 
 __all__ = [
     "DetailResponseMatch",
@@ -80,7 +80,7 @@ def log_spectrum(image: Tensor) -> Tensor:
     gray = luma(image.double()) * 255.0
     height, width = gray.shape
     power = torch.fft.rfft2((gray - gray.mean()) * hann2d(height, width, torch.float64)).abs().pow(2)
-    radius = torch.sqrt(torch.fft.fftfreq(height)[:, None] ** 2 + torch.fft.rfftfreq(width)[None, :] ** 2).double()
+    radius = radial_frequency(height, width).double()
     band = torch.bucketize(radius, torch.tensor(SPECTRUM_EDGES, dtype=torch.float64), right=True) - 1
     inside = (band >= 0) & (band < len(SPECTRUM_EDGES) - 1)
     bands = len(SPECTRUM_EDGES) - 1
