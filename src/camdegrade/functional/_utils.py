@@ -82,3 +82,10 @@ def flat_param(value: ParamLike, image: Tensor, name: str, event_shape: tuple[in
 def as_channel_view(param: Tensor) -> Tensor:
     """A per-sample scalar ``(*lead)`` viewed as ``(*lead, 1, 1, 1)`` to broadcast over ``[3, H, W]``."""
     return param[..., None, None, None]
+
+
+def one_plane_at_a_time(transform: Callable[[Tensor], Tensor], planes: Tensor) -> Tensor:
+    """``transform`` of each ``(1, ...)`` slice of ``planes`` along the first dim, concatenated. For FFTs: a batched
+    transform may round differently from a single one (MKL's AVX-512 kernels do, by up to 4e-7), and an image must get
+    the same bytes alone as in any batch."""
+    return torch.cat([transform(plane) for plane in planes.split(1)])

@@ -14,6 +14,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
+from camdegrade.functional._utils import one_plane_at_a_time
 from camdegrade.functional.analysis.images import LUMA_WEIGHTS
 
 __all__ = ["SeparableTerm", "convolve_spectrum", "convolve_terms", "luma_plane", "terms_radius"]
@@ -69,5 +70,6 @@ def convolve_spectrum(planes: Tensor, gains_of: Callable[[int, int], Tensor], pa
     height, width = planes.shape[-2:]
     padded = F.pad(planes, (pad, pad, pad, pad), mode="reflect") if pad > 0 else planes
     size = padded.shape[-2:]
-    spectrum = torch.fft.rfft2(padded) * gains_of(*size)
-    return torch.fft.irfft2(spectrum, s=size)[..., pad : pad + height, pad : pad + width]
+    gains = gains_of(*size)
+    filtered = one_plane_at_a_time(lambda plane: torch.fft.irfft2(torch.fft.rfft2(plane) * gains, s=size), padded)
+    return filtered[..., pad : pad + height, pad : pad + width]

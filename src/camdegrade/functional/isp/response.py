@@ -18,7 +18,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from camdegrade.functional._utils import apply_float, check_image
+from camdegrade.functional._utils import apply_float, check_image, one_plane_at_a_time
 from camdegrade.functional.analysis.images import luma as luma_of
 
 __all__ = [
@@ -91,8 +91,9 @@ def filter_planes(planes: Tensor, gains: Tensor) -> Tensor:
     if pad > 0:
         flat = F.pad(flat, (pad, pad, pad, pad), mode="reflect")
     size = flat.shape[-2:]
-    spectrum = torch.fft.rfft2(flat) * cached_response_map(gains, *size, flat.dtype)
-    filtered = torch.fft.irfft2(spectrum, s=size)[..., pad : pad + height, pad : pad + width]
+    response = cached_response_map(gains, *size, flat.dtype)
+    filtered = one_plane_at_a_time(lambda plane: torch.fft.irfft2(torch.fft.rfft2(plane) * response, s=size), flat)
+    filtered = filtered[..., pad : pad + height, pad : pad + width]
     return filtered.reshape(planes.shape)
 
 

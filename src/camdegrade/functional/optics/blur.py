@@ -133,12 +133,19 @@ def _convolve_direct(padded: Tensor, kernels: Tensor) -> Tensor:
 
 
 def _convolve_fft(padded: Tensor, kernels: Tensor) -> Tensor:
-    """The 'valid' part of the convolution, via the FFT (large kernels; same result as the direct path)."""
-    height, width = padded.shape[-2:]
+    """The 'valid' part of the convolution, via the FFT (large kernels; same result as the direct path). One image
+    at a time: a batched FFT may round differently from a single one, and an image must get the same bytes alone as
+    in any batch."""
+    shape = padded.shape[-2:]
     size = kernels.shape[-1]
-    spectrum = torch.fft.rfft2(padded, s=(height, width))
-    kernel_spectrum = torch.fft.rfft2(kernels, s=(height, width))[:, None]
-    full = torch.fft.irfft2(spectrum * kernel_spectrum, s=(height, width))
+    if len(kernels) == 1:
+        kernels = kernels.expand(len(padded), -1, -1)
+    full = torch.cat(
+        [
+            torch.fft.irfft2(torch.fft.rfft2(plane, s=shape) * torch.fft.rfft2(kernel, s=shape), s=shape)
+            for plane, kernel in zip(padded.split(1), kernels, strict=True)
+        ]
+    )
     return full[..., size - 1 :, size - 1 :]
 
 
