@@ -11,7 +11,10 @@ that of the clean scenes, read on the Nikon frames of both, which the fit never 
 the camera's detail when it is the scenes'. Run from the repo root (each fit about 5 minutes on one core)::
 
     OMP_NUM_THREADS=1 .venv/bin/python experiments/unpaired_scene_assignment_city100.py --assignments 0 1 2 3 4 \
-        [--profiles DIR] [--json PATH] [--png PATH]
+        [--profiles DIR] [--critic-seeds 4] [--show K ...] [--json PATH] [--png PATH]
+
+``--critic-seeds N`` adds each row's image-only critic on the held-out pairs (2·N critics, each trained on half the
+scenes and scored on the other: :func:`camdegrade.measures.critic.repeated_critic_test`) and the paired built-in's.
 
 ``--profiles DIR`` keeps each fitted profile there as ``assignment{k}.safetensors`` and reuses one found there.
 The PNG: clean | capture | the simulation of each assignment of ``--show`` (default: the first four measured) | the
@@ -41,6 +44,7 @@ from camdegrade.fitting.unpaired.steps.spectrum import (
     mean_spectrum,
 )
 from camdegrade.functional.analysis.images import flat_mask, gradient_energy
+from camdegrade.measures.critic import repeated_critic_test
 from camdegrade.measures.fidelity import band_power, measure_fidelity
 
 FITTING_SCENES = CLEAN_SCENES + CAPTURED_SCENES
@@ -91,11 +95,21 @@ def profile_for(scenes, k: int, folder: Path | None):
     return profile, seconds
 
 
-def row(scenes, k: int, profile, seconds: float | None) -> dict:
-    clean, captured = assignment(k)
+def held_out_quality(scenes, profile, critic_seeds: int) -> dict:
+    """The held-out pairs' fidelity of ``profile`` (seed 0, 8-bit as stored) and, with ``critic_seeds``, its image-only
+    critic."""
     cleans = [as_unit(scenes[scene][0]) for scene in HELD_OUT]
     reals = [as_unit(scenes[scene][1]) for scene in HELD_OUT]
-    report = measure_fidelity(_stored(profile.simulate(cleans, 0)), reals, cleans).to_dict(digits=3)
+    sims = _stored(profile.simulate(cleans, 0))
+    report = measure_fidelity(sims, reals, cleans).to_dict(digits=3)
+    if critic_seeds:
+        critic = repeated_critic_test((cleans, reals, sims), HELD_OUT, critic_seeds, image_only=True)
+        report["critic_image_only"] = critic.to_dict()
+    return report
+
+
+def row(scenes, k: int, profile, seconds: float | None, critic_seeds: int = 0) -> dict:
+    clean, captured = assignment(k)
     tone = profile.fitted.get("effects", {}).get("color_tone", {})
     return {
         "assignment": k,
@@ -106,7 +120,7 @@ def row(scenes, k: int, profile, seconds: float | None) -> dict:
         "colour_gains": tone.get("gains"),
         "tone_change": tone.get("tone_change"),
         "content_bias": content_bias(scenes, clean, captured),
-        "held_out": report,
+        "held_out": held_out_quality(scenes, profile, critic_seeds),
     }
 
 
@@ -130,18 +144,24 @@ def side_by_side(scenes, profiles: dict[str, object], path: Path) -> None:
     save_png(labelled_grid(("clean", "capture", *profiles), rows, TILE), path)
 
 
+def critic_cell(report: dict) -> str:
+    critic = report.get("critic_image_only")
+    return "not measured" if critic is None else f"{critic['accuracy']:.3f} ± {critic['std']:.2f}"
+
+
 def format_table(table: list[dict]) -> str:
     centres = " / ".join(f"{c:.2f}" for c in band_centres()[-3:].tolist())
     lines = [
-        f"| assignment | stages | {band_heading()} | flat-noise ratio | PSNR dB | content bias at {centres} c/px |",
-        "|---|---|---|---|---|---|",
+        f"| assignment | stages | {band_heading()} | flat-noise ratio | PSNR dB | critic image-only | content bias at "
+        f"{centres} c/px |",
+        "|---|---|---|---|---|---|---|",
     ]
     for r in table:
         held = r["held_out"]
         bias = " / ".join(number(v, sign=True) for v in r["content_bias"][-3:])
         lines.append(
             f"| {r['assignment']} | {', '.join(r['stages'])} | {band_cell(held['bands'])} | "
-            f"{number(held['noise_ratio'])} | {held['psnr']:.2f} | {bias} |"
+            f"{number(held['noise_ratio'])} | {held['psnr']:.2f} | {critic_cell(held)} | {bias} |"
         )
     return "\n".join(lines)
 
@@ -151,11 +171,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--assignments", type=int, nargs="+", default=[0, 1, 2, 3, 4])
     parser.add_argument("--profiles", type=Path, default=None, help="keep and reuse the fitted profiles here")
     parser.add_argument("--show", type=int, nargs="+", default=None, help="assignments drawn in the PNG")
+    parser.add_argument("--critic-seeds", type=int, default=0, help="image-only critics: 2 per seed (0: none)")
     parser.add_argument("--json", type=Path, default=ROOT / "out" / "results" / "unpaired_scene_assignment.json")
     parser.add_argument("--png", type=Path, default=ROOT / "docs" / "unpaired_scene_assignment.png")
     args = parser.parse_args(argv)
     if not (args.data / "pairs.csv").is_file():
         parser.error(f"no pairs.csv in {args.data}; pass --data with the real-pairs folder")
+    if args.critic_seeds < 0:
+        parser.error(f"--critic-seeds must be 0 or more, got {args.critic_seeds}")
     if any(k < 0 for k in args.assignments):
         parser.error(f"--assignments must be 0 or more, got {args.assignments}")
     shown = args.show if args.show is not None else args.assignments[:4]
@@ -166,12 +189,14 @@ def main(argv: list[str] | None = None) -> int:
     table, profiles = [], {}
     for k in args.assignments:
         profile, seconds = profile_for(scenes, k, args.profiles)
-        table.append(row(scenes, k, profile, seconds))
+        table.append(row(scenes, k, profile, seconds, args.critic_seeds))
         if k in shown:
             profiles[f"assignment {k}"] = profile
         print(format_table(table[-1:]).splitlines()[-1], flush=True)
     profiles["paired built-in"] = load_profile("city100-iphonex")
     print(format_table(table))
+    built_in = held_out_quality(scenes, profiles["paired built-in"], args.critic_seeds)
+    print(f"paired built-in: bands {built_in['bands']}, critic image-only {critic_cell(built_in)}")
     precision = assignment_precision(scenes)
     print(
         f"scene spread, held-out bands' measure: std {precision['band_std']}, 35 vs 20 scenes' standard error "
@@ -179,7 +204,9 @@ def main(argv: list[str] | None = None) -> int:
     )
     side_by_side(scenes, profiles, args.png)
     args.json.parent.mkdir(parents=True, exist_ok=True)
-    args.json.write_text(json.dumps({"precision": precision, "rows": table}, indent=1, allow_nan=False) + "\n")
+    args.json.write_text(
+        json.dumps({"precision": precision, "built_in": built_in, "rows": table}, indent=1, allow_nan=False) + "\n"
+    )
     print(f"wrote {args.json} and {args.png}")
     return 0
 
