@@ -153,9 +153,9 @@ def test_the_plan_follows_edits_to_the_stages():
 
 def test_every_fft_path_gives_an_image_the_same_bytes_alone_as_in_a_batch():
     """The three FFT filters (a blur of radius ≥ FFT_RADIUS, the frequency response, a composed chain's spectrum
-    product) bit for bit batched and alone: a batched FFT rounds differently from single ones on some CPUs (MKL's
-    AVX-512 kernels on an Intel Xeon: 4e-7 on the frequency response; this failed there before each FFT ran one
-    image at a time)."""
+    product) bit for bit batched and alone on the CPU: a batched FFT rounds differently from single ones on some CPUs
+    (MKL's AVX-512 kernels on an Intel Xeon: 4e-7 on the frequency response; this failed there before each FFT ran
+    one image at a time). Not on a GPU, where the batch runs at once (``one_plane_at_a_time``)."""
     from camdegrade.functional.filtering import convolve_spectrum
     from camdegrade.functional.isp.response import frequency_response_image
     from camdegrade.functional.optics.blur import FFT_RADIUS, blur_image

@@ -207,7 +207,9 @@ def test_cuda_image_with_params_moved_to_it(name: str) -> None:
     on_cpu = effect(image, params)
     on_gpu = effect.cuda()(image.cuda(), {key: value.cuda() for key, value in params.items()})
     assert on_gpu.device.type == "cuda"
-    torch.testing.assert_close(on_gpu.cpu(), on_cpu, atol=2e-4 if name != "jpeg" else 0, rtol=0)
+    # JPEG: no coefficient rounds otherwise (that would move a pixel by a level or more); an H200 leaves one float32
+    # ulp (6e-8) on 40 % of the pixels (torch 2.11).
+    torch.testing.assert_close(on_gpu.cpu(), on_cpu, atol=2e-4 if name != "jpeg" else 1e-6, rtol=0)
 
 
 def test_constructor_errors_name_the_argument() -> None:

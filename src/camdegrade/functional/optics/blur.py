@@ -9,7 +9,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from camdegrade.functional._utils import ParamLike, apply_float, check_image, flat_param
+from camdegrade.functional._utils import ParamLike, apply_float, check_image, flat_param, one_plane_at_a_time
 from camdegrade.functional.isp.color import linear_to_srgb, linear_to_srgb_, srgb_to_linear
 
 __all__ = [
@@ -133,20 +133,18 @@ def _convolve_direct(padded: Tensor, kernels: Tensor) -> Tensor:
 
 
 def _convolve_fft(padded: Tensor, kernels: Tensor) -> Tensor:
-    """The 'valid' part of the convolution, via the FFT (large kernels; same result as the direct path). One image
-    at a time: a batched FFT may round differently from a single one, and an image must get the same bytes alone as
-    in any batch."""
+    """The 'valid' part of the convolution, via the FFT (large kernels; same result as the direct path), one image at
+    a time on a CPU (:func:`~camdegrade.functional._utils.one_plane_at_a_time`)."""
     shape = padded.shape[-2:]
     size = kernels.shape[-1]
-    if len(kernels) == 1:
-        kernels = kernels.expand(len(padded), -1, -1)
-    full = torch.cat(
-        [
-            torch.fft.irfft2(torch.fft.rfft2(plane, s=shape) * torch.fft.rfft2(kernel, s=shape), s=shape)
-            for plane, kernel in zip(padded.split(1), kernels, strict=True)
-        ]
-    )
-    return full[..., size - 1 :, size - 1 :]
+    kernels = kernels.expand(len(padded), -1, -1) if len(kernels) == 1 else kernels
+    indices = torch.arange(len(padded), device=padded.device)
+
+    def convolved(index: Tensor) -> Tensor:
+        spectra = torch.fft.rfft2(padded[index], s=shape) * torch.fft.rfft2(kernels[index], s=shape)[:, None]
+        return torch.fft.irfft2(spectra, s=shape)
+
+    return one_plane_at_a_time(convolved, indices)[..., size - 1 :, size - 1 :]
 
 
 def blur_image(
