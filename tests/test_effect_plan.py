@@ -179,6 +179,19 @@ def test_every_fft_path_gives_an_image_the_same_bytes_alone_as_in_a_batch():
         assert torch.equal(together, alone), name
 
 
+def test_an_empty_batch_passes_every_fft_path_and_the_frequency_response():
+    """No images in, no images out, where the FFT of an empty batch is an error (MKL's; it was, before this test)."""
+    from camdegrade.functional.filtering import convolve_spectrum
+    from camdegrade.functional.optics.blur import FFT_RADIUS, blur_image
+
+    empty = torch.rand(0, 3, 32, 40)
+    response = FrequencyResponse.from_radial([0.1, 0.3], [1.2, 0.8], knots=9)
+    assert response(empty).shape == (0, 3, 32, 40)
+    assert blur_image(empty, FFT_RADIUS / 2.0).shape == (0, 3, 32, 40)
+    gains = lambda height, width: torch.ones(height, width // 2 + 1, dtype=torch.complex64)  # noqa: E731
+    assert convolve_spectrum(empty, gains, 3).shape == (0, 3, 32, 40)
+
+
 def test_batched_equals_unbatched_and_the_input_is_untouched():
     profile = load_profile("city100-iphonex").without_randomness()  # its jitter's centre: draws nothing
     image = _photo(3, 40, 56).float() / 255

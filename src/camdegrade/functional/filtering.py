@@ -67,6 +67,8 @@ def convolve_spectrum(planes: Tensor, gains_of: Callable[[int, int], Tensor], pa
     """Float ``planes`` ``(N, C, H, W)`` filtered by the transfer ``gains_of(h, w)`` (the gain of every ``rfft2``
     frequency of an ``h × w`` frame, in the planes' complex dtype and device) of the planes with ``pad`` rows and
     columns of mirrored border on each side (at most ``H − 1`` and ``W − 1``): a new tensor."""
+    if planes.numel() == 0:  # an FFT of no planes is an error in MKL
+        return planes.clone()
     height, width = planes.shape[-2:]
     padded = F.pad(planes, (pad, pad, pad, pad), mode="reflect") if pad > 0 else planes
     size = padded.shape[-2:]

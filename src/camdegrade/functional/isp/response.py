@@ -85,6 +85,8 @@ def cached_response_map(gains: Tensor, height: int, width: int, dtype: torch.dty
 def filter_planes(planes: Tensor, gains: Tensor) -> Tensor:
     """Float ``(..., H, W)`` planes filtered by the response ``gains`` (mirrored borders of :data:`PAD` pixels, or
     fewer where a plane is smaller)."""
+    if planes.numel() == 0:  # an FFT of no planes is an error in MKL
+        return planes.clone()
     height, width = planes.shape[-2:]
     pad = min(PAD, height - 1, width - 1)
     flat = planes.reshape(-1, 1, height, width)
