@@ -84,13 +84,14 @@ def as_channel_view(param: Tensor) -> Tensor:
     return param[..., None, None, None]
 
 
-def one_plane_at_a_time(transform: Callable[[Tensor], Tensor], planes: Tensor) -> Tensor:
-    """``transform`` of each ``(1, ...)`` slice of ``planes`` along the first dim, concatenated, on a CPU; elsewhere
-    of the whole batch at once. For FFTs: on a CPU a batched transform may round differently from a single one
-    (MKL's AVX-512 kernels do, by up to 4e-7), and an image must get the same bytes alone as in any batch, which one
-    at a time also costs less (110 against 158 ms for 64 planes of 224², one thread). On a GPU one at a time costs
-    about 50 times as much (12 against 0.22 ms, an H200) and cuFFT's batched plans round differently from single
-    ones too: there an image's last bits may depend on its batch."""
-    if planes.device.type != "cpu":
-        return transform(planes)
-    return torch.cat([transform(plane) for plane in planes.split(1)])
+def one_plane_at_a_time(transform: Callable[..., Tensor], *planes: Tensor) -> Tensor:
+    """``transform`` of each ``(1, ...)`` slice of ``planes`` along the first dim (several tensors: sliced alike,
+    as long as one another), concatenated, on a CPU; elsewhere of the whole batch at once. For FFTs: on a CPU a
+    batched transform may round differently from a single one (MKL's AVX-512 kernels do, by up to 4e-7), and an
+    image must get the same bytes alone as in any batch, which one at a time also costs less (110 against 158 ms for
+    64 planes of 224², one thread). On a GPU one at a time costs about 50 times as much (12 against 0.22 ms, an
+    H200) and cuFFT's batched plans round differently from single ones too: there an image's last bits may depend
+    on its batch."""
+    if planes[0].device.type != "cpu":
+        return transform(*planes)
+    return torch.cat([transform(*slices) for slices in zip(*(plane.split(1) for plane in planes), strict=True)])

@@ -12,14 +12,15 @@ References:
 
 from __future__ import annotations
 
+import functools
 from collections import OrderedDict
 
 import torch
-import torch.nn.functional as F
 from torch import Tensor
 
-from camdegrade.functional._utils import apply_float, check_image, one_plane_at_a_time
+from camdegrade.functional._utils import apply_float, check_image
 from camdegrade.functional.analysis.images import luma as luma_of
+from camdegrade.functional.filtering import convolve_spectrum
 
 __all__ = [
     "MAPS_KEPT",
@@ -85,18 +86,10 @@ def cached_response_map(gains: Tensor, height: int, width: int, dtype: torch.dty
 def filter_planes(planes: Tensor, gains: Tensor) -> Tensor:
     """Float ``(..., H, W)`` planes filtered by the response ``gains`` (mirrored borders of :data:`PAD` pixels, or
     fewer where a plane is smaller)."""
-    if planes.numel() == 0:  # an FFT of no planes is an error in MKL
-        return planes.clone()
     height, width = planes.shape[-2:]
-    pad = min(PAD, height - 1, width - 1)
-    flat = planes.reshape(-1, 1, height, width)
-    if pad > 0:
-        flat = F.pad(flat, (pad, pad, pad, pad), mode="reflect")
-    size = flat.shape[-2:]
-    response = cached_response_map(gains, *size, flat.dtype)
-    filtered = one_plane_at_a_time(lambda plane: torch.fft.irfft2(torch.fft.rfft2(plane) * response, s=size), flat)
-    filtered = filtered[..., pad : pad + height, pad : pad + width]
-    return filtered.reshape(planes.shape)
+    flat = planes.reshape(planes.shape[:-2].numel(), 1, height, width)  # -1 is ambiguous for no pixels
+    response = functools.partial(cached_response_map, gains, dtype=flat.dtype)
+    return convolve_spectrum(flat, response, min(PAD, height - 1, width - 1)).reshape(planes.shape)
 
 
 def frequency_response_image(image: Tensor, gains: Tensor) -> Tensor:

@@ -138,13 +138,12 @@ def _convolve_fft(padded: Tensor, kernels: Tensor) -> Tensor:
     shape = padded.shape[-2:]
     size = kernels.shape[-1]
     kernels = kernels.expand(len(padded), -1, -1) if len(kernels) == 1 else kernels
-    indices = torch.arange(len(padded), device=padded.device)
 
-    def convolved(index: Tensor) -> Tensor:
-        spectra = torch.fft.rfft2(padded[index], s=shape) * torch.fft.rfft2(kernels[index], s=shape)[:, None]
+    def convolved(planes: Tensor, kernel: Tensor) -> Tensor:
+        spectra = torch.fft.rfft2(planes, s=shape) * torch.fft.rfft2(kernel, s=shape)[:, None]
         return torch.fft.irfft2(spectra, s=shape)
 
-    return one_plane_at_a_time(convolved, indices)[..., size - 1 :, size - 1 :]
+    return one_plane_at_a_time(convolved, padded, kernels)[..., size - 1 :, size - 1 :]
 
 
 def blur_image(
